@@ -1,0 +1,1 @@
+"""Evaluation protocol of GS-PI: reads the canonical layout, never imports gspi."""
