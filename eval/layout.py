@@ -1,0 +1,233 @@
+"""The canonical on-disk layout of scenes, datasets and predictions (docs/FORMAT.md).
+
+Everything that reads or writes `scene.json`, `splits.json`, `meta.json` or a per-view folder
+goes through this module, so the evaluator, the pipeline and every baseline adapter agree.
+Errors are `LayoutError`s that name the file and the problem.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from eval.imageio import ImageFormatError, read_exr, read_png, write_exr, write_png
+
+FORMAT_VERSION = 1
+CAMERA_CONVENTION = "opencv"  # x right, y down, z forward; w2c maps world -> camera
+MATERIAL_CHANNELS = ("albedo", "roughness", "metallic")
+SPLITS = ("train", "val", "test")
+
+# file name -> (reader kind, channels). The single table of per-view files.
+VIEW_FILES = {
+    "rgb.exr": ("exr", 3),        # linear HDR input radiance, black background
+    "rgb.png": ("png", 3),        # 8-bit sRGB preview of rgb.exr (clamp + sRGB), not scored
+    "albedo.png": ("png", 3),     # 16-bit, sRGB-encoded base colour
+    "roughness.png": ("png", 1),  # 16-bit, linear
+    "metallic.png": ("png", 1),   # 16-bit, linear
+    "normal.exr": ("exr", 3),     # world-space unit normals, 0 outside the mask
+    "depth.exr": ("exr", 1),      # camera-space z (OpenCV), world units, 0 outside the mask
+    "mask.png": ("png", 1),       # 8-bit, 255 = foreground
+}
+
+
+class LayoutError(ValueError):
+    """A scene, dataset or prediction folder does not follow docs/FORMAT.md."""
+
+
+@dataclass(frozen=True)
+class View:
+    """One camera of a scene: `K` pixel intrinsics (pixel centres at +0.5), `w2c` OpenCV."""
+
+    id: str
+    split: str
+    K: np.ndarray    # [3, 3]
+    w2c: np.ndarray  # [4, 4]
+
+    @property
+    def camera_center(self) -> np.ndarray:  # [3] world
+        R, t = self.w2c[:3, :3], self.w2c[:3, 3]
+        return -R.T @ t
+
+
+@dataclass
+class Scene:
+    """A ground-truth scene folder: `scene.json` plus `<split>/<view id>/` and `envmaps/`."""
+
+    root: Path
+    name: str
+    width: int
+    height: int
+    views: dict[str, list[View]]
+    capture_env: str
+    relight_envs: list[str]
+    extra: dict = field(default_factory=dict)  # free-form metadata (generator settings, source)
+
+    def view_dir(self, split: str, view_id: str) -> Path:
+        return self.root / split / view_id
+
+    def envmap_path(self, name: str) -> Path:
+        return self.root / "envmaps" / f"{name}.exr"
+
+    def split_views(self, split: str) -> list[View]:
+        if split not in self.views:
+            raise LayoutError(f"{self.root / 'scene.json'}: scene has no split {split!r} "
+                              f"(has {sorted(self.views)})")
+        return self.views[split]
+
+
+def _matrix(value, shape: tuple[int, int], where: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != shape or not np.isfinite(arr).all():
+        raise LayoutError(f"{where}: expected a finite {shape[0]}x{shape[1]} matrix, got {value!r}")
+    return arr
+
+
+def _load_json(path: Path) -> dict:
+    if not path.is_file():
+        raise LayoutError(f"{path}: file not found")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise LayoutError(f"{path}: invalid JSON ({exc})") from exc
+
+
+def read_scene(scene_dir: str | Path) -> Scene:
+    """Parse and validate `<scene_dir>/scene.json`."""
+    root = Path(scene_dir)
+    path = root / "scene.json"
+    data = _load_json(path)
+    for key in ("name", "width", "height", "views", "capture_env", "relight_envs"):
+        if key not in data:
+            raise LayoutError(f"{path}: missing key {key!r}")
+    if data.get("camera_convention", CAMERA_CONVENTION) != CAMERA_CONVENTION:
+        raise LayoutError(f"{path}: camera_convention must be {CAMERA_CONVENTION!r}")
+    views: dict[str, list[View]] = {}
+    for split, entries in data["views"].items():
+        seen = set()
+        views[split] = []
+        for i, entry in enumerate(entries):
+            where = f"{path}: views.{split}[{i}]"
+            if "id" not in entry:
+                raise LayoutError(f"{where}: missing 'id'")
+            vid = str(entry["id"])
+            if vid in seen:
+                raise LayoutError(f"{where}: duplicate view id {vid!r}")
+            seen.add(vid)
+            views[split].append(View(vid, split, _matrix(entry.get("K"), (3, 3), where + ".K"),
+                                     _matrix(entry.get("w2c"), (4, 4), where + ".w2c")))
+    known = {"format", "format_version", "name", "width", "height", "camera_convention", "views",
+             "capture_env", "relight_envs"}
+    return Scene(root=root, name=str(data["name"]), width=int(data["width"]),
+                 height=int(data["height"]), views=views, capture_env=str(data["capture_env"]),
+                 relight_envs=[str(e) for e in data["relight_envs"]],
+                 extra={k: v for k, v in data.items() if k not in known})
+
+
+def write_scene_json(scene: Scene) -> Path:
+    """Write `scene.json` for `scene` (views in their stored order)."""
+    data = {
+        "format": "gspi-scene", "format_version": FORMAT_VERSION, "name": scene.name,
+        "width": scene.width, "height": scene.height, "camera_convention": CAMERA_CONVENTION,
+        "capture_env": scene.capture_env, "relight_envs": list(scene.relight_envs),
+        "views": {split: [{"id": v.id, "K": v.K.tolist(), "w2c": v.w2c.tolist()} for v in vs]
+                  for split, vs in scene.views.items()},
+        **scene.extra,
+    }
+    scene.root.mkdir(parents=True, exist_ok=True)
+    path = scene.root / "scene.json"
+    write_json_atomic(path, data)
+    return path
+
+
+def write_json_atomic(path: Path, data) -> None:
+    """Write JSON through a temporary file and a rename, so readers never see half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+    tmp.replace(path)
+
+
+def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
+    """`<dataset>/splits.json` = {"train": [scene names], "val": [...], "test": [...]}."""
+    path = Path(dataset_dir) / "splits.json"
+    data = _load_json(path)
+    out = {}
+    for split, names in data.items():
+        if not isinstance(names, list):
+            raise LayoutError(f"{path}: split {split!r} must be a list of scene names")
+        out[split] = [str(n) for n in names]
+    return out
+
+
+def read_view_file(view_dir: Path, name: str) -> np.ndarray:
+    """Read one per-view file of the layout as float32 HxWxC (see VIEW_FILES)."""
+    if name not in VIEW_FILES:
+        raise ValueError(f"unknown per-view file {name!r}; allowed: {', '.join(VIEW_FILES)}")
+    kind, channels = VIEW_FILES[name]
+    path = Path(view_dir) / name
+    try:
+        arr = read_exr(path) if kind == "exr" else read_png(path, channels=channels)
+    except ImageFormatError as exc:
+        raise LayoutError(str(exc)) from exc
+    if arr.shape[-1] != channels:
+        raise LayoutError(f"{path}: expected {channels} channel(s), found {arr.shape[-1]}")
+    return arr
+
+
+def material_file(channel: str) -> str:
+    if channel not in MATERIAL_CHANNELS:
+        raise ValueError(f"unknown material channel {channel!r}; allowed: {MATERIAL_CHANNELS}")
+    return f"{channel}.png"
+
+
+def write_material(view_dir: Path, channel: str, values: np.ndarray) -> Path:
+    """Write a material map in its canonical encoding (16-bit PNG).
+
+    Args:
+        values: albedo HxWx3 already sRGB-encoded in [0, 1]; roughness/metallic HxW(x1) linear.
+    """
+    path = Path(view_dir) / material_file(channel)
+    write_png(path, values, bits=16)
+    return path
+
+
+def write_view_file(view_dir: Path, name: str, values: np.ndarray) -> Path:
+    """Write any per-view file in its canonical encoding (see VIEW_FILES)."""
+    if name not in VIEW_FILES:
+        raise ValueError(f"unknown per-view file {name!r}; allowed: {', '.join(VIEW_FILES)}")
+    kind, _ = VIEW_FILES[name]
+    path = Path(view_dir) / name
+    if kind == "exr":
+        write_exr(path, values)
+    else:
+        write_png(path, values, bits=8 if name in ("rgb.png", "mask.png") else 16)
+    return path
+
+
+def read_meta(pred_scene_dir: Path) -> dict:
+    """`<pred>/<scene>/meta.json`: {"method": str, "runtime_s": {"material", "end_to_end"}}.
+
+    A missing file is allowed (e.g. a scene folder evaluated as the oracle): returns {}.
+    """
+    path = Path(pred_scene_dir) / "meta.json"
+    if not path.exists():
+        return {}
+    data = _load_json(path)
+    runtime = data.get("runtime_s", {})
+    for key, value in runtime.items():
+        if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value)):
+            raise LayoutError(f"{path}: runtime_s.{key} must be a finite number or null")
+    return data
+
+
+def write_meta(pred_scene_dir: Path, *, method: str, material_s: float | None,
+               end_to_end_s: float | None, **extra) -> Path:
+    path = Path(pred_scene_dir) / "meta.json"
+    write_json_atomic(path, {"method": method,
+                             "runtime_s": {"material": material_s, "end_to_end": end_to_end_s},
+                             **extra})
+    return path
