@@ -1,0 +1,221 @@
+"""Score a prediction folder against a ground-truth dataset under a protocol.
+
+`evaluate(gt_root, pred_root, protocol)` walks every scene present in the prediction folder,
+every view of the protocol's split and every channel, and returns per-view rows plus the
+summary (mean over images) and run information. Nothing here knows how predictions were made.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from eval.imageio import read_exr
+from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_meta,
+                         read_scene, read_view_file)
+from eval.metrics import masked_lpips, masked_psnr, masked_ssim
+from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
+from eval.views import relight_view, view_directions
+
+log = logging.getLogger(__name__)
+METRICS = ("psnr", "ssim", "lpips")
+
+
+@dataclass
+class EvalResult:
+    rows: list[dict]                 # one per (scene, view, channel, env)
+    summary: dict                    # {channel: {metric: mean}} for channels the method has
+    info: dict = field(default_factory=dict)  # method, protocol, runtimes, missing views, ...
+
+
+def find_scenes(gt_root: Path) -> dict[str, Path]:
+    """Scene name -> folder, for a dataset folder or a single scene folder."""
+    gt_root = Path(gt_root)
+    if (gt_root / "scene.json").is_file():
+        return {read_scene(gt_root).name: gt_root}
+    scenes = {p.parent.name: p.parent for p in sorted(gt_root.glob("*/scene.json"))}
+    if not scenes:
+        raise LayoutError(f"{gt_root}: no scene.json here or in any subfolder")
+    return scenes
+
+
+def scenes_in_prediction(pred_root: Path, gt_scenes: dict[str, Path]) -> list[str]:
+    """Names of ground-truth scenes that have a folder in the prediction."""
+    pred_root = Path(pred_root)
+    if not pred_root.is_dir():
+        raise LayoutError(f"{pred_root}: prediction folder not found")
+    if (pred_root / "scene.json").is_file() and pred_root.name in gt_scenes:
+        return [pred_root.name]  # a single scene folder given as the prediction
+    names = [p.name for p in sorted(pred_root.iterdir()) if p.is_dir() and p.name in gt_scenes]
+    unknown = [p.name for p in pred_root.iterdir()
+               if p.is_dir() and not p.name.startswith(".") and p.name not in gt_scenes]
+    if unknown:
+        log.warning("%s: folders that are not ground-truth scenes are ignored: %s",
+                    pred_root, ", ".join(sorted(unknown)))
+    if not names:
+        raise LayoutError(f"{pred_root}: no scene of the ground truth is present in the "
+                          f"prediction (ground-truth scenes: {', '.join(sorted(gt_scenes))})")
+    return names
+
+
+def _tensor(arr: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(arr))
+
+
+def _load_gt_view(scene: Scene, view) -> dict:
+    vdir = scene.view_dir(view.split, view.id)
+    out = {name: _tensor(read_view_file(vdir, f"{name}.png")) for name in MATERIAL_CHANNELS}
+    out["normal"] = _tensor(read_view_file(vdir, "normal.exr"))
+    out["mask"] = _tensor(read_view_file(vdir, "mask.png"))[..., 0] > 0.5
+    if not out["mask"].any():
+        raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
+    for name, t in out.items():
+        if t.shape[:2] != (scene.height, scene.width):
+            raise LayoutError(f"{vdir}/{name}: size {tuple(t.shape[:2])} != scene "
+                              f"{scene.height}x{scene.width} in scene.json")
+    out["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width)
+    return out
+
+
+def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
+    out = {}
+    for name in MATERIAL_CHANNELS:
+        path = pred_dir / material_file(name)
+        if path.exists():
+            arr = read_view_file(pred_dir, material_file(name))
+            if arr.shape[:2] != shape:
+                raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
+            out[name] = _tensor(arr)
+    return out
+
+
+def _score(pred, gt, mask, protocol, net) -> dict:
+    return {"psnr": masked_psnr(pred, gt, mask),
+            "ssim": masked_ssim(pred, gt, mask, background=protocol.background),
+            "lpips": masked_lpips(pred, gt, mask, net=net, mode=protocol.lpips.mode,
+                                  background=protocol.background)}
+
+
+class EnvironmentCache:
+    """Prefiltered environments, one per EXR file, built on first use."""
+
+    def __init__(self):
+        self._envs: dict[Path, object] = {}
+
+    def get(self, path: Path):
+        if path not in self._envs:
+            from eval.relight import prefilter_environment
+            self._envs[path] = prefilter_environment(_tensor(read_exr(path)))
+        return self._envs[path]
+
+
+def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: EnvironmentCache
+                   ) -> tuple[list[dict], list[dict]]:
+    """Rows for one scene and the list of missing (view, channel) entries."""
+    views = scene.split_views(protocol.split)
+    gt = {v.id: _load_gt_view(scene, v) for v in views}
+    preds, missing = {}, []
+    for v in views:
+        pdir = pred_scene / protocol.split / v.id
+        preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width)) if pdir.is_dir() else {}
+    modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
+    for v in views:
+        for c in modelled:
+            if c not in preds[v.id]:
+                missing.append({"scene": scene.name, "view": v.id, "channel": c})
+    if protocol.fail_on_missing_view and missing:
+        raise LayoutError(f"{pred_scene}: missing prediction files: {missing[:5]} ...")
+
+    have = [v.id for v in views if "albedo" in preds[v.id]]
+    scale = fit_albedo_scale([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have],
+                             [gt[i]["mask"] for i in have],
+                             protocol.albedo_alignment if protocol.alignment_scope == "scene"
+                             else "none")
+    rows = []
+    for v in views:
+        g, p = gt[v.id], preds[v.id]
+        if "albedo" in p:
+            s = scale if protocol.alignment_scope == "scene" else fit_albedo_scale(
+                [p["albedo"]], [g["albedo"]], [g["mask"]], protocol.albedo_alignment)
+            p = dict(p, albedo_aligned=apply_albedo_scale(p["albedo"], s))
+        for c in MATERIAL_CHANNELS:
+            if c in protocol.channels and c in p:
+                pred = p["albedo_aligned"] if c == "albedo" else p[c]
+                rows.append({"scene": scene.name, "view": v.id, "channel": c, "env": "",
+                             **_score(pred, g[c], g["mask"], protocol, net)})
+        if "relight" in protocol.channels and "albedo" in p and \
+                all(c in p for c in modelled):
+            rows += _relight_rows(scene, v, g, p, protocol, net, envs)
+    return rows, missing
+
+
+def _relight_rows(scene, view, g, p, protocol, net, envs) -> list[dict]:
+    cfg = protocol.relight
+    h, w = g["mask"].shape
+    albedo = p["albedo_aligned"] if cfg.apply_albedo_alignment else p["albedo"]
+    rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness)))
+    metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic)))
+    rows = []
+    for env_name in (cfg.envs or scene.relight_envs):
+        env = envs.get(scene.envmap_path(env_name))
+        ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
+        out = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
+        rows.append({"scene": scene.name, "view": view.id, "channel": "relight", "env": env_name,
+                     **_score(display_relit(out, cfg), display_relit(ref, cfg), g["mask"],
+                              protocol, net)})
+    return rows
+
+
+def summarise(rows: list[dict]) -> dict:
+    """{channel: {metric: mean over images}} in the fixed channel order; absent if no row."""
+    summary = {}
+    for channel in (*MATERIAL_CHANNELS, "relight"):
+        sel = [r for r in rows if r["channel"] == channel]
+        if sel:
+            summary[channel] = {m: float(np.mean([r[m] for r in sel])) for m in METRICS}
+    return summary
+
+
+def _mean_runtime(metas: list[dict], key: str) -> float | None:
+    vals = [m.get("runtime_s", {}).get(key) for m in metas]
+    vals = [v for v in vals if v is not None]
+    return float(np.mean(vals)) / 60.0 if vals else None
+
+
+def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
+             method: str | None = None, progress: bool = False) -> EvalResult:
+    """Evaluate every scene present in `pred_root` (docs/PROTOCOL.md)."""
+    gt_scenes = find_scenes(Path(gt_root))
+    names = scenes_in_prediction(Path(pred_root), gt_scenes)
+    if net is None and "lpips" in METRICS:
+        from eval.lpips_net import load_lpips
+        net = load_lpips(net=protocol.lpips.net, version=str(protocol.lpips.version))
+    envs, rows, missing, metas = EnvironmentCache(), [], [], []
+    iterator = names
+    if progress:
+        from tqdm import tqdm
+        iterator = tqdm(names, desc="eval", unit="scene")
+    for name in iterator:
+        pred_scene = Path(pred_root) if Path(pred_root).name == name and \
+            (Path(pred_root) / "scene.json").is_file() else Path(pred_root) / name
+        scene_rows, scene_missing = evaluate_scene(read_scene(gt_scenes[name]), pred_scene,
+                                                   protocol, net, envs)
+        rows += scene_rows
+        missing += scene_missing
+        metas.append(read_meta(pred_scene))
+    methods = sorted({m["method"] for m in metas if "method" in m})
+    info = {
+        "method": method or (methods[0] if len(methods) == 1 else Path(pred_root).name),
+        "protocol": {"name": protocol.name, "version": int(protocol.version)},
+        "scenes": names, "num_images": len(rows), "missing": missing,
+        "runtime_min": {"material": _mean_runtime(metas, "material"),
+                        "end_to_end": _mean_runtime(metas, "end_to_end")},
+        "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
+    }
+    if any(math.isinf(r["psnr"]) for r in rows):
+        info["note"] = "identical images score PSNR = inf (mean is inf if any image is identical)"
+    return EvalResult(rows=rows, summary=summarise(rows), info=info)

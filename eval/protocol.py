@@ -1,0 +1,49 @@
+"""Protocol steps between reading files and computing metrics: albedo alignment, tone mapping.
+
+Pure functions on tensors; `eval/evaluate.py` applies them in the order docs/PROTOCOL.md gives.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from eval.colorspace import linear_to_srgb, srgb_to_linear, tonemap
+
+
+def fit_albedo_scale(pred_srgb: list[Tensor], gt_srgb: list[Tensor], masks: list[Tensor],
+                     mode: str) -> Tensor:
+    """Least-squares scale s minimising |s * pred - gt|^2 in LINEAR albedo over masked pixels.
+
+    Args:
+        pred_srgb, gt_srgb: lists of [H, W, 3] sRGB-encoded albedos (pooled together).
+        masks: matching [H, W] bool masks.
+        mode: "none" -> ones, "scale" -> one scale for all channels, "per_channel" -> three.
+    Returns:
+        [3] scale (linear space).
+    """
+    if mode == "none":
+        return torch.ones(3, dtype=torch.float64)
+    p = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(pred_srgb, masks)])  # [P, 3]
+    g = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(gt_srgb, masks)])
+    if mode == "scale":
+        den = (p * p).sum()
+        s = (p * g).sum() / den if den > 0 else torch.tensor(1.0, dtype=torch.float64)
+        return s.expand(3).clone()
+    if mode == "per_channel":
+        den = (p * p).sum(0)
+        return torch.where(den > 0, (p * g).sum(0) / den.clamp_min(1e-30), torch.ones(3).double())
+    raise ValueError(f"unknown albedo alignment {mode!r}; allowed: none, scale, per_channel")
+
+
+def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor) -> Tensor:
+    """Scale an sRGB-encoded albedo in linear space, clamp to [0, 1], re-encode."""
+    if torch.all(scale == 1):
+        return albedo_srgb
+    lin = srgb_to_linear(albedo_srgb.double()) * scale.to(torch.float64)
+    return linear_to_srgb(lin.clamp(0.0, 1.0)).to(albedo_srgb.dtype)
+
+
+def display_relit(radiance_linear: Tensor, relight_cfg) -> Tensor:
+    """Linear relit radiance -> display values in [0, 1] as the protocol states."""
+    return tonemap(radiance_linear, mode=relight_cfg.tonemap,
+                   exposure_stops=float(relight_cfg.exposure_stops), srgb=bool(relight_cfg.srgb))

@@ -1,0 +1,69 @@
+"""Writing an evaluation to disk (per_view.csv, summary.json, eval_meta.json) and printing it."""
+from __future__ import annotations
+
+import json
+import math
+import platform
+import subprocess
+from importlib import metadata
+from pathlib import Path
+
+import pandas as pd
+
+from eval.evaluate import EvalResult
+
+PACKAGES = ("torch", "numpy", "scikit-image", "kornia", "OpenEXR", "hydra-core")
+
+
+def environment_info() -> dict:
+    """Package versions, Python, machine and the git commit of this checkout (if any)."""
+    versions = {}
+    for name in PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).parent, timeout=5).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        commit = None
+    return {"packages": versions, "python": platform.python_version(),
+            "machine": platform.machine(), "git_commit": commit}
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def write_result(out_dir: str | Path, result: EvalResult, protocol_dict: dict | None = None) -> None:
+    """Write the three result files atomically (a killed run never leaves half a file).
+
+    summary.json holds exactly {channel: {psnr, ssim, lpips}}; a PSNR of identical images is
+    written as the JSON extension `Infinity` (Python's json reads it back as inf).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    frame = pd.DataFrame(result.rows, columns=["scene", "view", "channel", "env", "psnr", "ssim",
+                                               "lpips"])
+    _write_text_atomic(out / "per_view.csv", frame.to_csv(index=False))
+    _write_text_atomic(out / "summary.json", json.dumps(result.summary, indent=2) + "\n")
+    info = dict(result.info, protocol_config=protocol_dict, environment=environment_info())
+    _write_text_atomic(out / "eval_meta.json", json.dumps(info, indent=2) + "\n")
+
+
+def format_summary(result: EvalResult) -> str:
+    """Plain-text table: channels as rows, PSNR (dB), SSIM (%), LPIPS (%) as columns."""
+    lines = [f"method: {result.info.get('method')}   protocol: "
+             f"{result.info['protocol']['name']} v{result.info['protocol']['version']}   "
+             f"images: {result.info['num_images']}",
+             f"{'channel':<10} {'PSNR':>8} {'SSIM(%)':>8} {'LPIPS(%)':>9}"]
+    for channel, m in result.summary.items():
+        psnr = "inf" if math.isinf(m["psnr"]) else f"{m['psnr']:.2f}"
+        lines.append(f"{channel:<10} {psnr:>8} {100 * m['ssim']:>8.2f} {100 * m['lpips']:>9.2f}")
+    if result.info.get("missing"):
+        lines.append(f"missing predictions: {len(result.info['missing'])} (view, channel) "
+                     f"entries, e.g. {result.info['missing'][0]}; see eval_meta.json")
+    return "\n".join(lines)

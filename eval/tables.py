@@ -1,0 +1,191 @@
+"""`gspi-table`: evaluated runs -> the paper's Table 1 layout (Markdown, LaTeX, CSV).
+
+    gspi-table runs/gspi/eval runs/no_decomposition/eval out=tables
+    gspi-table 'runs=[runs/a/eval,runs/b/eval]' out=tables
+
+Each run folder (searched recursively) holds a summary.json and eval_meta.json written by
+gspi-eval. Rows are methods (runs of the same method are averaged); column groups are PSNR,
+SSIM(%), LPIPS(%) over albedo, roughness, metallic, relight, then the runtime in minutes,
+"material (end-to-end)". "--" marks a channel the method does not model; the best value of a
+column is bold (LaTeX: red cell) and the second best underlined (LaTeX: yellow cell).
+Numbers are never typed by hand: every cell comes from a summary.json.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+CHANNELS = ("albedo", "roughness", "metallic", "relight")
+METRICS = (("psnr", "PSNR↑", 1.0, True), ("ssim", "SSIM(%)↑", 100.0, True),
+           ("lpips", "LPIPS(%)↓", 100.0, False))
+RUNTIME = "runtime"
+LATEX_COLORS = (r"\definecolor{BaselineBestCell}{RGB}{255,235,238}" "\n"
+                r"\definecolor{BaselineSecondCell}{RGB}{255,249,196}")
+
+
+def find_runs(paths: list[str | Path]) -> list[Path]:
+    """Folders holding a summary.json, searched recursively below each given path."""
+    found = []
+    for p in map(Path, paths):
+        if not p.exists():
+            raise FileNotFoundError(f"{p}: run folder not found")
+        found += sorted({s.parent for s in p.rglob("summary.json")} |
+                        ({p} if (p / "summary.json").is_file() else set()))
+    if not found:
+        raise FileNotFoundError(f"no summary.json below {', '.join(map(str, paths))}")
+    return sorted(set(found))
+
+
+def load_run(run_dir: Path) -> dict:
+    """One flat record: method, protocol, metric columns (display units), runtimes."""
+    summary = json.loads((run_dir / "summary.json").read_text())
+    meta_path = run_dir / "eval_meta.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    rec = {"method": meta.get("method", run_dir.name), "run": str(run_dir),
+           "protocol": f"{meta.get('protocol', {}).get('name')}"
+                       f" v{meta.get('protocol', {}).get('version')}"}
+    for metric, _, scale, _ in METRICS:
+        for ch in CHANNELS:
+            value = summary.get(ch, {}).get(metric)
+            rec[f"{metric}/{ch}"] = None if value is None else scale * float(value)
+    runtime = meta.get("runtime_min", {}) or {}
+    rec["runtime/material"] = runtime.get("material")
+    rec["runtime/end_to_end"] = runtime.get("end_to_end")
+    return rec
+
+
+def build_table1(records: list[dict]) -> pd.DataFrame:
+    """Methods x columns, runs of one method averaged; refuses mixed protocol versions."""
+    frame = pd.DataFrame(records)
+    protocols = sorted(frame["protocol"].unique())
+    if len(protocols) > 1:
+        raise ValueError(f"runs were evaluated under different protocols {protocols}: "
+                         "tables never mix protocol versions")
+    cols = [f"{m}/{c}" for m, *_ in METRICS for c in CHANNELS] + \
+        ["runtime/material", "runtime/end_to_end"]
+    table = frame.groupby("method", sort=False)[cols].mean()
+    table.attrs["protocol"] = protocols[0]
+    return table
+
+
+def rank_marks(table: pd.DataFrame) -> pd.DataFrame:
+    """Per cell: 1 = best, 2 = second best in its column, 0 otherwise."""
+    marks = pd.DataFrame(0, index=table.index, columns=table.columns)
+    for col in table.columns:
+        if col == "runtime/end_to_end":
+            continue  # ranked together with the material time
+        higher = any(col.startswith(m) and hi for m, _, _, hi in METRICS)
+        values = table[col].dropna()
+        values = values[values.map(lambda v: math.isfinite(v) or higher)]
+        order = values.sort_values(ascending=not higher).index.tolist()
+        for rank, method in enumerate(order[:2], start=1):
+            marks.loc[method, col] = rank
+    return marks
+
+
+def _fmt(value, col: str) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "--"
+    if math.isinf(value):
+        return "inf"
+    return f"{value:.1f}" if col.startswith("runtime") else f"{value:.2f}"
+
+
+def _runtime_cell(row) -> str:
+    mat, e2e = row["runtime/material"], row["runtime/end_to_end"]
+    if mat is None or (isinstance(mat, float) and math.isnan(mat)):
+        return "--"
+    e2e_ok = e2e is not None and not (isinstance(e2e, float) and math.isnan(e2e))
+    return _fmt(mat, "runtime") + (f" ({_fmt(e2e, 'runtime')})" if e2e_ok else "")
+
+
+def _cells(table: pd.DataFrame, marks: pd.DataFrame, style: str) -> list[list[str]]:
+    best = {"md": ("**{}**", "<u>{}</u>"),
+            "tex": (r"\cellcolor{{BaselineBestCell}}\textbf{{{}}}",
+                    r"\cellcolor{{BaselineSecondCell}}{}")}[style]
+    rows = []
+    for method, row in table.iterrows():
+        cells = [str(method)]
+        for m, *_ in METRICS:
+            for c in CHANNELS:
+                col = f"{m}/{c}"
+                text, mark = _fmt(row[col], col), marks.loc[method, col]
+                cells.append(best[mark - 1].format(text) if mark and text != "--" else text)
+        rt, mark = _runtime_cell(row), marks.loc[method, "runtime/material"]
+        cells.append(best[mark - 1].format(rt) if mark and rt != "--" else rt)
+        rows.append(cells)
+    return rows
+
+
+def to_markdown(table: pd.DataFrame) -> str:
+    marks = rank_marks(table)
+    head = ["Method"] + [f"{label} {c}" for _, label, *_ in METRICS for c in CHANNELS] + \
+        ["Runtime (min) material (end-to-end)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in _cells(table, marks, "md")]
+    lines.append(f"\nProtocol: {table.attrs.get('protocol')}. Best **bold**, second <u>underlined</u>;"
+                 " -- = channel not modelled.")
+    return "\n".join(lines) + "\n"
+
+
+def to_latex(table: pd.DataFrame) -> str:
+    marks = rank_marks(table)
+    groups = " & ".join(rf"\multicolumn{{4}}{{c}}{{{label.replace('↑', '$\\uparrow$').replace('↓', '$\\downarrow$').replace('%', '\\%')}}}"
+                        for _, label, *_ in METRICS)
+    sub = " & ".join(CHANNELS * 3)
+    body = "\n".join(" & ".join(r).replace("%", r"\%") + r" \\" for r in _cells(table, marks, "tex"))
+    return (f"% {LATEX_COLORS.splitlines()[0]}\n% {LATEX_COLORS.splitlines()[1]}\n"
+            f"% protocol: {table.attrs.get('protocol')}\n"
+            r"\begin{tabular}{l cccc cccc cccc c}" "\n" r"\toprule" "\n"
+            rf"\multirow{{2}}{{*}}{{Method}} & {groups} & \multirow{{2}}{{*}}{{\makecell{{Runtime\\(min)}}}} \\"
+            "\n" r"\cmidrule(lr){2-5} \cmidrule(lr){6-9} \cmidrule(lr){10-13}" "\n"
+            f" & {sub} & \\\\\n" r"\midrule" "\n" f"{body}\n" r"\bottomrule" "\n" r"\end{tabular}" "\n")
+
+
+def write_tables(table: pd.DataFrame, out_dir: Path, stem: str = "table1") -> dict[str, Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"md": out_dir / f"{stem}.md", "tex": out_dir / f"{stem}.tex",
+             "csv": out_dir / f"{stem}.csv"}
+    for kind, text in (("md", to_markdown(table)), ("tex", to_latex(table)),
+                       ("csv", table.to_csv())):
+        tmp = paths[kind].with_name(paths[kind].name + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(paths[kind])
+    return paths
+
+
+def run(cfg) -> pd.DataFrame:
+    runs = list(cfg.runs) if cfg.runs else []
+    if not runs:
+        raise ValueError("give evaluated run folders: gspi-table DIR [DIR ...] or runs=[...]")
+    table = build_table1([load_run(r) for r in find_runs(runs)])
+    paths = write_tables(table, Path(cfg.out))
+    print(paths["md"].read_text())
+    return table
+
+
+def positional_to_overrides(argv: list[str]) -> list[str]:
+    """Let `gspi-table DIR DIR` mean `gspi-table runs=[DIR,DIR]` (Hydra takes key=value only)."""
+    dirs = [a for a in argv if "=" not in a and not a.startswith("-")]
+    rest = [a for a in argv if a not in dirs]
+    return rest + ([f"runs=[{','.join(dirs)}]"] if dirs else [])
+
+
+def main() -> None:
+    import hydra
+
+    sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
+
+    @hydra.main(version_base="1.3", config_path="../conf", config_name="gspi_table")
+    def _main(cfg) -> None:
+        run(cfg)
+
+    _main()
+
+
+if __name__ == "__main__":
+    main()

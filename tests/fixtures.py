@@ -1,0 +1,143 @@
+"""A tiny ground-truth dataset built in code: analytic spheres in the canonical layout.
+
+Used by the evaluation tests and by `make demo` until the pipeline exists. Each scene is a
+unit-radius-0.8 sphere with procedural albedo/roughness/metallic seen by a few cameras; the
+relit ground truth is not stored (the evaluator renders it from the maps).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from eval.imageio import write_exr
+from eval.layout import Scene, View, write_json_atomic, write_material, write_scene_json, \
+    write_view_file
+
+RADIUS = 0.8
+
+
+def look_at_w2c(center: np.ndarray, target=np.zeros(3), up=np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+    """OpenCV world-to-camera matrix of a camera at `center` looking at `target`."""
+    f = target - center
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    d = np.cross(f, r)
+    R = np.stack([r, d, f])  # rows: camera axes in world
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = R, -R @ center
+    return w2c
+
+
+def intrinsics(size: int, fov_deg: float = 40.0) -> np.ndarray:
+    focal = size / (2.0 * np.tan(np.radians(fov_deg) / 2.0))
+    return np.array([[focal, 0.0, size / 2.0], [0.0, focal, size / 2.0], [0.0, 0.0, 1.0]])
+
+
+def render_sphere_maps(K: np.ndarray, w2c: np.ndarray, size: int, seed: int) -> dict:
+    """Per-pixel ground truth of a sphere at the origin: maps, normal, depth, mask."""
+    j, i = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5, indexing="xy")
+    dirs_cam = np.stack([j, i, np.ones_like(j)], -1) @ np.linalg.inv(K).T
+    R, t = w2c[:3, :3], w2c[:3, 3]
+    origin = -R.T @ t
+    d = dirs_cam @ R
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    b = d @ origin
+    disc = b**2 - (origin @ origin - RADIUS**2)
+    mask = disc > 0
+    s = -b - np.sqrt(np.where(mask, disc, 0.0))
+    p = origin + s[..., None] * d
+    normal = np.where(mask[..., None], p / RADIUS, 0.0)
+    depth = np.where(mask, (p - origin) @ R[2], 0.0)
+    rng = np.random.default_rng(seed)
+    hue = rng.uniform(0.2, 0.9, size=(2, 3))
+    checker = ((np.floor(p[..., 0] * 4) + np.floor(p[..., 1] * 4) + np.floor(p[..., 2] * 4)) % 2)
+    albedo = np.where(checker[..., None] > 0, hue[0], hue[1])
+    roughness = 0.25 + 0.4 * (np.sin(p[..., 2] * 9.0) > 0)
+    metallic = (p[..., 0] > 0.3).astype(np.float64)
+    m3 = mask[..., None]
+    return {"albedo": np.where(m3, albedo, 0.0), "roughness": np.where(mask, roughness, 0.0),
+            "metallic": np.where(mask, metallic, 0.0), "normal": normal.astype(np.float32),
+            "depth": depth.astype(np.float32), "mask": mask.astype(np.float64)}
+
+
+def make_envmap(seed: int, height: int = 16, width: int = 32) -> np.ndarray:
+    """A smooth HDR lat-long map with a bright lobe (linear radiance)."""
+    rng = np.random.default_rng(seed)
+    r, c = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+    sky = 0.3 + 0.5 * (1 - r / height)[..., None] * rng.uniform(0.5, 1.0, 3)
+    lobe = np.exp(-(((r - rng.integers(2, 6)) / 2.0) ** 2 + ((c - rng.integers(0, width)) / 3.0) ** 2))
+    return (sky + 20.0 * lobe[..., None]).astype(np.float32)
+
+
+def make_scene(root: Path, name: str, *, size: int = 48, seed: int = 0,
+               num_train: int = 2, num_test: int = 3) -> Scene:
+    K = intrinsics(size)
+    views = {}
+    for split, count, elev in (("train", num_train, 0.6), ("test", num_test, 0.3)):
+        views[split] = []
+        for k in range(count):
+            az = 2 * np.pi * (k + 0.5 * (split == "test")) / count + 0.1 * seed
+            center = 3.0 * np.array([np.cos(az) * np.cos(elev), np.sin(az) * np.cos(elev), np.sin(elev)])
+            views[split].append(View(f"{k:03d}", split, K, look_at_w2c(center)))
+    scene = Scene(root=root / name, name=name, width=size, height=size, views=views,
+                  capture_env="cap", relight_envs=["env_a", "env_b"])
+    write_scene_json(scene)
+    for k, env in enumerate(("cap", "env_a", "env_b")):
+        write_exr(scene.envmap_path(env), make_envmap(seed * 10 + k))
+    for split, vs in views.items():
+        for v in vs:
+            maps = render_sphere_maps(v.K, v.w2c, size, seed)
+            vdir = scene.view_dir(split, v.id)
+            for channel in ("albedo", "roughness", "metallic"):
+                write_material(vdir, channel, maps[channel])
+            write_view_file(vdir, "normal.exr", maps["normal"])
+            write_view_file(vdir, "depth.exr", maps["depth"])
+            write_view_file(vdir, "mask.png", maps["mask"])
+            rgb = (maps["albedo"] ** 2.2 * 0.8).astype(np.float32)  # a stand-in input image
+            write_view_file(vdir, "rgb.exr", rgb)
+            write_view_file(vdir, "rgb.png", rgb ** (1 / 2.2))
+    return scene
+
+
+def make_dataset(root: str | Path, *, num_scenes: int = 2, size: int = 48) -> Path:
+    """`num_scenes` sphere scenes + splits.json (all scenes in `test`)."""
+    root = Path(root)
+    names = [f"sphere_{k}" for k in range(num_scenes)]
+    for k, name in enumerate(names):
+        make_scene(root, name, size=size, seed=k)
+    write_json_atomic(root / "splits.json", {"train": [], "val": [], "test": names})
+    return root
+
+
+def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str = "perturbed",
+                    roughness_offset: float = 6554 / 65535, albedo_scale: float = 1.0,
+                    channels=("albedo", "roughness", "metallic")) -> Path:
+    """A prediction folder derived from the ground truth with known, controlled errors.
+
+    roughness: gt + offset inside the mask (exactly representable in 16 bits);
+    albedo: linear albedo times `albedo_scale`; metallic: copied.
+    """
+    from eval.colorspace import linear_to_srgb, srgb_to_linear
+    from eval.layout import read_meta, read_scene, read_view_file, write_meta
+    import torch
+
+    gt_root, pred_root = Path(gt_root), Path(pred_root)
+    for scene_json in sorted(gt_root.glob("*/scene.json")):
+        scene = read_scene(scene_json.parent)
+        for v in scene.split_views("test"):
+            src, dst = scene.view_dir("test", v.id), pred_root / scene.name / "test" / v.id
+            mask = read_view_file(src, "mask.png")[..., 0] > 0.5
+            if "albedo" in channels:
+                a = torch.from_numpy(read_view_file(src, "albedo.png")).double()
+                a = linear_to_srgb(srgb_to_linear(a) * albedo_scale).numpy()
+                write_material(dst, "albedo", a)
+            if "roughness" in channels:
+                r = read_view_file(src, "roughness.png")
+                write_material(dst, "roughness", np.where(mask[..., None], r + roughness_offset, r))
+            if "metallic" in channels:
+                write_material(dst, "metallic", read_view_file(src, "metallic.png"))
+        write_meta(pred_root / scene.name, method=method, material_s=60.0, end_to_end_s=120.0)
+    del read_meta
+    return pred_root
