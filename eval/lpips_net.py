@@ -22,7 +22,7 @@ ALLOWED_NETS = ("alex",)
 ALLOWED_VERSIONS = ("0.1",)
 CHANNELS = (64, 192, 384, 256, 256)  # channels of relu1..relu5
 
-_MODEL_CACHE: dict[tuple[str, str, str], "LPIPS"] = {}
+_MODEL_CACHE: dict[tuple[str, str], "LPIPS"] = {}
 
 
 class ScalingLayer(nn.Module):
@@ -124,7 +124,7 @@ class LPIPS(nn.Module):
 def load_lpips(net: str = "alex", version: str = "0.1", device: str | torch.device = "cpu") -> LPIPS:
     """Return the pretrained LPIPS network in eval mode with frozen parameters.
 
-    The model is cached per (net, version, device) within the process.
+    The model is cached per (weights file, device) within the process.
 
     Args:
         net: backbone; only "alex" is supported.
@@ -141,9 +141,9 @@ def load_lpips(net: str = "alex", version: str = "0.1", device: str | torch.devi
         raise ValueError(f"LPIPS version {version!r} is not supported; allowed: {list(ALLOWED_VERSIONS)}")
     from eval import lpips_weights  # local import: nothing happens at module import
 
-    key = (net, version, str(torch.device(device)))
+    path = lpips_weights.weights_path()
+    key = (str(path), str(torch.device(device)))
     if key not in _MODEL_CACHE:
-        path = lpips_weights.weights_path()
         if not path.is_file():
             raise FileNotFoundError(
                 f"LPIPS weights not found at {path}. Install them once with "

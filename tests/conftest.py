@@ -1,0 +1,27 @@
+"""Shared fixtures: built in code, nothing downloaded."""
+from pathlib import Path
+
+import pytest
+import torch
+
+
+@pytest.fixture(scope="session")
+def lpips_net():
+    from eval.lpips_net import load_lpips
+    return load_lpips()
+
+
+@pytest.fixture(scope="session")
+def sphere_dataset(tmp_path_factory) -> Path:
+    """Two analytic sphere scenes (48 px, 3 test views) in the canonical layout."""
+    from tests.fixtures import make_dataset
+    return make_dataset(tmp_path_factory.mktemp("gt"), num_scenes=2, size=48)
+
+
+def pytest_collection_modifyitems(config, items):
+    if torch.cuda.is_available():
+        return
+    skip = pytest.mark.skip(reason="needs a CUDA GPU")
+    for item in items:
+        if "gpu" in item.keywords:
+            item.add_marker(skip)

@@ -1,0 +1,140 @@
+"""Masked PSNR / SSIM / LPIPS: golden values, invariants and error messages."""
+import math
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import structural_similarity
+
+from eval.metrics import masked_lpips, masked_psnr, masked_ssim
+
+
+def _pair(shape=(48, 40, 3), seed=0, noise=0.1):
+    g = torch.Generator().manual_seed(seed)
+    gt = torch.rand(*shape, generator=g)
+    pred = (gt + noise * torch.randn(*shape, generator=g)).clamp(0, 1)
+    return pred, gt
+
+
+class TestMaskedPsnr:
+    def test_identical_is_inf(self):
+        x = torch.rand(8, 8, 3)
+        assert masked_psnr(x, x, torch.ones(8, 8)) == math.inf
+
+    def test_hand_computed_20db(self):
+        pred = torch.full((8, 8, 1), 0.5, dtype=torch.float64)
+        gt = torch.full((8, 8, 1), 0.6, dtype=torch.float64)
+        assert masked_psnr(pred, gt, torch.ones(8, 8)) == pytest.approx(20.0, abs=1e-9)
+
+    def test_mse_over_masked_pixels_only(self):
+        gt = torch.zeros(10, 10, 1, dtype=torch.float64)
+        pred = gt.clone()
+        pred[:5] = 0.1  # error only in the top half
+        mask = torch.zeros(10, 10, dtype=torch.bool)
+        mask[:5] = True
+        assert masked_psnr(pred, gt, mask) == pytest.approx(20.0, abs=1e-9)
+        assert masked_psnr(pred, gt, torch.ones(10, 10)) == pytest.approx(10 * math.log10(1 / 0.005))
+
+    def test_outside_mask_cannot_change_result(self):
+        pred, gt = _pair()
+        mask = torch.zeros(48, 40, dtype=torch.bool)
+        mask[10:30, 5:35] = True
+        other = pred.clone()
+        other[~mask] = torch.rand(int((~mask).sum()), 3)
+        assert masked_psnr(pred, gt, mask) == masked_psnr(other, gt, mask)
+
+    @pytest.mark.parametrize("bad, message", [
+        (lambda p: p.fill_(float("nan")), "NaN/Inf"),
+        (lambda p: p.__setitem__((0, 0, 0), float("inf")), "NaN/Inf"),
+    ])
+    def test_nan_inf_rejected(self, bad, message):
+        pred, gt = _pair()
+        bad(pred)
+        with pytest.raises(ValueError, match=message):
+            masked_psnr(pred, gt, torch.ones(48, 40))
+
+    def test_empty_mask_and_shape_errors(self):
+        pred, gt = _pair()
+        with pytest.raises(ValueError, match="mask is empty"):
+            masked_psnr(pred, gt, torch.zeros(48, 40))
+        with pytest.raises(ValueError, match="shape"):
+            masked_psnr(pred[:, :30], gt, torch.ones(48, 40))
+        with pytest.raises(ValueError, match="mask shape"):
+            masked_psnr(pred, gt, torch.ones(40, 48))
+
+
+class TestMaskedSsim:
+    @pytest.mark.parametrize("shape", [(48, 40, 3), (33, 57, 1), (64, 64, 3)])
+    def test_matches_scikit_image_with_full_mask(self, shape):
+        pred, gt = _pair(shape, seed=shape[0])
+        ref = structural_similarity(pred.numpy(), gt.numpy(), gaussian_weights=True, sigma=1.5,
+                                    use_sample_covariance=False, data_range=1, channel_axis=-1)
+        assert masked_ssim(pred, gt, torch.ones(shape[:2])) == pytest.approx(ref, abs=1e-4)
+
+    def test_identical_is_one(self):
+        x = torch.rand(32, 32, 3)
+        mask = torch.zeros(32, 32)
+        mask[8:20, 8:24] = 1
+        assert masked_ssim(x, x, mask) == pytest.approx(1.0, abs=1e-12)
+
+    def test_outside_mask_cannot_change_result(self):
+        pred, gt = _pair()
+        mask = torch.zeros(48, 40, dtype=torch.bool)
+        mask[12:36, 8:30] = True
+        noisy_pred, noisy_gt = pred.clone(), gt.clone()
+        noisy_pred[~mask], noisy_gt[~mask] = 1.0, 0.0
+        assert masked_ssim(pred, gt, mask) == pytest.approx(masked_ssim(noisy_pred, noisy_gt, mask),
+                                                           abs=1e-12)
+
+    def test_mask_on_border_only_is_an_error(self):
+        pred, gt = _pair()
+        mask = torch.zeros(48, 40, dtype=torch.bool)
+        mask[:3] = True
+        with pytest.raises(ValueError, match="border"):
+            masked_ssim(pred, gt, mask)
+
+    def test_worse_prediction_scores_lower(self):
+        _, gt = _pair()
+        small, _ = _pair(noise=0.05)
+        large, _ = _pair(noise=0.3)
+        m = torch.ones(48, 40)
+        assert masked_ssim(small, gt, m) > masked_ssim(large, gt, m)
+
+
+class TestMaskedLpips:
+    def test_identical_is_zero(self, lpips_net):
+        x = torch.rand(48, 48, 3)
+        assert masked_lpips(x, x, torch.ones(48, 48), net=lpips_net) == pytest.approx(0.0, abs=1e-7)
+
+    def test_grey_maps_are_replicated(self, lpips_net):
+        pred, gt = _pair((48, 48, 1))
+        grey = masked_lpips(pred, gt, torch.ones(48, 48), net=lpips_net, mode="composite")
+        rgb = masked_lpips(pred.expand(-1, -1, 3), gt.expand(-1, -1, 3), torch.ones(48, 48),
+                           net=lpips_net, mode="composite")
+        assert grey == pytest.approx(rgb, abs=1e-6) and grey > 0
+
+    def test_outside_mask_cannot_change_result(self, lpips_net):
+        pred, gt = _pair((48, 48, 3))
+        mask = torch.zeros(48, 48, dtype=torch.bool)
+        mask[8:40, 10:38] = True
+        other = pred.clone()
+        other[~mask] = 0.77
+        for mode in ("masked_mean", "composite"):
+            a = masked_lpips(pred, gt, mask, net=lpips_net, mode=mode)
+            b = masked_lpips(other, gt, mask, net=lpips_net, mode=mode)
+            assert a == pytest.approx(b, abs=1e-7)
+
+    def test_masked_mean_differs_from_composite_for_small_objects(self, lpips_net):
+        pred, gt = _pair((64, 64, 3), noise=0.2)
+        mask = torch.zeros(64, 64, dtype=torch.bool)
+        mask[24:40, 24:40] = True
+        inside = masked_lpips(pred, gt, mask, net=lpips_net, mode="masked_mean")
+        diluted = masked_lpips(pred, gt, mask, net=lpips_net, mode="composite")
+        assert inside > diluted > 0
+
+    def test_bad_mode_and_small_image(self, lpips_net):
+        pred, gt = _pair((48, 48, 3))
+        with pytest.raises(ValueError, match="allowed"):
+            masked_lpips(pred, gt, torch.ones(48, 48), net=lpips_net, mode="bogus")
+        with pytest.raises(ValueError, match="too small"):
+            masked_lpips(pred[:16, :16], gt[:16, :16], torch.ones(16, 16), net=lpips_net)
