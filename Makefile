@@ -29,9 +29,15 @@ test: install
 test-all: install
 	$(PY) -m pytest -q -m "not gpu"
 
+# Until the pipeline exists, the demo scores two synthetic predictions (and the oracle)
+# on analytic sphere scenes made by tests/fixtures.py, then prints Table 1.
 demo: install
 	rm -rf $(DEMO)
-	$(PY) -m benchmarks.demo_eval $(DEMO)
+	$(PY) -m tests.fixtures $(DEMO)
+	$(VENV)/bin/gspi-eval gt=$(DEMO)/gt pred=$(DEMO)/gt out=$(DEMO)/eval/oracle method=oracle
+	$(VENV)/bin/gspi-eval gt=$(DEMO)/gt pred=$(DEMO)/pred_roughness_offset out=$(DEMO)/eval/roughness_offset
+	$(VENV)/bin/gspi-eval gt=$(DEMO)/gt pred=$(DEMO)/pred_albedo_only out=$(DEMO)/eval/albedo_only
+	$(VENV)/bin/gspi-table $(DEMO)/eval out=$(DEMO)/tables
 
 bench: install
 	$(PY) -m benchmarks.bench_eval

@@ -15,7 +15,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.config import register_configs, validate_protocol
+from eval.config import CONF_DIR, register_configs, validate_protocol
 from eval.evaluate import evaluate
 from eval.report import format_summary, write_result
 
@@ -37,7 +37,7 @@ def run(cfg: DictConfig) -> dict:
 register_configs()
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="gspi_eval")
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_eval")
 def main(cfg: DictConfig) -> None:
     run(cfg)
 

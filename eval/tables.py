@@ -132,10 +132,13 @@ def to_markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _latex_label(label: str) -> str:
+    return label.replace("%", r"\%").replace("↑", r"$\uparrow$").replace("↓", r"$\downarrow$")
+
+
 def to_latex(table: pd.DataFrame) -> str:
     marks = rank_marks(table)
-    groups = " & ".join(rf"\multicolumn{{4}}{{c}}{{{label.replace('↑', '$\\uparrow$').replace('↓', '$\\downarrow$').replace('%', '\\%')}}}"
-                        for _, label, *_ in METRICS)
+    groups = " & ".join(rf"\multicolumn{{4}}{{c}}{{{_latex_label(label)}}}" for _, label, *_ in METRICS)
     sub = " & ".join(CHANNELS * 3)
     body = "\n".join(" & ".join(r).replace("%", r"\%") + r" \\" for r in _cells(table, marks, "tex"))
     return (f"% {LATEX_COLORS.splitlines()[0]}\n% {LATEX_COLORS.splitlines()[1]}\n"
@@ -178,9 +181,11 @@ def positional_to_overrides(argv: list[str]) -> list[str]:
 def main() -> None:
     import hydra
 
+    from eval.config import CONF_DIR
+
     sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
 
-    @hydra.main(version_base="1.3", config_path="../conf", config_name="gspi_table")
+    @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_table")
     def _main(cfg) -> None:
         run(cfg)
 

@@ -120,7 +120,7 @@ def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str =
     albedo: linear albedo times `albedo_scale`; metallic: copied.
     """
     from eval.colorspace import linear_to_srgb, srgb_to_linear
-    from eval.layout import read_meta, read_scene, read_view_file, write_meta
+    from eval.layout import read_scene, read_view_file, write_meta
     import torch
 
     gt_root, pred_root = Path(gt_root), Path(pred_root)
@@ -139,5 +139,20 @@ def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str =
             if "metallic" in channels:
                 write_material(dst, "metallic", read_view_file(src, "metallic.png"))
         write_meta(pred_root / scene.name, method=method, material_s=60.0, end_to_end_s=120.0)
-    del read_meta
     return pred_root
+
+
+def main(argv: list[str] | None = None) -> None:
+    """`python -m tests.fixtures OUT`: OUT/gt (2 sphere scenes) and two predictions under OUT."""
+    import sys
+
+    out = Path((argv or sys.argv[1:])[0])
+    gt = make_dataset(out / "gt", num_scenes=2, size=64)
+    make_prediction(gt, out / "pred_roughness_offset", method="roughness+0.1")
+    make_prediction(gt, out / "pred_albedo_only", method="albedo-only x0.8",
+                    channels=("albedo",), albedo_scale=0.8)
+    print(f"wrote {gt} and predictions under {out}")
+
+
+if __name__ == "__main__":
+    main()

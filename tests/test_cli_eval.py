@@ -1,0 +1,36 @@
+"""gspi-eval and gspi-table as a user runs them (subprocesses), on a fixture made by the tests."""
+import json
+import math
+import subprocess
+import sys
+
+
+def _run(*args):
+    proc = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_gspi_eval_then_gspi_table(sphere_dataset, tmp_path):
+    from tests.fixtures import make_prediction
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", method="offset")
+    out = _run("eval.cli", f"gt={sphere_dataset}", f"pred={pred}", f"out={tmp_path / 'ev'}",
+               "progress=false", "eval.channels=[roughness,metallic]")
+    assert "roughness" in out and "20.00" in out
+    summary = json.loads((tmp_path / "ev" / "summary.json").read_text())
+    assert set(summary) == {"roughness", "metallic"}
+    assert math.isinf(summary["metallic"]["psnr"])
+    meta = json.loads((tmp_path / "ev" / "eval_meta.json").read_text())
+    assert meta["protocol_config"]["channels"] == ["roughness", "metallic"]
+    assert (tmp_path / "ev" / ".hydra" / "config.yaml").is_file()
+    rows = (tmp_path / "ev" / "per_view.csv").read_text().splitlines()
+    assert rows[0] == "scene,view,channel,env,psnr,ssim,lpips" and len(rows) == 1 + 2 * 3 * 2
+    table = _run("eval.tables", str(tmp_path / "ev"), f"out={tmp_path / 'tables'}")
+    assert "| offset |" in table and (tmp_path / "tables" / "table1.tex").is_file()
+
+
+def test_gspi_eval_reports_a_bad_override(sphere_dataset, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "eval.cli", f"gt={sphere_dataset}",
+                           f"pred={sphere_dataset}", f"out={tmp_path}", "eval.albedo_alignment=mean"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0 and "albedo_alignment" in proc.stderr

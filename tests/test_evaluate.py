@@ -1,0 +1,125 @@
+"""The evaluator on a fixture made by the tests: oracle, known errors, missing data, errors."""
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from eval.config import ProtocolConfig, validate_protocol
+from eval.evaluate import evaluate
+from eval.layout import LayoutError, read_scene, read_view_file, write_material
+from tests.fixtures import make_prediction
+
+
+def protocol(**overrides):
+    cfg = OmegaConf.structured(ProtocolConfig)
+    for key, value in overrides.items():
+        OmegaConf.update(cfg, key, value)
+    validate_protocol(cfg)
+    return cfg
+
+
+def test_scene_is_its_own_oracle(sphere_dataset, lpips_net):
+    result = evaluate(sphere_dataset, sphere_dataset, protocol(), net=lpips_net)
+    assert set(result.summary) == {"albedo", "roughness", "metallic", "relight"}
+    for channel, m in result.summary.items():
+        assert m["psnr"] == math.inf or m["psnr"] >= 60, channel
+        assert m["ssim"] == pytest.approx(1.0, abs=1e-9)
+        assert m["lpips"] == pytest.approx(0.0, abs=1e-6)
+    # 2 scenes x 3 test views x (3 maps + 2 relight envs)
+    assert len(result.rows) == 2 * 3 * 5
+    assert result.info["missing"] == []
+
+
+def test_known_roughness_error_gives_exact_psnr(sphere_dataset, tmp_path, lpips_net):
+    offset = 6554 / 65535
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", roughness_offset=offset)
+    result = evaluate(sphere_dataset, pred, protocol(**{"channels": ["roughness"]}), net=lpips_net)
+    expected = -10 * math.log10(offset**2)
+    for row in result.rows:
+        assert row["psnr"] == pytest.approx(expected, abs=1e-6)
+    assert result.info["method"] == "perturbed"
+    assert result.info["runtime_min"] == {"material": 1.0, "end_to_end": 2.0}
+
+
+def test_albedo_alignment_recovers_a_global_scale(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", albedo_scale=0.6)
+    raw = evaluate(sphere_dataset, pred, protocol(channels=["albedo"]), net=lpips_net)
+    aligned = evaluate(sphere_dataset, pred, protocol(channels=["albedo"], albedo_alignment="scale"),
+                       net=lpips_net)
+    assert raw.summary["albedo"]["psnr"] < 25
+    assert aligned.summary["albedo"]["psnr"] > 55  # only 16-bit quantisation remains
+
+
+def test_missing_channel_is_absent_and_relit_with_fill(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", channels=("albedo",))
+    result = evaluate(sphere_dataset, pred, protocol(), net=lpips_net)
+    assert set(result.summary) == {"albedo", "relight"}
+    assert result.summary["relight"]["psnr"] < 60  # fills differ from the ground truth
+
+
+def test_missing_view_is_reported(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred")
+    shutil.rmtree(pred / "sphere_0" / "test" / "001")
+    result = evaluate(sphere_dataset, pred, protocol(channels=["metallic"]), net=lpips_net)
+    assert {"scene": "sphere_0", "view": "001", "channel": "metallic"} in result.info["missing"]
+    assert len(result.rows) == 5
+    with pytest.raises(LayoutError, match="missing prediction"):
+        evaluate(sphere_dataset, pred, protocol(fail_on_missing_view=True), net=lpips_net)
+
+
+def test_no_scene_present_is_an_error(sphere_dataset, tmp_path, lpips_net):
+    (tmp_path / "empty" / "not_a_scene").mkdir(parents=True)
+    with pytest.raises(LayoutError, match="no scene of the ground truth"):
+        evaluate(sphere_dataset, tmp_path / "empty", protocol(), net=lpips_net)
+
+
+def test_size_mismatch_names_the_file(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred")
+    bad = pred / "sphere_1" / "test" / "002"
+    write_material(bad, "metallic", np.zeros((20, 20)))
+    with pytest.raises(LayoutError, match=r"sphere_1/test/002/metallic.png: size"):
+        evaluate(sphere_dataset, pred, protocol(), net=lpips_net)
+
+
+def test_missing_ground_truth_file_names_the_file(sphere_dataset, tmp_path, lpips_net):
+    gt = tmp_path / "gt"
+    shutil.copytree(sphere_dataset, gt)
+    (gt / "sphere_0" / "test" / "000" / "normal.exr").unlink()
+    with pytest.raises(LayoutError, match=r"sphere_0/test/000/normal.exr: file not found"):
+        evaluate(gt, gt, protocol(), net=lpips_net)
+
+
+def test_corrupt_png_names_the_file(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred")
+    (pred / "sphere_0" / "test" / "000" / "albedo.png").write_bytes(b"not a png")
+    with pytest.raises(LayoutError, match=r"albedo.png: not a readable PNG"):
+        evaluate(sphere_dataset, pred, protocol(), net=lpips_net)
+
+
+def test_grey_albedo_is_rejected(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred")
+    write_material(pred / "sphere_0" / "test" / "000", "roughness", np.zeros((48, 48)))
+    (pred / "sphere_0" / "test" / "000" / "roughness.png").rename(
+        pred / "sphere_0" / "test" / "000" / "albedo.png")
+    with pytest.raises(LayoutError, match=r"albedo.png: expected 3 channel"):
+        evaluate(sphere_dataset, pred, protocol(), net=lpips_net)
+
+
+def test_invalid_protocol_values_are_named():
+    with pytest.raises(ValueError, match="albedo_alignment"):
+        protocol(albedo_alignment="median")
+    with pytest.raises(ValueError, match="channels"):
+        protocol(channels=["albedo", "normal"])
+
+
+def test_scene_json_errors_name_the_file(tmp_path):
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "scene.json").write_text("{\"name\": \"s\"}")
+    with pytest.raises(LayoutError, match=r"s/scene.json: missing key 'width'"):
+        read_scene(tmp_path / "s")
+    (tmp_path / "s" / "scene.json").write_text("{oops")
+    with pytest.raises(LayoutError, match="invalid JSON"):
+        read_scene(tmp_path / "s")

@@ -1,0 +1,83 @@
+"""gspi-table: Table 1 layout, best/second marks, '--' for missing channels, protocol mixing."""
+import json
+
+import pytest
+from omegaconf import OmegaConf
+
+from eval.tables import build_table1, find_runs, load_run, positional_to_overrides, rank_marks, \
+    run, to_latex, to_markdown
+
+
+def _write_run(root, name, summary, method, protocol=("gspi-decoupled", 1), runtime=(1.5, 3.0)):
+    d = root / name
+    d.mkdir(parents=True)
+    (d / "summary.json").write_text(json.dumps(summary))
+    (d / "eval_meta.json").write_text(json.dumps({
+        "method": method, "protocol": {"name": protocol[0], "version": protocol[1]},
+        "runtime_min": {"material": runtime[0], "end_to_end": runtime[1]}}))
+    return d
+
+
+def _summary(psnr, ssim, lpips, channels=("albedo", "roughness", "metallic", "relight")):
+    return {c: {"psnr": psnr, "ssim": ssim, "lpips": lpips} for c in channels}
+
+
+@pytest.fixture
+def runs(tmp_path):
+    _write_run(tmp_path, "a", _summary(20.0, 0.8, 0.05), "A", runtime=(5.4, 10.4))
+    _write_run(tmp_path, "b", _summary(25.0, 0.9, 0.02), "B", runtime=(30.0, 35.0))
+    _write_run(tmp_path, "c", _summary(15.0, 0.5, 0.09, channels=("albedo", "relight")), "C",
+               runtime=(2.0, 8.0))
+    return tmp_path
+
+
+def test_best_and_second_per_column(runs):
+    table = build_table1([load_run(r) for r in find_runs([runs])])
+    marks = rank_marks(table)
+    assert marks.loc["B", "psnr/albedo"] == 1 and marks.loc["A", "psnr/albedo"] == 2
+    assert marks.loc["B", "lpips/albedo"] == 1 and marks.loc["C", "lpips/albedo"] == 0
+    assert marks.loc["C", "runtime/material"] == 1 and marks.loc["A", "runtime/material"] == 2
+    assert marks.loc["A", "psnr/roughness"] == 2  # C has no roughness: not ranked
+
+
+def test_percent_units_and_missing_channel(runs):
+    table = build_table1([load_run(r) for r in find_runs([runs])])
+    assert table.loc["B", "ssim/albedo"] == pytest.approx(90.0)
+    assert table.loc["A", "lpips/relight"] == pytest.approx(5.0)
+    md = to_markdown(table)
+    c_row = next(line for line in md.splitlines() if line.startswith("| C |"))
+    assert c_row.count("--") == 6  # roughness and metallic in three metric groups
+    assert "**25.00**" in md and "<u>20.00</u>" in md and "5.4 (10.4)" in md
+    tex = to_latex(table)
+    assert r"\cellcolor{BaselineBestCell}\textbf{25.00}" in tex and r"\toprule" in tex
+
+
+def test_runs_of_one_method_are_averaged(tmp_path):
+    _write_run(tmp_path, "s0", _summary(20.0, 0.8, 0.05), "A")
+    _write_run(tmp_path, "s1", _summary(22.0, 0.6, 0.07), "A")
+    table = build_table1([load_run(r) for r in find_runs([tmp_path])])
+    assert len(table) == 1 and table.loc["A", "psnr/metallic"] == pytest.approx(21.0)
+
+
+def test_mixed_protocols_are_refused(tmp_path):
+    _write_run(tmp_path, "a", _summary(20.0, 0.8, 0.05), "A")
+    _write_run(tmp_path, "b", _summary(20.0, 0.8, 0.05), "B", protocol=("gspi-decoupled", 2))
+    with pytest.raises(ValueError, match="different protocols"):
+        build_table1([load_run(r) for r in find_runs([tmp_path])])
+
+
+def test_run_writes_three_formats(runs, tmp_path):
+    cfg = OmegaConf.create({"runs": [str(runs)], "out": str(tmp_path / "tables")})
+    run(cfg)
+    for suffix in ("md", "tex", "csv"):
+        assert (tmp_path / "tables" / f"table1.{suffix}").stat().st_size > 0
+
+
+def test_positional_dirs_become_runs_override():
+    assert positional_to_overrides(["a/b", "out=x", "c"]) == ["out=x", "runs=[a/b,c]"]
+    assert positional_to_overrides(["out=x"]) == ["out=x"]
+
+
+def test_missing_folder_is_an_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no summary.json"):
+        find_runs([tmp_path])
