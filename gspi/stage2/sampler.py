@@ -1,0 +1,134 @@
+"""DDIM sampling of Stage II's PBR features (paper Sec. "Training vs. Inference Dynamics":
+start from f_T ~ N(0, I), 50 DDIM steps over the whole point cloud).
+
+DDIM (Song et al. 2021, Eq. 12; diffusers ``DDIMScheduler.step``), per step t -> t_prev:
+
+    f0_hat   = (f_t - sqrt(1 - ab_t) eps_hat) / sqrt(ab_t),  clipped to [-1, 1] if clip_sample
+    sigma    = eta * sqrt((1 - ab_prev) / (1 - ab_t)) * sqrt(1 - ab_t / ab_prev)
+    f_prev   = sqrt(ab_prev) f0_hat + sqrt(1 - ab_prev - sigma^2) eps_hat + sigma z
+    ab_prev  = 1 after the last step (diffusers ``set_alpha_to_one=True``)
+
+Classifier-free guidance: ``eps_hat = eps_u + s (eps_c - eps_u)`` with a separate
+self-conditioning latent stream per branch (method-notes 1.3). Timesteps use "trailing"
+spacing; t_prev is the next timestep of the list (diffusers uses ``t - T // S``, the same
+whenever S divides T).
+"""
+from __future__ import annotations
+
+from typing import Optional, Protocol
+
+import torch
+from torch import Tensor
+
+from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.model import DenoiserOutput
+from gspi.stage2.schedule import cosine_alphas_cumprod, ddim_timesteps
+
+FEATURE_DIM = 5
+
+
+class Denoiser(Protocol):
+    def __call__(self, f_t: Tensor, t: Tensor, inputs: Stage2Inputs, *, prev_latents: Optional[Tensor],
+                 cond_keep: Optional[Tensor], write_chunk: Optional[int]) -> DenoiserOutput: ...
+
+
+def sample_noise(shape: tuple[int, ...], *, generator: Optional[torch.Generator],
+                 device: torch.device, dtype: torch.dtype = torch.float32) -> Tensor:
+    """Standard normal noise drawn on the generator's device (any device if None), moved to ``device``."""
+    gen_device = generator.device if generator is not None else device
+    return torch.randn(shape, generator=generator, device=gen_device, dtype=dtype).to(device)
+
+
+def ddim_step(
+    f_t: Tensor,  # [B, N, C] current sample
+    eps_hat: Tensor,  # [B, N, C] predicted noise
+    ab_t: float,  # alpha_bar at t
+    ab_prev: float,  # alpha_bar at t_prev (1.0 after the last step)
+    *,
+    eta: float = 0.0,
+    clip_sample: bool = True,
+    use_clipped_model_output: bool = False,
+    generator: Optional[torch.Generator] = None,
+) -> tuple[Tensor, Tensor]:
+    """One DDIM update (module docstring).
+
+    Args:
+        use_clipped_model_output: re-derive eps from the clipped f0_hat (GLIDE); diffusers'
+            default (False) keeps the network's eps for the direction term.
+    Returns:
+        (f_prev [B, N, C], f0_hat [B, N, C]).
+    """
+    f0_hat = (f_t - (1.0 - ab_t) ** 0.5 * eps_hat) / ab_t ** 0.5
+    if clip_sample:
+        f0_hat = f0_hat.clamp(-1.0, 1.0)
+        if use_clipped_model_output:
+            eps_hat = (f_t - ab_t ** 0.5 * f0_hat) / (1.0 - ab_t) ** 0.5
+    sigma = eta * ((1.0 - ab_prev) / (1.0 - ab_t)) ** 0.5 * (1.0 - ab_t / ab_prev) ** 0.5
+    f_prev = ab_prev ** 0.5 * f0_hat + (1.0 - ab_prev - sigma ** 2) ** 0.5 * eps_hat
+    if eta > 0:
+        f_prev = f_prev + sigma * sample_noise(tuple(f_t.shape), generator=generator,
+                                               device=f_t.device, dtype=f_t.dtype)
+    return f_prev, f0_hat
+
+
+@torch.no_grad()
+def ddim_sample(
+    model: Denoiser,
+    cond: Stage2Inputs,
+    num_steps: int = 50,
+    generator: Optional[torch.Generator] = None,
+    *,
+    guidance_scale: float = 1.0,
+    eta: float = 0.0,
+    clip_sample: bool = True,
+    use_clipped_model_output: bool = False,
+    self_condition: Optional[bool] = None,
+    write_chunk: Optional[int] = None,
+    alphas_cumprod: Optional[Tensor] = None,
+    noise: Optional[Tensor] = None,
+) -> Tensor:
+    """Samples PBR features for every point of ``cond`` with DDIM.
+
+    Args:
+        model: eps-prediction denoiser (:class:`gspi.stage2.model.RCWDenoiser`).
+        cond: the frozen geometry and conditions (all N points, all views).
+        num_steps: DDIM steps S ("trailing" timesteps 999, 979, ... for S = 50).
+        generator: seeds f_T (and the eta > 0 noise) for determinism.
+        guidance_scale: CFG scale s; 1 runs the conditional branch only.
+        eta: 0 = deterministic DDIM, 1 = DDPM-like.
+        clip_sample: clamp f0_hat to [-1, 1] (the features' range) at every step.
+        use_clipped_model_output: see :func:`ddim_step`.
+        self_condition: feed each step's latents to the next; None = ``model.config.self_condition``.
+        write_chunk: points per Write chunk (bounds memory at large N).
+        alphas_cumprod: [T] schedule; None = cosine, T = 1000.
+        noise: [B, N, 5] f_T to start from instead of drawing it.
+    Returns:
+        [B, N, 5] sampled features in the model space ([-1, 1] when clip_sample);
+        ``gspi.stage2.normalize.pbr_from_model`` maps them to PBR values.
+    """
+    alphas_cumprod = cosine_alphas_cumprod() if alphas_cumprod is None else alphas_cumprod
+    if self_condition is None:
+        self_condition = getattr(getattr(model, "config", None), "self_condition", False)
+    device = cond.xyz.device
+    shape = (cond.batch_size, cond.num_points, FEATURE_DIM)
+    f_t = noise.to(device) if noise is not None else sample_noise(shape, generator=generator, device=device)
+    timesteps = ddim_timesteps(num_steps, len(alphas_cumprod)).tolist()
+    branches: dict[str, Optional[Tensor]] = {"cond": None}  # name -> cond_keep
+    if guidance_scale != 1.0:
+        branches["uncond"] = torch.zeros(cond.batch_size, device=device)
+    prev_latents: dict[str, Optional[Tensor]] = {name: None for name in branches}
+    for i, t in enumerate(timesteps):
+        t_batch = torch.full((cond.batch_size,), t, device=device, dtype=torch.long)
+        eps = {}
+        for name, keep in branches.items():
+            out = model(f_t, t_batch, cond, prev_latents=prev_latents[name],
+                        cond_keep=keep, write_chunk=write_chunk)
+            eps[name] = out.eps
+            prev_latents[name] = out.latents if self_condition else None
+        eps_hat = eps["cond"]
+        if guidance_scale != 1.0:
+            eps_hat = eps["uncond"] + guidance_scale * (eps["cond"] - eps["uncond"])
+        ab_prev = float(alphas_cumprod[timesteps[i + 1]]) if i + 1 < len(timesteps) else 1.0
+        f_t, _ = ddim_step(f_t, eps_hat, float(alphas_cumprod[t]), ab_prev, eta=eta, clip_sample=clip_sample,
+                           use_clipped_model_output=use_clipped_model_output, generator=generator)
+    return f_t

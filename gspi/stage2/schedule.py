@@ -1,0 +1,160 @@
+"""Noise schedule of Stage II's feature-only diffusion (paper Sec. "Geometry-Conditioned,
+Feature-Only Diffusion", Eq. feature_forward; cosine schedule + Min-SNR-gamma weighting).
+
+Decision: our own implementation, not diffusers' schedulers. The math is ~60 lines of
+closed-form formulas (below), while diffusers pulls in huggingface-hub, safetensors and
+requests at import, and its ``DDIMScheduler.step`` takes ONE timestep for the whole batch
+(training here draws one timestep per sample) and keeps the schedule in float32. diffusers
+stays an optional test oracle (``pip install -e .[hf]``): ``tests/test_stage2_schedule.py``
+checks ``alphas_cumprod``, ``add_noise`` and a full DDIM loop against
+``DDIMScheduler(beta_schedule="squaredcos_cap_v2", timestep_spacing="trailing")`` to 1e-6.
+
+Formulas (Nichol & Dhariwal 2021; diffusers ``betas_for_alpha_bar``, "squaredcos_cap_v2"):
+
+    g(tau)        = cos^2((tau + 0.008) / 1.008 * pi / 2)
+    beta_i        = min(1 - g((i + 1) / T) / g(i / T), 0.999),   i = 0 .. T-1
+    alpha_bar_i   = prod_{j <= i} (1 - beta_j)
+    f_t           = sqrt(alpha_bar_t) f_0 + sqrt(1 - alpha_bar_t) eps          (q_sample)
+    SNR_t         = alpha_bar_t / (1 - alpha_bar_t)
+    w_t (eps)     = min(SNR_t, gamma) / SNR_t                                  (Min-SNR-gamma)
+
+The schedule is kept in float64 (diffusers: float32); values are cast to the sample dtype
+where they meet tensors. Timesteps are 0-based integer indices ``t`` in ``[0, T)``.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import torch
+from torch import Tensor
+
+NUM_TRAIN_TIMESTEPS = 1000
+MIN_SNR_GAMMA = 5.0
+
+
+def cosine_betas(num_train_timesteps: int = NUM_TRAIN_TIMESTEPS, *, max_beta: float = 0.999) -> Tensor:
+    """Cosine-schedule betas, diffusers' ``squaredcos_cap_v2``.
+
+    Returns:
+        [T] float64, ``beta_i = min(1 - g((i+1)/T) / g(i/T), max_beta)``.
+    """
+    def g(tau: Tensor) -> Tensor:
+        return torch.cos((tau + 0.008) / 1.008 * math.pi / 2) ** 2
+
+    i = torch.arange(num_train_timesteps, dtype=torch.float64)
+    betas = 1.0 - g((i + 1) / num_train_timesteps) / g(i / num_train_timesteps)
+    return betas.clamp(max=max_beta)
+
+
+def cosine_alphas_cumprod(num_train_timesteps: int = NUM_TRAIN_TIMESTEPS) -> Tensor:
+    """``alpha_bar_i = prod_{j<=i} (1 - beta_j)`` of :func:`cosine_betas`.
+
+    For T = 1000: alpha_bar_0 = 1 - 4e-5, alpha_bar_500 = 0.492, alpha_bar_999 = 2.4e-9.
+
+    Returns:
+        [T] float64, decreasing from ~1 to ~0.
+    """
+    return torch.cumprod(1.0 - cosine_betas(num_train_timesteps), dim=0)
+
+
+def _schedule(alphas_cumprod: Optional[Tensor]) -> Tensor:
+    return cosine_alphas_cumprod() if alphas_cumprod is None else alphas_cumprod
+
+
+def _gather(values: Tensor, t: Tensor | int, like: Tensor) -> Tensor:
+    """``values[t]`` shaped to broadcast against ``like`` [B, ...] (t: int or [B])."""
+    t = torch.as_tensor(t, device=values.device, dtype=torch.long)
+    out = values[t].to(device=like.device, dtype=like.dtype)
+    return out.reshape(out.shape + (1,) * (like.dim() - out.dim()))
+
+
+def q_sample(
+    f0: Tensor,  # [B, N, C] clean features in [-1, 1]
+    t: Tensor | int,  # [B] or scalar int timestep indices
+    eps: Tensor,  # [B, N, C] standard normal noise
+    *,
+    alphas_cumprod: Optional[Tensor] = None,  # [T]; None = cosine, T = 1000
+) -> Tensor:
+    """Forward process ``f_t = sqrt(ab_t) f0 + sqrt(1 - ab_t) eps`` (diffusers ``add_noise``).
+
+    Returns:
+        [B, N, C] noisy features ``f_t``.
+    """
+    ab = _gather(_schedule(alphas_cumprod), t, f0)
+    return ab.sqrt() * f0 + (1.0 - ab).sqrt() * eps
+
+
+def predict_f0_from_eps(
+    f_t: Tensor,  # [B, N, C] noisy features
+    t: Tensor | int,  # [B] or scalar int
+    eps: Tensor,  # [B, N, C] (predicted) noise
+    *,
+    alphas_cumprod: Optional[Tensor] = None,
+) -> Tensor:
+    """Inverse of :func:`q_sample`: ``f0 = (f_t - sqrt(1 - ab_t) eps) / sqrt(ab_t)``.
+
+    Returns:
+        [B, N, C] clean-feature estimate (unclipped).
+    """
+    ab = _gather(_schedule(alphas_cumprod), t, f_t)
+    return (f_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
+
+
+def predict_eps_from_f0(
+    f_t: Tensor,  # [B, N, C]
+    t: Tensor | int,  # [B] or scalar int
+    f0: Tensor,  # [B, N, C]
+    *,
+    alphas_cumprod: Optional[Tensor] = None,
+) -> Tensor:
+    """``eps = (f_t - sqrt(ab_t) f0) / sqrt(1 - ab_t)`` (used after x0 clipping, GLIDE style).
+
+    Returns:
+        [B, N, C] noise consistent with ``f0``.
+    """
+    ab = _gather(_schedule(alphas_cumprod), t, f_t)
+    return (f_t - ab.sqrt() * f0) / (1.0 - ab).sqrt()
+
+
+def snr(t: Tensor | int, *, alphas_cumprod: Optional[Tensor] = None) -> Tensor:
+    """Signal-to-noise ratio ``ab_t / (1 - ab_t)`` (diffusers ``training_utils.compute_snr``).
+
+    Returns:
+        float64 tensor with the shape of ``t``.
+    """
+    schedule = _schedule(alphas_cumprod)
+    ab = schedule[torch.as_tensor(t, dtype=torch.long, device=schedule.device)]
+    return ab / (1.0 - ab)
+
+
+def min_snr_eps_weights(
+    t: Tensor,  # [B] int timesteps
+    *,
+    gamma: float = MIN_SNR_GAMMA,
+    alphas_cumprod: Optional[Tensor] = None,
+) -> Tensor:
+    """Min-SNR-gamma loss weights for eps prediction (Hang et al. 2023): ``min(SNR, gamma) / SNR``.
+
+    1 where SNR < gamma (for the T = 1000 cosine schedule: t >= 261), ``gamma / SNR`` else.
+
+    Returns:
+        [B] float32 weights in (0, 1], on the device of ``t``.
+    """
+    s = snr(t, alphas_cumprod=alphas_cumprod)
+    return (s.clamp(max=gamma) / s).float().to(torch.as_tensor(t).device)
+
+
+def ddim_timesteps(num_steps: int, num_train_timesteps: int = NUM_TRAIN_TIMESTEPS) -> Tensor:
+    """DDIM timesteps with "trailing" spacing (diffusers ``timestep_spacing="trailing"``).
+
+    ``round(arange(T, 0, -T / S)) - 1``: for T = 1000, S = 50 gives 999, 979, ..., 19, so
+    sampling starts at the pure-noise end (the "leading" default never visits t = 999).
+
+    Returns:
+        [S] int64, strictly decreasing.
+    """
+    if not 1 <= num_steps <= num_train_timesteps:
+        raise ValueError(f"num_steps must be in [1, {num_train_timesteps}], got {num_steps}")
+    steps = torch.arange(num_train_timesteps, 0, -num_train_timesteps / num_steps, dtype=torch.float64)
+    return steps.round().long() - 1

@@ -1,0 +1,183 @@
+"""Tests of gspi.stage2.schedule and gspi.stage2.sampler (closed-form models, diffusers as oracle)."""
+import pytest
+import torch
+
+from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.model import DenoiserOutput
+from gspi.stage2.sampler import ddim_sample
+from gspi.stage2.schedule import (cosine_alphas_cumprod, ddim_timesteps, min_snr_eps_weights,
+                                  predict_eps_from_f0, predict_f0_from_eps, q_sample, snr)
+
+
+@pytest.fixture(autouse=True)
+def single_thread():
+    """Tiny tensors: one intra-op thread is fastest, and avoids OpenMP spin-waiting (100x
+    slow-downs) when the 2 cores are shared with other processes."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def make_f0(b=2, n=16, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(b, n, 5, generator=g, dtype=torch.float64) * 1.8 - 0.9  # inside [-1, 1]
+
+
+def make_inputs(f0):
+    b, n = f0.shape[:2]
+    return Stage2Inputs(xyz=torch.zeros(b, n, 3, dtype=f0.dtype), local_cond=torch.zeros(b, n, 35, dtype=f0.dtype))
+
+
+class OracleEpsModel(torch.nn.Module):
+    """Predicts the exact noise that maps the known f0 to f_t (diffusers test_full_loop_no_noise)."""
+
+    def __init__(self, f0, alphas_cumprod):
+        super().__init__()
+        self.f0, self.alphas_cumprod, self.calls = f0, alphas_cumprod, []
+
+    def forward(self, f_t, t, inputs, *, prev_latents=None, cond_keep=None, write_chunk=None):
+        self.calls.append((int(t[0]), prev_latents))
+        eps = predict_eps_from_f0(f_t, t, self.f0, alphas_cumprod=self.alphas_cumprod)
+        return DenoiserOutput(eps=eps, latents=torch.full((f_t.shape[0], 3, 4), float(t[0])))
+
+
+class AffineEpsModel(torch.nn.Module):
+    """A smooth eps(f_t, t) with no fixed point at the data, for comparing sampler loops."""
+
+    def forward(self, f_t, t, inputs, *, prev_latents=None, cond_keep=None, write_chunk=None):
+        scale = 0.9 if cond_keep is None else 0.7
+        return DenoiserOutput(eps=scale * f_t + 0.3 * torch.sin(f_t + t[0] / 100.0), latents=f_t[:, :1])
+
+
+class TestCosineSchedule:
+    def test_values_match_method_notes(self):
+        ab = cosine_alphas_cumprod(1000)
+        assert ab.shape == (1000,) and ab.dtype == torch.float64
+        assert 1 - ab[0].item() == pytest.approx(4e-5, rel=0.05)
+        assert ab[100].item() == pytest.approx(0.972, abs=5e-4)
+        assert ab[500].item() == pytest.approx(0.492, abs=5e-4)
+        assert ab[900].item() == pytest.approx(0.0236, abs=5e-5)
+        assert ab[999].item() == pytest.approx(2.4e-9, rel=0.02)
+        assert torch.all(ab[1:] < ab[:-1])
+
+    def test_trailing_timesteps(self):
+        steps = ddim_timesteps(50)
+        assert steps[0] == 999 and steps[-1] == 19 and len(steps) == 50
+        assert torch.all(steps[:-1] - steps[1:] == 20)
+        with pytest.raises(ValueError):
+            ddim_timesteps(0)
+
+
+class TestMinSnr:
+    def test_weights(self):
+        t = torch.arange(1000)
+        s, w = snr(t), min_snr_eps_weights(t, gamma=5.0)
+        low = s < 5
+        assert torch.all(w[low] == 1)
+        torch.testing.assert_close(w[~low], (5.0 / s[~low]).float())
+        assert w.dtype == torch.float32 and low.nonzero().min() == 261
+        assert w[0].item() == pytest.approx(2.06e-4, rel=0.01)
+
+
+class TestQSample:
+    def test_round_trip(self):
+        f0 = make_f0()
+        eps = torch.randn(f0.shape, generator=torch.Generator().manual_seed(1), dtype=f0.dtype)
+        t = torch.tensor([3, 870])
+        f_t = q_sample(f0, t, eps)
+        torch.testing.assert_close(predict_f0_from_eps(f_t, t, eps), f0, rtol=0, atol=1e-9)
+        torch.testing.assert_close(predict_eps_from_f0(f_t, t, f0), eps, rtol=0, atol=1e-9)
+
+    def test_per_sample_timesteps(self):
+        f0, eps = make_f0(), torch.zeros(2, 16, 5, dtype=torch.float64)
+        ab = cosine_alphas_cumprod()
+        f_t = q_sample(f0, torch.tensor([0, 500]), eps)
+        torch.testing.assert_close(f_t[1], ab[500].sqrt() * f0[1])
+
+
+class TestDdimSample:
+    def test_oracle_model_recovers_f0(self):
+        f0 = make_f0()
+        ab = cosine_alphas_cumprod()
+        model = OracleEpsModel(f0, ab)
+        noise = torch.randn(f0.shape, generator=torch.Generator().manual_seed(2), dtype=f0.dtype)
+        out = ddim_sample(model, make_inputs(f0), num_steps=10, noise=noise, self_condition=True)
+        torch.testing.assert_close(out, f0, rtol=0, atol=1e-9)
+        assert [c[0] for c in model.calls] == ddim_timesteps(10).tolist()
+        assert model.calls[0][1] is None  # self-conditioning: zeros first, then the previous latents
+        assert all(float(c[1][0, 0, 0]) == prev[0] for c, prev in zip(model.calls[1:], model.calls))
+
+    def test_deterministic_with_generator(self):
+        f0 = make_f0().float()
+        model = AffineEpsModel()
+        a = ddim_sample(model, make_inputs(f0), 5, torch.Generator().manual_seed(7), eta=0.5)
+        b = ddim_sample(model, make_inputs(f0), 5, torch.Generator().manual_seed(7), eta=0.5)
+        c = ddim_sample(model, make_inputs(f0), 5, torch.Generator().manual_seed(8), eta=0.5)
+        assert torch.equal(a, b) and not torch.equal(a, c)
+        assert a.abs().max() <= 1.0
+
+    def test_guidance_combines_branches(self):
+        f0 = make_f0().float()
+        model = AffineEpsModel()
+        g = torch.Generator().manual_seed(0)
+        noise = torch.randn(f0.shape, generator=g)
+        # eps_u + s (eps_c - eps_u) with eps_c = 0.9 x, eps_u = 0.7 x: s = 2 gives 1.1 x
+        guided = ddim_sample(model, make_inputs(f0), 4, guidance_scale=2.0, noise=noise)
+
+        class Scaled(AffineEpsModel):
+            def forward(self, f_t, t, inputs, **kw):
+                return DenoiserOutput(eps=1.1 * f_t + 0.3 * torch.sin(f_t + t[0] / 100.0), latents=f_t)
+        expected = ddim_sample(Scaled(), make_inputs(f0), 4, noise=noise)
+        torch.testing.assert_close(guided, expected, rtol=1e-6, atol=1e-6)
+
+
+try:
+    import diffusers
+except ImportError:  # optional extra `hf`: only the oracle tests need it
+    diffusers = None
+
+
+def make_diffusers_ddim(clip_sample=True):
+    return diffusers.DDIMScheduler(num_train_timesteps=1000, beta_schedule="squaredcos_cap_v2",
+                                   timestep_spacing="trailing", clip_sample=clip_sample)
+
+
+@pytest.mark.skipif(diffusers is None, reason="diffusers (extra `hf`) is the schedule oracle")
+class TestAgainstDiffusers:
+    def test_alphas_cumprod(self):
+        ref = make_diffusers_ddim().alphas_cumprod.double()
+        torch.testing.assert_close(cosine_alphas_cumprod(), ref, rtol=0, atol=1e-6)
+
+    @pytest.mark.parametrize("num_steps", [1, 10, 30, 50, 999])
+    def test_timesteps(self, num_steps):
+        sched = make_diffusers_ddim()
+        sched.set_timesteps(num_steps)
+        assert torch.equal(sched.timesteps, ddim_timesteps(num_steps))
+
+    def test_add_noise(self):
+        f0 = make_f0().float()
+        eps = torch.randn(f0.shape, generator=torch.Generator().manual_seed(3))
+        t = torch.tensor([0, 999])
+        ref = make_diffusers_ddim().add_noise(f0, eps, t)
+        torch.testing.assert_close(q_sample(f0, t, eps), ref, rtol=0, atol=1e-6)
+
+    @pytest.mark.parametrize("clip_sample,use_clipped,eta", [(True, False, 0.0), (False, False, 0.0),
+                                                              (True, True, 0.0), (True, False, 1.0)])
+    def test_full_loop(self, clip_sample, use_clipped, eta):
+        sched = make_diffusers_ddim(clip_sample)
+        sched.set_timesteps(50)
+        model, f0 = AffineEpsModel(), make_f0().float()
+        inputs = make_inputs(f0)
+        g_ref = torch.Generator().manual_seed(11)
+        sample = torch.randn(f0.shape, generator=g_ref)
+        for t in sched.timesteps:
+            eps = model(sample, t.expand(2), inputs).eps
+            sample = sched.step(eps, t, sample, eta=eta, use_clipped_model_output=use_clipped,
+                                generator=g_ref).prev_sample
+        # same schedule values as diffusers (float32 cumprod) so only the loop is compared
+        ours = ddim_sample(model, inputs, 50, torch.Generator().manual_seed(11), eta=eta, clip_sample=clip_sample,
+                           use_clipped_model_output=use_clipped, alphas_cumprod=sched.alphas_cumprod.double())
+        # unclipped samples reach |x| ~ 1e2 (the first step divides by sqrt(ab_999) = 5e-5):
+        # there 1e-6 is relative, float32's resolution
+        torch.testing.assert_close(ours, sample, rtol=1e-6, atol=1e-6)
