@@ -1,0 +1,190 @@
+"""Generate the procedural PBR benchmark: scenes, splits, GT point clouds, contact sheets.
+
+`generate_dataset(out_dir, config)` writes
+
+    <out>/splits.json           {"train", "val", "test"}: scene names, assigned by seed
+    <out>/<scene>/...           one scene folder per scene (gspi.data.render_scene)
+
+Determinism: the same seed and config give byte-identical files (images, EXRs, JSON, npz),
+provided torch runs with the same thread count (`threads`, default 1: CPU reductions and
+matmuls may round differently with another count). Timings are returned, never written
+into the dataset, so they cannot break byte-identity.
+
+Parallelism: `workers` > 1 renders scenes in that many processes (each with `threads`
+torch threads); results do not depend on the assignment of scenes to workers.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import multiprocessing
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+
+from eval.layout import read_scene, write_json_atomic
+from gspi.data.contact_sheet import write_contact_sheet
+from gspi.data.environments import make_environment
+from gspi.data.point_clouds import write_scene_point_cloud
+from gspi.data.render_scene import generate_scene, load_environment
+from gspi.data.scene_recipe import assign_splits, sample_scene_recipe
+
+GENERATOR_NAME = "gspi-procedural"
+GENERATOR_VERSION = 1
+
+
+@dataclass(kw_only=True)
+class BenchmarkConfig:
+    """Sizes of a benchmark preset (conf/data/<preset>.yaml) plus the fixed view lattice."""
+
+    name: str = "custom"                      # preset name, recorded in scene.json
+    num_train_scenes: int = 4
+    num_val_scenes: int = 1
+    num_test_scenes: int = 2
+    image_size: int = 64                      # square images, pixels
+    supersample: int = 2                      # S: S x S jittered rays per pixel
+    env_height: int = 64                      # lat-long rows (width = 2 x rows)
+    num_test_views: int = 8                   # held-out views per scene (off the lattice)
+    num_val_views: int = 2
+    num_relight_envs: int = 3                 # held-out environments per scene (of 6)
+    white_radiance: float = 1.0               # exposure: white diffuse at the brightest normal
+    point_clouds: bool = True                 # write gt_points.npz
+    contact_sheets: bool = True               # write contact_sheet.png
+    threads: int = 1                          # torch threads per process
+    workers: int = 1                          # scene-parallel processes
+    lattice: dict = field(default_factory=lambda: {"num_views": 32, "radius": 3.0,
+                                                   "fov_deg": 45.0, "min_elevation_deg": 0.0})
+
+    @property
+    def num_scenes(self) -> int:
+        return self.num_train_scenes + self.num_val_scenes + self.num_test_scenes
+
+
+def scene_recipes(seed: int, cfg: BenchmarkConfig) -> list[dict]:
+    return [sample_scene_recipe(seed, i, num_test_views=cfg.num_test_views,
+                                num_val_views=cfg.num_val_views,
+                                num_relight_envs=cfg.num_relight_envs,
+                                num_lattice_views=cfg.lattice["num_views"],
+                                min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
+            for i in range(cfg.num_scenes)]
+
+
+_WORKER: dict = {}
+
+
+def _init_worker(cfg_dict: dict, env_paths: dict[str, str]) -> None:
+    """Per-process state: thread count and the prefiltered environments (built lazily)."""
+    torch.set_num_threads(int(cfg_dict["threads"]))
+    _WORKER.clear()
+    _WORKER.update(cfg=BenchmarkConfig(**cfg_dict), env_paths=env_paths, envs={}, pre={})
+
+
+def _environment(name: str):
+    from eval.relight import prefilter_environment
+
+    if name not in _WORKER["envs"]:
+        env = load_environment(Path(_WORKER["env_paths"][name]))
+        _WORKER["envs"][name] = env
+        _WORKER["pre"][name] = prefilter_environment(env)
+    return _WORKER["envs"][name], _WORKER["pre"][name]
+
+
+def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
+    cfg: BenchmarkConfig = _WORKER["cfg"]
+    names = [recipe["capture_env"], *recipe["relight_envs"]]
+    envs, pre = {}, {}
+    for n in names:
+        envs[n], pre[n] = _environment(n)
+    stats = generate_scene(recipe, Path(out_dir), envs=envs, prefiltered=pre,
+                           width=cfg.image_size, height=cfg.image_size,
+                           supersample=cfg.supersample, lattice=cfg.lattice,
+                           extra={"name": GENERATOR_NAME, "version": GENERATOR_VERSION,
+                                  "seed": seed, "preset": cfg.name,
+                                  "supersample": cfg.supersample, "lattice": cfg.lattice})
+    t0 = time.perf_counter()
+    scene = read_scene(Path(out_dir) / recipe["name"])
+    if cfg.point_clouds:
+        write_scene_point_cloud(scene)
+    if cfg.contact_sheets:
+        write_contact_sheet(scene)
+    stats["seconds"] += time.perf_counter() - t0
+    return stats
+
+
+def write_environments(env_dir: Path, names: list[str], cfg: BenchmarkConfig) -> dict[str, str]:
+    """Render each named environment once into `env_dir` (a scratch folder); name -> path."""
+    from eval.imageio import write_exr
+
+    paths = {}
+    for name in names:
+        path = env_dir / f"{name}.exr"
+        write_exr(path, make_environment(name, cfg.env_height,
+                                         white_radiance=cfg.white_radiance).numpy())
+        paths[name] = str(path)
+    return paths
+
+
+def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
+                     scratch_dir: str | Path | None = None) -> dict:
+    """Write the whole benchmark (see module docstring).
+
+    Args:
+        out_dir: dataset folder (created).
+        cfg: sizes. seed: dataset seed (scenes, splits, views, jitter).
+        scratch_dir: where the shared environment EXRs are rendered before being copied into
+            each scene (default `<out>/.cache`, removed at the end).
+    Returns:
+        {"out_dir", "splits", "scenes": [per-scene stats], "seconds", "rays", "rays_per_s",
+         "env_seconds"}.
+    """
+    import shutil
+
+    start = time.perf_counter()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    recipes = scene_recipes(seed, cfg)
+    splits = assign_splits([r["name"] for r in recipes], seed, num_train=cfg.num_train_scenes,
+                           num_val=cfg.num_val_scenes, num_test=cfg.num_test_scenes,
+                           groups=[(r["family"], r["material"]["class"]) for r in recipes])
+    scratch = Path(scratch_dir) if scratch_dir is not None else out_dir / ".cache"
+    needed = sorted({n for r in recipes for n in [r["capture_env"], *r["relight_envs"]]})
+    threads = torch.get_num_threads()
+    torch.set_num_threads(int(cfg.threads))
+    try:
+        env_paths = write_environments(scratch, needed, cfg)
+        env_seconds = time.perf_counter() - start
+        cfg_dict = asdict(cfg)
+        if cfg.workers > 1:
+            ctx = multiprocessing.get_context("spawn")
+            with concurrent.futures.ProcessPoolExecutor(
+                    cfg.workers, mp_context=ctx, initializer=_init_worker,
+                    initargs=(cfg_dict, env_paths)) as pool:
+                stats = list(pool.map(_make_scene, recipes, [str(out_dir)] * len(recipes),
+                                      [seed] * len(recipes)))
+        else:
+            _init_worker(cfg_dict, env_paths)
+            stats = [_make_scene(r, str(out_dir), seed) for r in recipes]
+    finally:
+        torch.set_num_threads(threads)
+        _WORKER.clear()
+        if scratch_dir is None:
+            shutil.rmtree(scratch, ignore_errors=True)
+    write_json_atomic(out_dir / "splits.json", splits)
+    seconds = time.perf_counter() - start
+    rays = sum(s["rays"] for s in stats)
+    return {"out_dir": str(out_dir), "splits": splits, "scenes": stats, "seconds": seconds,
+            "env_seconds": env_seconds, "rays": rays,
+            "rays_per_s": rays / max(sum(s["seconds"] for s in stats), 1e-9)}
+
+
+def merge_splits(out_dir: str | Path, added: dict[str, list[str]]) -> dict[str, list[str]]:
+    """Add scene names to `<out>/splits.json` (created if missing); returns the result."""
+    from eval.layout import read_splits
+
+    path = Path(out_dir) / "splits.json"
+    splits = read_splits(out_dir) if path.is_file() else {"train": [], "val": [], "test": []}
+    for split, names in added.items():
+        splits[split] = sorted(set(splits.get(split, [])) | set(names))
+    write_json_atomic(path, splits)
+    return splits

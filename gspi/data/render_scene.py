@@ -1,0 +1,134 @@
+"""Render and write one procedural scene in the canonical layout (docs/FORMAT.md, eval.layout).
+
+`<out>/<scene name>/`:
+    scene.json                 cameras (OpenCV) + capture/relight env names + `generator` recipe
+    envmaps/<env>.exr          the capture environment and each relighting environment
+    train/<000..031>/          the canonical 32-view lattice, in lattice order (Stage II index k)
+    val/<v00..>/, test/<t00..>/  held-out views off the lattice (per-scene seeded directions)
+        rgb.exr rgb.png albedo.png roughness.png metallic.png normal.exr depth.exr mask.png
+    test/<id>/relit_<env>.exr  relit ground truth: `eval.views.relight_view` of the STORED
+                               (quantised) maps, read back from disk, under each relight env
+    gt_points.npz              GT point cloud of the lattice views (gspi.data.point_clouds)
+    contact_sheet.png          preview (gspi.data.contact_sheet)
+
+Per-view conventions are those of `gspi.data.render_view`. Relit images use the same shader,
+the same environment file and the same `view_directions` as the evaluator, so re-rendering
+them from the files reproduces them bit for bit.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from eval.colorspace import linear_to_srgb
+from eval.imageio import read_exr, write_exr
+from eval.layout import Scene, View, read_view_file, write_material, write_scene_json, \
+    write_view_file
+from eval.views import relight_view, view_directions
+from gspi.data.lattice import cameras_from_directions, lattice_cameras
+from gspi.data.render_view import ViewRender, render_views
+from gspi.data.sdf_shapes import ShapeSDF
+
+VIEW_ID_PREFIX = {"val": "v", "test": "t"}
+
+
+def scene_views(recipe: dict, *, width: int, height: int, lattice: dict) -> dict[str, list[View]]:
+    """Cameras of a scene: train = the canonical lattice, val/test = the recipe's directions."""
+    K, w2c = lattice_cameras(width=width, height=height, **lattice)
+    views = {"train": [View(f"{k:03d}", "train", K[k], w2c[k]) for k in range(len(K))]}
+    for split in ("val", "test"):
+        dirs = np.asarray(recipe[f"{split}_directions"], dtype=np.float64).reshape(-1, 3)
+        if len(dirs) == 0:
+            continue
+        Ks, w2cs = cameras_from_directions(dirs, radius=lattice["radius"], fov_deg=lattice["fov_deg"],
+                                           width=width, height=height)
+        views[split] = [View(f"{VIEW_ID_PREFIX[split]}{k:02d}", split, Ks[k], w2cs[k])
+                        for k in range(len(dirs))]
+    return views
+
+
+def write_view(view_dir: Path, r: ViewRender) -> None:
+    """Write the eight per-view files of a rendered view."""
+    write_view_file(view_dir, "rgb.exr", r.rgb)
+    write_view_file(view_dir, "rgb.png",
+                    linear_to_srgb(torch.from_numpy(r.rgb).clamp(0, 1)).numpy())
+    write_material(view_dir, "albedo", r.albedo_srgb)
+    write_material(view_dir, "roughness", r.roughness)
+    write_material(view_dir, "metallic", r.metallic)
+    write_view_file(view_dir, "normal.exr", r.normal)
+    write_view_file(view_dir, "depth.exr", r.depth)
+    write_view_file(view_dir, "mask.png", r.mask.astype(np.float32))
+
+
+def stored_relight_inputs(scene: Scene, view: View) -> dict[str, torch.Tensor]:
+    """The relighting inputs of a view, read back from its stored files (as the evaluator does)."""
+    vdir = scene.view_dir(view.split, view.id)
+    t = {name: torch.from_numpy(read_view_file(vdir, f)) for name, f in
+         (("albedo", "albedo.png"), ("roughness", "roughness.png"), ("metallic", "metallic.png"),
+          ("normal", "normal.exr"))}
+    t["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width)
+    return t
+
+
+def relight_stored_view(scene: Scene, view: View, env) -> np.ndarray:
+    """`eval.views.relight_view` of the stored maps of `view` under `env` -> [H, W, 3] float32."""
+    t = stored_relight_inputs(scene, view)
+    out = relight_view(t["albedo"], t["roughness"], t["metallic"], t["normal"], t["view_dir"], env)
+    return out.numpy().astype(np.float32)
+
+
+def _view_seed(view_seed: int, split: str, k: int) -> int:
+    """Jitter seed of view k of a split (independent streams per split and view)."""
+    ss = np.random.SeedSequence([int(view_seed), ["train", "val", "test"].index(split), int(k)])
+    return int(ss.generate_state(1)[0])
+
+
+def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor],
+                   prefiltered: dict, width: int, height: int, supersample: int,
+                   lattice: dict, extra: dict | None = None) -> dict:
+    """Render every view of a scene and write it (see module docstring).
+
+    Args:
+        recipe: from `gspi.data.scene_recipe.sample_scene_recipe`.
+        out_dir: dataset folder; the scene goes to `out_dir / recipe["name"]`.
+        envs: env name -> [h, w, 3] float32 map (written to envmaps/).
+        prefiltered: env name -> `eval.relight.PrefilteredEnvironment` of the same map.
+        width, height: image size; supersample: S (S x S rays per pixel); lattice: kwargs of
+            `lattice_cameras` (num_views, radius, fov_deg, min_elevation_deg).
+        extra: more metadata for scene.json's `generator` entry.
+    Returns:
+        Stats: {"name", "seconds", "rays", "sdf_evals", "views"}.
+    """
+    start = time.perf_counter()
+    root = Path(out_dir) / recipe["name"]
+    views = scene_views(recipe, width=width, height=height, lattice=lattice)
+    scene = Scene(root=root, name=recipe["name"], width=width, height=height, views=views,
+                  capture_env=recipe["capture_env"], relight_envs=list(recipe["relight_envs"]),
+                  extra={"generator": {**(extra or {}), **recipe}})
+    write_scene_json(scene)
+    for name in [scene.capture_env, *scene.relight_envs]:
+        write_exr(scene.envmap_path(name), envs[name].numpy())
+    shape = ShapeSDF(recipe["shape"])
+    todo = [(split, k, view) for split, vs in views.items() for k, view in enumerate(vs)]
+    cameras = [(view.K, view.w2c, _view_seed(recipe["view_seed"], split, k))
+               for split, k, view in todo]
+    renders = render_views(shape, recipe["material"], cameras, height, width,
+                           env=prefiltered[scene.capture_env], supersample=supersample)
+    for (split, _, view), r in zip(todo, renders):
+        write_view(scene.view_dir(split, view.id), r)
+    rays, evals = sum(r.rays for r in renders), sum(r.sdf_evals for r in renders)
+    for view in views.get("test", []):
+        for env_name in scene.relight_envs:
+            env = prefiltered[env_name]
+            write_exr(scene.view_dir("test", view.id) / f"relit_{env_name}.exr",
+                      relight_stored_view(scene, view, env))
+    return {"name": scene.name, "seconds": time.perf_counter() - start, "rays": rays,
+            "sdf_evals": evals, "views": sum(len(v) for v in views.values())}
+
+
+def load_environment(path: Path) -> torch.Tensor:
+    """[h, w, 3] float32 tensor of an environment EXR."""
+    return torch.from_numpy(read_exr(path))
