@@ -6,7 +6,10 @@ degree 3, 5 PBR feature channels), one camera at distance 4 with a 40 degree
 field of view. Loss = sum of every output map, so every channel is
 differentiated.
 
-Run: PYTHONPATH=. python benchmarks/bench_rasterize.py [--sizes 64 128] [--repeats 5]
+Timed with 1 and with all torch threads: on a shared machine (other processes
+busy) two OpenMP threads stall on every parallel op and one thread is faster.
+
+Run: PYTHONPATH=. python benchmarks/bench_rasterize.py [--sizes 64 128] [--repeats 7] [--threads 1 2]
 """
 
 from __future__ import annotations
@@ -40,7 +43,8 @@ def make_scene(num: int, seed: int = 0) -> dict:
 
 def time_once(scene: dict, size: int) -> float:
     """Seconds for one forward + backward at ``size`` x ``size`` pixels."""
-    viewmat = look_at(torch.tensor([0.0, -1.0, -4.0]) * 4 / math.sqrt(17), torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
+    eye = torch.tensor([0.0, -1.0, -4.0]) * 4 / math.sqrt(17)  # distance 4 from the origin
+    viewmat = look_at(eye, torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
     K = intrinsics_from_fov(math.radians(40), size, size)
     start = time.perf_counter()
     out = rasterize_2dgs(
@@ -56,16 +60,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--num", type=int, default=5000)
     parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, torch.get_num_threads()])
     args = parser.parse_args()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"torch {torch.__version__}, {torch.get_num_threads()} threads")
+          f"load average {load:.2f}, torch {torch.__version__}")
     scene = make_scene(args.num)
-    for size in args.sizes:
-        time_once(scene, size)  # warm-up
-        times = [time_once(scene, size) for _ in range(args.repeats)]
-        print(f"{args.num} surfels, {size}x{size} px, forward+backward: median {statistics.median(times):.3f} s "
-              f"(min {min(times):.3f}, max {max(times):.3f}, {args.repeats} runs)")
+    for threads in dict.fromkeys(args.threads):
+        torch.set_num_threads(threads)
+        for size in args.sizes:
+            time_once(scene, size)  # warm-up
+            times = [time_once(scene, size) for _ in range(args.repeats)]
+            print(f"{args.num} surfels, {size}x{size} px, {threads} thread(s), forward+backward: "
+                  f"median {statistics.median(times):.3f} s (min {min(times):.3f}, max {max(times):.3f}, "
+                  f"{args.repeats} runs)")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,170 @@
+"""Read and write 2DGS ``point_cloud.ply`` files (hbb1/2d-gaussian-splatting layout).
+
+Layout (one ``vertex`` element, float32 properties, binary little endian), in the
+official order (``GaussianModel.construct_list_of_attributes``)::
+
+    x y z  nx ny nz  f_dc_0..2  f_rest_0..(3(K-1)-1)  opacity  scale_0 scale_1  rot_0..3
+
+* ``nx ny nz`` are written as zeros by the official code and ignored on read.
+* ``f_rest`` is channel-major: ``f_rest_0..K-2`` are the red coefficients 1..K-1,
+  then green, then blue; K = (degree + 1)^2, so the count (0, 9, 24 or 45) gives
+  the SH degree (0..3).
+* Values are raw: log scales, inverse-sigmoid opacity, unnormalised quaternion
+  (w, x, y, z) = rot_0..3.
+
+GS-PI extension (written after ``rot_3`` when present, all-or-none):
+``albedo_0 albedo_1 albedo_2 roughness metallic``, the inverse-sigmoid LOGITS of
+linear albedo RGB, roughness and metallic (activated with sigmoid).
+
+Reading accepts any property order and any numeric type (cast to float32); float32
+data round-trips bit-exactly.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Union
+
+import numpy as np
+import torch
+from plyfile import PlyData, PlyElement, PlyParseError
+
+from gspi.gaussians.model import Gaussians2D
+from gspi.gaussians.sh import MAX_SH_DEGREE, num_sh_bases
+
+PathLike = Union[str, Path]
+POSITION = ("x", "y", "z")
+NORMAL = ("nx", "ny", "nz")
+F_DC = ("f_dc_0", "f_dc_1", "f_dc_2")
+SCALE = ("scale_0", "scale_1")
+ROT = ("rot_0", "rot_1", "rot_2", "rot_3")
+PBR = ("albedo_0", "albedo_1", "albedo_2", "roughness", "metallic")
+REQUIRED = POSITION + F_DC + ("opacity",) + SCALE + ROT
+
+
+class PlyFormatError(ValueError):
+    """A file is not a valid 2DGS point_cloud.ply; the message names file and problem."""
+
+    def __init__(self, path: PathLike, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = str(path)
+        self.problem = problem
+
+
+def property_names(sh_degree: int, *, pbr: bool = False) -> list[str]:
+    """Vertex property names in the official 2DGS order (+ GS-PI PBR logits)."""
+    n_rest = 3 * (num_sh_bases(sh_degree) - 1)
+    names = list(POSITION + NORMAL + F_DC) + [f"f_rest_{i}" for i in range(n_rest)]
+    names += ["opacity", *SCALE, *ROT]
+    return names + list(PBR) if pbr else names
+
+
+def _load_vertices(path: PathLike) -> np.ndarray:
+    try:
+        ply = PlyData.read(str(path), mmap=False)
+    except FileNotFoundError:
+        raise
+    except (PlyParseError, ValueError, EOFError, UnicodeDecodeError, IndexError) as exc:
+        raise PlyFormatError(path, f"not a readable PLY file ({type(exc).__name__}: {exc})") from exc
+    if "vertex" not in [el.name for el in ply.elements]:
+        raise PlyFormatError(path, "no 'vertex' element")
+    data = ply["vertex"].data
+    if data.dtype.names is None:
+        raise PlyFormatError(path, "'vertex' element has no scalar properties")
+    return data
+
+
+def _sh_rest_count(path: PathLike, names: set[str]) -> int:
+    rest = sorted(int(n[len("f_rest_"):]) for n in names if n.startswith("f_rest_") and n[len("f_rest_"):].isdigit())
+    if rest != list(range(len(rest))):
+        raise PlyFormatError(path, f"f_rest properties are not numbered 0..{len(rest) - 1} without gaps")
+    allowed = [3 * (num_sh_bases(d) - 1) for d in range(MAX_SH_DEGREE + 1)]
+    if len(rest) not in allowed:
+        raise PlyFormatError(path, f"{len(rest)} f_rest properties; expected one of {allowed} (SH degree 0..3)")
+    return len(rest)
+
+
+def _column(path: PathLike, data: np.ndarray, names: list[str]) -> np.ndarray:
+    """[N, len(names)] float32 columns, checked finite."""
+    if not names:
+        return np.zeros((len(data), 0), dtype=np.float32)
+    for name in names:
+        if not np.issubdtype(data.dtype[name], np.number):
+            raise PlyFormatError(path, f"property '{name}' is not numeric")
+    out = np.stack([np.asarray(data[n]).astype(np.float32) for n in names], axis=1)
+    bad = ~np.isfinite(out)
+    if bad.any():
+        rows, cols = np.nonzero(bad)
+        first = f"first in property '{names[cols[0]]}' of vertex {rows[0]}"
+        raise PlyFormatError(path, f"{int(bad.sum())} non-finite value(s) (NaN/Inf), {first}")
+    return out
+
+
+def read_ply(path: PathLike) -> Gaussians2D:
+    """Loads a 2DGS point_cloud.ply (official layout, optional GS-PI PBR logits).
+
+    Args:
+        path: file to read.
+
+    Returns:
+        :class:`Gaussians2D` with float32 CPU tensors of raw parameters.
+
+    Raises:
+        FileNotFoundError: if the file does not exist.
+        PlyFormatError: if it is not a PLY, has no vertex element, lacks a required
+            property, has a wrong number of f_rest properties, is truncated, or holds
+            NaN/Inf values.
+    """
+    data = _load_vertices(path)
+    names = set(data.dtype.names)
+    missing = [n for n in REQUIRED if n not in names]
+    if missing:
+        raise PlyFormatError(path, f"missing required vertex properties {missing}")
+    if "scale_2" in names:
+        raise PlyFormatError(path, "has 'scale_2': a 3D Gaussian splatting file, not 2DGS surfels")
+    n_rest = _sh_rest_count(path, names)
+    pbr_present = [n for n in PBR if n in names]
+    if pbr_present and len(pbr_present) != len(PBR):
+        raise PlyFormatError(path, f"incomplete PBR attributes: has {pbr_present}, needs all of {list(PBR)}")
+    n = len(data)
+    rest = _column(path, data, [f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, n_rest // 3)
+    t = torch.from_numpy
+    pbr = {}
+    if pbr_present:
+        values = t(_column(path, data, list(PBR)))
+        pbr = {"albedo_logits": values[:, :3].contiguous(), "roughness_logits": values[:, 3:4].contiguous(),
+               "metallic_logits": values[:, 4:5].contiguous()}
+    return Gaussians2D(
+        means=t(_column(path, data, list(POSITION))),
+        quats=t(_column(path, data, list(ROT))),
+        log_scales=t(_column(path, data, list(SCALE))),
+        opacity_logits=t(_column(path, data, ["opacity"])[:, 0].copy()),
+        sh_dc=t(_column(path, data, list(F_DC)))[:, None, :].contiguous(),
+        sh_rest=t(rest).transpose(1, 2).contiguous(),
+        **pbr,
+    )
+
+
+def write_ply(path: PathLike, gaussians: Gaussians2D) -> None:
+    """Writes surfels in the official 2DGS layout (binary little endian, float32).
+
+    Normals are written as zeros like the official code; PBR logits are appended
+    when ``gaussians.has_pbr``. Tensors are detached, moved to CPU and cast to float32.
+
+    Args:
+        path: output file (parent directories are created).
+        gaussians: surfels to save.
+    """
+    g = gaussians.detach().to("cpu", torch.float32)
+    n = g.num_gaussians
+    cols = [g.means, torch.zeros(n, 3), g.sh_dc[:, 0, :], g.sh_rest.transpose(1, 2).reshape(n, 3 * g.sh_rest.shape[1]),
+            g.opacity_logits[:, None], g.log_scales, g.quats]
+    if g.has_pbr:
+        cols += [g.albedo_logits, g.roughness_logits, g.metallic_logits]
+    values = torch.cat(cols, dim=1).numpy()
+    names = property_names(g.sh_degree, pbr=g.has_pbr)
+    records = np.empty(n, dtype=[(name, "<f4") for name in names])
+    for i, name in enumerate(names):
+        records[name] = values[:, i]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    PlyData([PlyElement.describe(records, "vertex")], byte_order="<").write(str(path))
