@@ -156,3 +156,44 @@ def main(argv: list[str] | None = None) -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def surfel_sphere(num: int = 3000, *, radius: float = 0.8, color=(0.6, 0.4, 0.2),
+                  opacity: float = 0.98, floaters: int = 0, seed: int = 0):
+    """A 2DGS asset: surfels tangent to a sphere (Fibonacci points), plus optional floaters.
+
+    Floaters are random surfels at radius 1.1-1.5 facing random directions, the kind of
+    free-space clutter Stage I's filters must remove.
+    """
+    import math
+
+    import torch
+
+    from gspi.gaussians.model import Gaussians2D
+    from gspi.gaussians.sh import rgb_to_sh
+
+    g = torch.Generator().manual_seed(seed)
+    k = torch.arange(num, dtype=torch.float64) + 0.5
+    z = 1 - 2 * k / num
+    phi = k * math.pi * (3 - math.sqrt(5))
+    normals = torch.stack([torch.sqrt(1 - z * z) * torch.cos(phi),
+                           torch.sqrt(1 - z * z) * torch.sin(phi), z], -1)
+    means = radius * normals
+    spacing = radius * math.sqrt(4 * math.pi / num)
+    scales = torch.full((num, 2), 0.6 * spacing, dtype=torch.float64)
+    if floaters:
+        d = torch.nn.functional.normalize(torch.randn(floaters, 3, generator=g, dtype=torch.float64), dim=-1)
+        r = 1.1 + 0.4 * torch.rand(floaters, 1, generator=g, dtype=torch.float64)
+        means = torch.cat([means, d * r])
+        normals = torch.cat([normals, torch.nn.functional.normalize(
+            torch.randn(floaters, 3, generator=g, dtype=torch.float64), dim=-1)])
+        scales = torch.cat([scales, torch.full((floaters, 2), 1.5 * spacing, dtype=torch.float64)])
+    zaxis = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(normals)
+    quats = torch.cat([1 + (normals * zaxis).sum(-1, keepdim=True),
+                       torch.cross(zaxis, normals, dim=-1)], -1)
+    quats = torch.nn.functional.normalize(quats, dim=-1)  # rotates +z onto the normal
+    n = len(means)
+    dc = rgb_to_sh(torch.tensor(color, dtype=torch.float64)).expand(n, 1, 3)
+    return Gaussians2D(means=means.float(), quats=quats.float(), log_scales=scales.log().float(),
+                       opacity_logits=torch.full((n,), math.log(opacity / (1 - opacity))),
+                       sh_dc=dc.float().clone(), sh_rest=torch.zeros(n, 0, 3))

@@ -1,0 +1,98 @@
+"""The three geometric filters of Stage I (paper, Experiments, "Geometric filtering").
+
+Each returns a boolean keep-mask over the points; all are pure functions of the point cloud and
+the lattice renders, so their effect can be measured one by one (`gspi.stage1.extract`).
+
+(i)   statistical outlier removal: mean distance to the k nearest neighbours (scipy's cKDTree)
+      above mean + std_ratio * std of that statistic -> removed (Open3D's definition);
+(ii)  cross-view foreground-mask consistency: a surface point must project into the
+      foreground of every other view that sees it in frame; landing on background (alpha <
+      threshold, after a 1-pixel dilation for silhouette quantisation) in more than
+      `max_violations` views -> removed;
+(iii) depth consensus across neighbouring views: in the `num_neighbours` lattice views closest
+      in direction to the source view, a point lying clearly IN FRONT of the rendered median
+      depth (by more than `tolerance_px` pixel footprints) occupies space those views see as
+      empty: more than `max_violations` such views -> removed. Points behind the rendered depth
+      are occluded there and count neither way. Points are removed, never moved: moving them
+      would break the hard binding between a point and the pixel its RGB came from.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+
+def statistical_outliers_keep(xyz: np.ndarray, *, k: int = 16, std_ratio: float = 2.0
+                              ) -> np.ndarray:
+    """Keep-mask of filter (i) for `xyz` [P, 3]."""
+    if len(xyz) <= k:
+        return np.ones(len(xyz), dtype=bool)
+    dist, _ = cKDTree(xyz).query(xyz, k=k + 1)  # first neighbour is the point itself
+    mean_dist = dist[:, 1:].mean(axis=1)
+    return mean_dist <= mean_dist.mean() + std_ratio * mean_dist.std()
+
+
+def project(xyz: np.ndarray, K: np.ndarray, w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (row, col as floats, pixel centres at +0.5) and camera z, per view.
+
+    Args:
+        xyz: [P, 3]; K: [V, 3, 3]; w2c: [V, 4, 4].
+    Returns:
+        rc [V, P, 2] (row, col) and z [V, P].
+    """
+    cam = np.einsum("vij,pj->vpi", w2c[:, :3, :3], xyz) + w2c[:, None, :3, 3]
+    z = cam[..., 2]
+    uvw = np.einsum("vij,vpj->vpi", K, cam)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        col, row = uvw[..., 0] / z, uvw[..., 1] / z
+    return np.stack([row, col], axis=-1), z
+
+
+def _lookup(images: np.ndarray, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-pixel values of `images` [V, H, W] at `rc` [V, P, 2]; and an in-frame mask."""
+    v, h, w = images.shape
+    i, j = np.floor(rc[..., 0]).astype(np.int64), np.floor(rc[..., 1]).astype(np.int64)
+    inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+    i, j = np.clip(i, 0, h - 1), np.clip(j, 0, w - 1)
+    return images[np.arange(v)[:, None], i, j], inside
+
+
+def mask_consistency_keep(xyz: np.ndarray, source_view: np.ndarray, alpha: np.ndarray,
+                          K: np.ndarray, w2c: np.ndarray, *, alpha_threshold: float = 0.5,
+                          max_violations: int = 1, dilate_px: int = 1) -> np.ndarray:
+    """Keep-mask of filter (ii). alpha: [V, H, W] rendered opacity of the lattice views."""
+    fg = torch.from_numpy(alpha >= alpha_threshold).float()[:, None]
+    if dilate_px > 0:
+        fg = torch.nn.functional.max_pool2d(fg, 2 * dilate_px + 1, stride=1, padding=dilate_px)
+    rc, z = project(xyz, K, w2c)
+    fg_at, inside = _lookup(fg[:, 0].numpy() > 0.5, rc)
+    seen = inside & (z > 0)
+    seen[source_view, np.arange(len(xyz))] = False
+    return (seen & ~fg_at).sum(axis=0) <= max_violations
+
+
+def neighbour_views(w2c: np.ndarray, num_neighbours: int) -> np.ndarray:
+    """[V, n] indices of the n views closest in viewing direction to each view (not itself)."""
+    forward = w2c[:, 2, :3]
+    cos = forward @ forward.T
+    np.fill_diagonal(cos, -np.inf)
+    return np.argsort(-cos, axis=1)[:, :num_neighbours]
+
+
+def depth_consensus_keep(xyz: np.ndarray, source_view: np.ndarray, depth: np.ndarray,
+                         alpha: np.ndarray, K: np.ndarray, w2c: np.ndarray, *,
+                         num_neighbours: int = 6, tolerance_px: float = 3.0,
+                         max_violations: int = 1, alpha_threshold: float = 0.5) -> np.ndarray:
+    """Keep-mask of filter (iii). depth, alpha: [V, H, W] rendered median depth and opacity."""
+    rc, z = project(xyz, K, w2c)
+    d_at, inside = _lookup(depth, rc)
+    a_at, _ = _lookup(alpha, rc)
+    footprint = z / K[:, 0, 0][:, None]                 # world size of one pixel at depth z
+    in_front = inside & (z > 0) & (a_at >= alpha_threshold) & \
+        (z < d_at - tolerance_px * footprint)
+    neighbours = neighbour_views(w2c, num_neighbours)   # [V, n]
+    is_neighbour = np.zeros((len(w2c), len(xyz)), dtype=bool)
+    for col in range(neighbours.shape[1]):
+        is_neighbour[neighbours[source_view, col], np.arange(len(xyz))] = True
+    return (in_front & is_neighbour).sum(axis=0) <= max_violations
