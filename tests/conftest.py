@@ -5,6 +5,16 @@ import pytest
 import torch
 
 
+@pytest.fixture(autouse=True, scope="session")
+def single_torch_thread():
+    """Tests use tiny tensors: one intra-op thread is fastest and reproducible, and avoids
+    OpenMP spin-waiting (measured 100x slow-downs) when the 2 cores are shared."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="session")
 def lpips_net():
     from eval.lpips_net import load_lpips

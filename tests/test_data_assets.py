@@ -18,15 +18,6 @@ from gspi.data.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
 from gspi.data.sphere_trace import sdf_normals, sphere_trace
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """One torch thread, as the generator runs (fast and reproducible on a shared 2-core box)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.mark.parametrize("family", FAMILIES)
 def test_shape_fits_unit_sphere_and_traces_exactly(family):
     shape = ShapeSDF(sample_shape(family, np.random.default_rng(7)))

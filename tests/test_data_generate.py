@@ -27,15 +27,6 @@ SMALL = ["data.num_train_scenes=2", "data.num_val_scenes=0", "data.num_test_scen
          "data.num_test_views=2", "data.num_val_views=1", "data.num_relight_envs=2"]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """One torch thread, as the generator runs (fast and reproducible on a shared 2-core box)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def make_config(out: Path, seed: int = 0, extra: list[str] | None = None):
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         return compose("gspi_data", overrides=alias_preset(

@@ -16,15 +16,6 @@ from gspi.data.nerf_synthetic import (blender_c2w_to_opencv_w2c, export_nerf_syn
                                       opencv_w2c_to_blender_c2w, write_rgba)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """One torch thread, as the generator runs (fast and reproducible on a shared 2-core box)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     out = tmp_path_factory.mktemp("nerf") / "data"

@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-import torch
 
 from gspi.data.lattice import (GOLDEN_ANGLE, fibonacci_hemisphere_lattice, held_out_directions,
                                intrinsics_from_fov, lattice_cameras, look_at_w2c,
@@ -14,15 +13,6 @@ from gspi.data.render_scene import scene_views
 
 # Near-uniform spacing: for V = 32 the nearest-neighbour angles span 22.3..24.7 deg (ratio 1.11).
 MAX_NN_RATIO = 1.25
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """One torch thread, as the generator runs (fast and reproducible on a shared 2-core box)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 class TestFibonacciHemisphereLattice:

@@ -15,16 +15,6 @@ TINY = RCWConfig(num_latents=16, latent_dim=32, point_dim=16, num_blocks=2, num_
                  fourier_bands=2, global_token_dim=8)
 
 
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny tensors: one intra-op thread is fastest, and avoids OpenMP spin-waiting (100x
-    slow-downs) when the 2 cores are shared with other processes."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def make_model(config=TINY, seed=0):
     torch.manual_seed(seed)
     return RCWDenoiser(config).eval()

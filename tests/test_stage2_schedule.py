@@ -9,16 +9,6 @@ from gspi.stage2.schedule import (cosine_alphas_cumprod, ddim_timesteps, min_snr
                                   predict_eps_from_f0, predict_f0_from_eps, q_sample, snr)
 
 
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny tensors: one intra-op thread is fastest, and avoids OpenMP spin-waiting (100x
-    slow-downs) when the 2 cores are shared with other processes."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def make_f0(b=2, n=16, seed=0):
     g = torch.Generator().manual_seed(seed)
     return torch.rand(b, n, 5, generator=g, dtype=torch.float64) * 1.8 - 0.9  # inside [-1, 1]
