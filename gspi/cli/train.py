@@ -1,0 +1,76 @@
+"""gspi-train: train the Stage II denoiser, then score it on the test point clouds.
+
+Examples:
+    gspi-train data=data/small out=runs/s2_small stage2=cpu_small        # the shipped CPU model
+    gspi-train data=data/small out=runs/a2 stage2=cpu_small ablation=a2_no_view_onehot
+    gspi-train data=data/tiny out=/tmp/s2 stage2=tiny                      # seconds (smoke run)
+    gspi-train data=data/paper out=runs/s2 stage2.prior.encoder=dinov2 stage2.prior.dinov2.path=models/dinov2-base
+    gspi-train data=data/small out=runs/s2_small stage2=cpu_small stage2.train.steps=8000   # resumes
+
+Rerunning with the same `out` resumes from `<out>/checkpoint.pt` (model, EMA, optimizer, step,
+RNG states). Writes checkpoint.pt, metrics.jsonl, loss_curve.png, stats.json and (if
+stage2.eval.enabled) eval_points/{scores.json,table.md} into `out`, which is also Hydra's run
+dir (`<out>/.hydra/`). Config: conf/gspi_train.yaml, conf/stage2/, conf/ablation/.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+# Absolute: a relative config_path resolves as a Python package under console scripts.
+CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+# `data=<dir>` is an alias of the key `data_dir=<dir>`: conf/data/ is a config group (dataset
+# presets), so Hydra would read `data=...` as a group override. `main` rewrites the argument.
+DATA_ALIAS = ("data=", "data_dir=")
+
+
+def rewrite_data_alias(argv: list[str]) -> list[str]:
+    """``data=X`` -> ``data_dir=X`` (other arguments unchanged)."""
+    old, new = DATA_ALIAS
+    return [new + a[len(old):] if a.startswith(old) else a for a in argv]
+
+
+def run(cfg: DictConfig) -> dict:
+    """Trains (or resumes) Stage II into ``cfg.out`` and evaluates it; returns stats.json's content."""
+    import torch
+
+    from gspi.stage2.checkpoint import load_stage2_checkpoint
+    from gspi.stage2.evaluate_points import evaluate_checkpoint
+    from gspi.stage2.train import train
+
+    torch.set_num_threads(int(cfg.threads))
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    plain.pop("hydra", None)
+    out = Path(cfg.out)
+    stats = train(plain, out)
+    ev = plain["stage2"]["eval"]
+    if ev["enabled"]:
+        model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")
+        result = evaluate_checkpoint(model, saved_cfg, plain["data_dir"], out / "eval_points", split=ev["split"],
+                                     num_steps=int(ev["num_steps"]), seed=int(ev["seed"]),
+                                     write_chunk=ev.get("write_chunk"))
+        stats["eval_points"] = {"split": ev["split"], "mean": result["mean"]}
+    (out / "stats.json").write_text(json.dumps(stats, indent=2) + "\n")
+    log.info("wrote %s", out / "stats.json")
+    return stats
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_train")
+def _hydra_main(cfg: DictConfig) -> float | None:
+    stats = run(cfg)
+    return stats.get("final_loss")
+
+
+def main() -> None:
+    sys.argv = [sys.argv[0], *rewrite_data_alias(sys.argv[1:])]
+    _hydra_main()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,280 @@
+"""Stage II training data (paper Sec. "Training vs. Inference Dynamics").
+
+Per scene, ``gt_points.npz`` (the unprojection of the 32 lattice views' GT depth,
+``gspi.data.point_clouds``) gives every point its world position, source view k, source pixel,
+linear RGB and PBR ground truth. From it:
+
+* **Perturbation** (sub-pixel depth noise of Gaussian primitives): each point moves along the
+  ray of its source view by ``delta ~ N(0, (k * footprint)^2)``, ``footprint = z / f_x`` = the
+  width of one pixel at the point's camera depth z (``stage2.data.perturb_pixels`` = k, 0.5).
+  Moving along the source ray keeps the point on its source pixel: the Top-RGB binding
+  survives the noise exactly as the paper's hard binding intends.
+* **Local subset** of ``num_points`` (N_train = 512): a uniformly random centre point and its
+  N nearest neighbours (scipy ``cKDTree`` on the unperturbed cloud; the subset is perturbed
+  afterwards, which is the same distribution as perturbing the whole cloud first).
+* **Coordinates**: the unit-sphere frame (``normalize.fit_unit_sphere``) of the whole
+  unperturbed scene cloud, shared by all its subsets.
+* **Local condition** (``stage2.data.local_condition``):
+  ``top_rgb_onehot`` (default, 35) = [Top-RGB 3 || one-hot(source view) 32], with
+  Top-RGB = ``linear_to_srgb(clamp(rgb_linear, 0, 1))`` in [0, 1], the transform Stage I
+  applies at inference; ``top_rgb`` (A2, 3) = Top-RGB only; ``multiview`` (A5, 128) = for each
+  of the 32 lattice views, the sRGB colour at the point's projection (nearest pixel, 0 outside
+  the image) and a visibility flag (inside, foreground, ``|z - depth_gt| < tol * footprint``).
+* **Targets** f0 = ``pbr_to_model([albedo (sRGB-encoded, as stored), roughness, metallic])`` in [-1, 1].
+* **Global prior**: the scene's cached [32, D, 5, 5] encoder features as [32, 25, D] tokens;
+  view-dropout keeps ``train_views`` (16) random views per item, with their lattice ids.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_to_model, to_unit_sphere, view_onehot
+
+LOCAL_CONDITIONS = {"top_rgb_onehot": 35, "top_rgb": 3, "multiview": 128}  # name -> width
+NUM_LATTICE_VIEWS = 32
+
+
+def local_condition_dim(name: str) -> int:
+    if name not in LOCAL_CONDITIONS:
+        raise ValueError(f"unknown stage2.data.local_condition {name!r}; allowed: {sorted(LOCAL_CONDITIONS)}")
+    return LOCAL_CONDITIONS[name]
+
+
+def srgb_top_rgb(rgb_linear: np.ndarray) -> np.ndarray:
+    """[..., 3] linear HDR -> [..., 3] float32 ``linear_to_srgb(clamp(x, 0, 1))`` (Top-RGB)."""
+    from eval.colorspace import linear_to_srgb
+
+    return linear_to_srgb(torch.from_numpy(np.asarray(rgb_linear, dtype=np.float32))).numpy()
+
+
+@dataclass
+class LatticeCameras:
+    """The scene's 32 lattice cameras (its ``train`` split, in lattice order)."""
+
+    K: np.ndarray  # [V, 3, 3] float64 pixel intrinsics
+    w2c: np.ndarray  # [V, 4, 4] float64 OpenCV world -> camera
+    width: int
+    height: int
+
+    @property
+    def centers(self) -> np.ndarray:  # [V, 3] world camera centres
+        R, t = self.w2c[:, :3, :3], self.w2c[:, :3, 3]
+        return -np.einsum("vji,vj->vi", R, t)
+
+    def project(self, xyz: np.ndarray, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points [..., 3] in cameras ``views`` [...] -> pixel (u, v) [..., 2] and depth z [...]."""
+        R, t = self.w2c[views, :3, :3], self.w2c[views, :3, 3]
+        cam = np.einsum("...ij,...j->...i", R, xyz) + t
+        z = cam[..., 2]
+        K = self.K[views]
+        u = K[..., 0, 0] * cam[..., 0] / z + K[..., 0, 2]
+        v = K[..., 1, 1] * cam[..., 1] / z + K[..., 1, 2]
+        return np.stack([u, v], axis=-1), z
+
+
+def read_lattice_cameras(scene_dir: str | Path):
+    """(Scene, LatticeCameras) of a canonical scene folder; the train split must be the 32-view lattice."""
+    from eval.layout import read_scene
+
+    scene = read_scene(scene_dir)
+    views = scene.split_views("train")
+    if len(views) != NUM_LATTICE_VIEWS:
+        raise ValueError(f"{Path(scene_dir) / 'scene.json'}: train split has {len(views)} views, "
+                         f"Stage II needs the {NUM_LATTICE_VIEWS}-view lattice")
+    cams = LatticeCameras(K=np.stack([v.K for v in views]), w2c=np.stack([v.w2c for v in views]),
+                          width=scene.width, height=scene.height)
+    return scene, cams
+
+
+@dataclass
+class ScenePoints:
+    """One scene's GT point cloud with everything Stage II derives from it."""
+
+    name: str
+    xyz: np.ndarray  # [P, 3] float64 world, unperturbed
+    view: np.ndarray  # [P] int64 source lattice view
+    pixel: np.ndarray  # [P, 2] int64 (row, col) source pixel
+    top_rgb: np.ndarray  # [P, 3] float32 sRGB in [0, 1]
+    f0: np.ndarray  # [P, 5] float32 PBR targets in [-1, 1]
+    frame: SphereFrame  # unit-sphere frame of the unperturbed cloud
+    cameras: LatticeCameras
+    global_tokens: Optional[Tensor]  # [32, 25, D] or None (no prior)
+    root: Path
+    _tree: Optional[cKDTree] = field(default=None, repr=False)
+    _views: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
+
+    @property
+    def num_points(self) -> int:
+        return len(self.xyz)
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.xyz)
+        return self._tree
+
+    def lattice_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """(sRGB images [V, H, W, 3] float32, GT depth [V, H, W] float32), loaded once (A5)."""
+        if self._views is None:
+            from eval.layout import read_scene, read_view_file
+
+            scene = read_scene(self.root)
+            dirs = [scene.view_dir("train", v.id) for v in scene.split_views("train")]
+            rgb = np.stack([srgb_top_rgb(read_view_file(d, "rgb.exr")) for d in dirs])
+            depth = np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs])
+            self._views = (rgb, depth)
+        return self._views
+
+
+def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor]) -> ScenePoints:
+    """Reads ``<scene_dir>/gt_points.npz`` and the lattice cameras.
+
+    Args:
+        global_features: [32, D, 5, 5] prior features (``feature_cache.scene_prior_features``)
+            or None / D = 0 for no prior.
+    """
+    scene_dir = Path(scene_dir)
+    path = scene_dir / "gt_points.npz"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing (generate the dataset with point_clouds: true)")
+    with np.load(path) as npz:
+        pts = {k: npz[k] for k in npz.files}
+    _, cams = read_lattice_cameras(scene_dir)
+    xyz = pts["xyz"].astype(np.float64)
+    pbr = np.concatenate([pts["albedo"], pts["roughness"][:, None], pts["metallic"][:, None]], axis=1)
+    tokens = None
+    if global_features is not None and global_features.shape[1] > 0:
+        tokens = global_features.flatten(2).transpose(1, 2).contiguous().float()  # [32, 25, D], cell = 5 r + c
+    return ScenePoints(
+        name=scene_dir.name, xyz=xyz, view=pts["view"].astype(np.int64), pixel=pts["pixel"].astype(np.int64),
+        top_rgb=srgb_top_rgb(pts["rgb"]), f0=pbr_to_model(torch.from_numpy(pbr.astype(np.float32))).numpy(),
+        frame=fit_unit_sphere(torch.from_numpy(xyz)), cameras=cams, global_tokens=tokens, root=scene_dir)
+
+
+def pixel_footprint(z: np.ndarray, cameras: LatticeCameras, views: np.ndarray) -> np.ndarray:
+    """[...] world width of one pixel at camera depth z of views ``views`` (``z / f_x``)."""
+    return z / cameras.K[views, 0, 0]
+
+
+def perturb_along_rays(xyz: np.ndarray, views: np.ndarray, cameras: LatticeCameras, *,
+                       sigma_pixels: float, rng: np.random.Generator) -> np.ndarray:
+    """Moves points [n, 3] along their source-view rays by N(0, (sigma_pixels * footprint)^2)."""
+    if sigma_pixels == 0:
+        return xyz.copy()
+    centres = cameras.centers[views]
+    offset = xyz - centres
+    dist = np.linalg.norm(offset, axis=-1, keepdims=True)
+    z = np.einsum("ni,ni->n", offset, cameras.w2c[views, 2, :3])
+    delta = rng.standard_normal(len(xyz)) * sigma_pixels * pixel_footprint(z, cameras, views)
+    return xyz + offset / dist * delta[:, None]
+
+
+def local_subset(scene: ScenePoints, num_points: int, rng: np.random.Generator) -> np.ndarray:
+    """[num_points] indices: a random centre point and its nearest neighbours (all if fewer)."""
+    if num_points >= scene.num_points:
+        return np.arange(scene.num_points)
+    centre = scene.xyz[rng.integers(scene.num_points)]
+    _, idx = scene.tree.query(centre, k=num_points)
+    return np.asarray(idx, dtype=np.int64)
+
+
+def multiview_condition(scene: ScenePoints, xyz: np.ndarray, *, tol_pixels: float,
+                        chunk: int = 65536) -> np.ndarray:
+    """A5 condition [n, 32 * 4]: per lattice view (view-major) sRGB at the projection + visibility."""
+    images, depth = scene.lattice_views()
+    cams, num_views = scene.cameras, len(images)
+    out = np.zeros((len(xyz), num_views, 4), dtype=np.float32)
+    views = np.arange(num_views)[:, None]
+    for s in range(0, len(xyz), chunk):
+        pts = xyz[None, s:s + chunk]  # [1, n, 3]
+        uv, z = cams.project(pts, np.broadcast_to(views, (num_views, pts.shape[1])))
+        col, row = np.floor(uv[..., 0]).astype(np.int64), np.floor(uv[..., 1]).astype(np.int64)
+        inside = (z > 0) & (col >= 0) & (col < cams.width) & (row >= 0) & (row < cams.height)
+        col, row = np.where(inside, col, 0), np.where(inside, row, 0)
+        d_gt = depth[views, row, col]
+        tol = tol_pixels * pixel_footprint(z, cams, np.broadcast_to(views, z.shape))
+        visible = inside & (d_gt > 0) & (np.abs(d_gt - z) < tol)
+        rgb = images[views, row, col] * inside[..., None]  # [V, n, 3]
+        out[s:s + chunk] = np.concatenate([rgb, visible[..., None]], axis=-1).transpose(1, 0, 2)
+    return out.reshape(len(xyz), num_views * 4)
+
+
+def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,
+                    *, tol_pixels: float = 2.0) -> np.ndarray:
+    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, see module docstring)."""
+    local_condition_dim(mode)
+    if mode == "top_rgb":
+        return scene.top_rgb[idx]
+    if mode == "top_rgb_onehot":
+        onehot = view_onehot(torch.from_numpy(scene.view[idx]), NUM_LATTICE_VIEWS).numpy()
+        return np.concatenate([scene.top_rgb[idx], onehot], axis=1)
+    return multiview_condition(scene, xyz_perturbed, tol_pixels=tol_pixels)
+
+
+@dataclass(frozen=True)
+class PointDataConfig:
+    """``stage2.data``: how items are drawn from the GT point clouds."""
+
+    num_points: int = 512  # N_train points per local subset (A3/A4: 1024)
+    perturb_pixels: float = 0.5  # depth-noise sigma in pixel footprints at the point's depth
+    local_condition: str = "top_rgb_onehot"  # top_rgb_onehot (35) | top_rgb (A2, 3) | multiview (A5, 128)
+    visibility_tol_pixels: float = 2.0  # A5 depth test tolerance, in pixel footprints
+    train_views: int = 16  # view-dropout: global-prior views kept per training item
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
+        out = cls(**dict(cfg))
+        local_condition_dim(out.local_condition)
+        return out
+
+
+def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: np.random.Generator
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xyz_unit [n, 3], local_cond [n, C], f0 [n, 5]) of points ``idx`` with a fresh perturbation."""
+    xyz = perturb_along_rays(scene.xyz[idx], scene.view[idx], scene.cameras,
+                             sigma_pixels=cfg.perturb_pixels, rng=rng)
+    cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels)
+    xyz_unit = to_unit_sphere(torch.from_numpy(xyz), scene.frame).numpy()
+    return xyz_unit.astype(np.float32), cond.astype(np.float32), scene.f0[idx]
+
+
+def sample_batch(scenes: list[ScenePoints], cfg: PointDataConfig, batch_size: int,
+                 rng: np.random.Generator) -> tuple[Tensor, Stage2Inputs]:
+    """One training batch: B items, each a local subset of a uniformly drawn scene.
+
+    Returns:
+        f0 [B, N, 5] in [-1, 1] and Stage2Inputs (xyz [B, N, 3] unit sphere, local_cond
+        [B, N, C], global_tokens [B, train_views, 25, D] + view_ids [B, train_views] or None).
+    """
+    xyz, cond, f0, tokens, view_ids = [], [], [], [], []
+    for _ in range(batch_size):
+        scene = scenes[int(rng.integers(len(scenes)))]
+        idx = local_subset(scene, cfg.num_points, rng)
+        if len(idx) < cfg.num_points:
+            raise ValueError(f"scene {scene.name} has {len(idx)} points < num_points {cfg.num_points}")
+        x, c, f = scene_item(scene, idx, cfg, rng)
+        xyz.append(x), cond.append(c), f0.append(f)
+        if scene.global_tokens is not None:
+            keep = np.sort(rng.permutation(len(scene.global_tokens))[:cfg.train_views])
+            tokens.append(scene.global_tokens[keep])
+            view_ids.append(torch.from_numpy(keep))
+    inputs = Stage2Inputs(xyz=torch.from_numpy(np.stack(xyz)), local_cond=torch.from_numpy(np.stack(cond)),
+                          global_tokens=torch.stack(tokens) if tokens else None,
+                          view_ids=torch.stack(view_ids) if view_ids else None)
+    return torch.from_numpy(np.stack(f0)), inputs
+
+
+def whole_scene_inputs(scene: ScenePoints, cfg: PointDataConfig, rng: np.random.Generator
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Inference/evaluation inputs of ALL points: (perturbed xyz_world [P, 3], local_cond [P, C])."""
+    idx = np.arange(scene.num_points)
+    xyz = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=cfg.perturb_pixels, rng=rng)
+    return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels)

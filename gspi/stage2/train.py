@@ -1,0 +1,237 @@
+"""Stage II training (paper Sec. "Training vs. Inference Dynamics"): eps-prediction with the
+cosine schedule and Min-SNR-gamma weighting (``gspi.stage2.loss.denoising_loss``) on local
+512-point subsets of perturbed GT point clouds (``gspi.stage2.data``), AdamW with linear
+warm-up and cosine decay, gradient clipping, an EMA of the weights, periodic checkpoints
+that a rerun resumes from exactly, and inference (:func:`predict_point_pbr`) on a whole cloud.
+
+``cfg`` is the resolved ``gspi-train`` config as a plain dict (``conf/gspi_train.yaml``):
+``data_dir`` (dataset dir), ``out``, ``seed``, ``stage2.{model,diffusion,prior,data,train,eval}``.
+"""
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from gspi.stage2.checkpoint import (CheckpointError, load_weights, rcw_config_dict, read_checkpoint,
+                                    save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
+from gspi.stage2.data import (PointDataConfig, ScenePoints, load_scene_points, local_condition_dim,
+                              sample_batch)
+from gspi.stage2.encoders import build_encoder
+from gspi.stage2.feature_cache import scene_prior_features
+from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.loss import denoising_loss
+from gspi.stage2.model import RCWConfig, RCWDenoiser, count_parameters
+from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_from_model, to_unit_sphere
+from gspi.stage2.sampler import ddim_sample
+from gspi.stage2.schedule import cosine_alphas_cumprod
+from gspi.stage2.train_log import JsonlMetrics, plot_loss_curve
+
+log = logging.getLogger(__name__)
+LOSS_KEY = "stage2/train/loss"
+
+
+def rcw_config(stage2: Mapping[str, Any], global_token_dim: int) -> RCWConfig:
+    """RCWConfig from ``stage2.model``; the condition widths follow ``stage2.data`` and the encoder."""
+    local = stage2["data"]["local_condition"]
+    return RCWConfig(**stage2["model"], local_cond_dim=local_condition_dim(local),
+                     use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim)
+
+
+def cache_dir(cfg: Mapping[str, Any]) -> Path:
+    """``stage2.prior.cache_dir``, default ``<data>/.cache/stage2_prior``."""
+    return Path(cfg["stage2"]["prior"].get("cache_dir") or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
+
+
+def load_split(cfg: Mapping[str, Any], split: str, encoder) -> list[ScenePoints]:
+    """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``."""
+    from eval.layout import read_splits
+
+    data_dir = Path(cfg["data_dir"])
+    names = read_splits(data_dir).get(split, [])
+    if not names:
+        raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} is empty")
+    return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)))
+            for n in names]
+
+
+def learning_rate(step: int, train: Mapping[str, Any]) -> float:
+    """Linear warm-up over ``warmup_steps``, then cosine decay to ``min_lr_ratio * lr``."""
+    lr, warmup, total = float(train["lr"]), int(train["warmup_steps"]), int(train["steps"])
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total - warmup))
+    ratio = float(train.get("min_lr_ratio", 0.1))
+    return lr * (ratio + (1.0 - ratio) * 0.5 * (1.0 + math.cos(math.pi * progress)))
+
+
+@torch.no_grad()
+def update_ema(ema: torch.nn.Module, model: torch.nn.Module, *, decay: float, step: int) -> None:
+    """``ema <- d ema + (1 - d) model`` with warm-up ``d = min(decay, (1 + step) / (10 + step))``
+    (diffusers ``EMAModel``): early averages are not dominated by the random init. Hand-written
+    because torch's AveragedModel has no warm-up."""
+    d = min(decay, (1.0 + step) / (10.0 + step))
+    ema_params, params = list(ema.parameters()), list(model.parameters())
+    torch._foreach_lerp_(ema_params, params, 1.0 - d)
+
+
+class TrainState:
+    """Model, EMA copy, optimizer, step and the RNGs that make a resumed run continue exactly."""
+
+    def __init__(self, cfg: Mapping[str, Any], model_config: RCWConfig):
+        train = cfg["stage2"]["train"]
+        torch.manual_seed(int(cfg["seed"]))
+        self.model = RCWDenoiser(model_config)
+        self.ema = copy.deepcopy(self.model).requires_grad_(False).eval()
+        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=float(train["lr"]),
+                                           betas=tuple(train["betas"]), weight_decay=float(train["weight_decay"]))
+        self.step = 0
+        self.elapsed_s = 0.0
+        self.data_rng = np.random.default_rng([int(cfg["seed"]), 1])
+        self.loss_generator = torch.Generator().manual_seed(int(cfg["seed"]) + 2)
+
+    def state_dict(self, cfg: Mapping[str, Any]) -> dict:
+        return {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": self.step,
+                "rcw_config": rcw_config_dict(self.model.config), "config": dict(cfg),
+                "model": self.model.state_dict(), "ema": self.ema.state_dict(),
+                "optimizer": self.optimizer.state_dict(), "elapsed_s": self.elapsed_s,
+                "rng": {"numpy": self.data_rng.bit_generator.state, "loss": self.loss_generator.get_state(),
+                        "torch": torch.get_rng_state()}}
+
+    def load(self, path: Path) -> None:
+        """Restores everything from a training checkpoint (errors name the file)."""
+        ckpt = read_checkpoint(path)
+        if ckpt["rcw_config"] != rcw_config_dict(self.model.config):
+            raise CheckpointError(f"{path}: model config {ckpt['rcw_config']} differs from this run's "
+                                  f"{rcw_config_dict(self.model.config)}; use another out dir")
+        for key in ("model", "optimizer", "rng"):
+            if key not in ckpt:
+                raise CheckpointError(f"{path}: not a training checkpoint (no {key!r}); cannot resume")
+        load_weights(self.model, ckpt["model"], path, "model")
+        load_weights(self.ema, ckpt["ema"], path, "EMA")
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.step, self.elapsed_s = int(ckpt["step"]), float(ckpt.get("elapsed_s", 0.0))
+        self.data_rng.bit_generator.state = ckpt["rng"]["numpy"]
+        self.loss_generator.set_state(ckpt["rng"]["loss"])
+        torch.set_rng_state(ckpt["rng"]["torch"])
+
+
+def train_step(state: TrainState, f0: Tensor, inputs: Stage2Inputs, cfg: Mapping[str, Any],
+               alphas_cumprod: Tensor) -> dict[str, float]:
+    """One AdamW step on one batch; updates the EMA. Returns the logged scalars."""
+    train, diffusion = cfg["stage2"]["train"], cfg["stage2"]["diffusion"]
+    lr = learning_rate(state.step, train)
+    for group in state.optimizer.param_groups:
+        group["lr"] = lr
+    state.model.train()
+    loss = denoising_loss(state.model, f0, inputs, generator=state.loss_generator, alphas_cumprod=alphas_cumprod,
+                          min_snr_gamma=float(diffusion["min_snr_gamma"]),
+                          self_condition_prob=float(diffusion["self_condition_prob"]))
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"non-finite Stage II loss {float(loss)} at step {state.step}")
+    state.optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    grad_norm = torch.nn.utils.clip_grad_norm_(state.model.parameters(), float(train["grad_clip"]))
+    state.optimizer.step()
+    update_ema(state.ema, state.model, decay=float(train["ema_decay"]), step=state.step)
+    state.step += 1
+    return {LOSS_KEY: float(loss.detach()), "stage2/train/grad_norm": float(grad_norm), "stage2/train/lr": lr}
+
+
+def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) -> Path:
+    return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
+
+
+def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None) -> dict:
+    """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``.
+
+    Writes ``checkpoint.pt`` (every ``checkpoint_every`` steps and at the end),
+    ``metrics.jsonl`` and ``loss_curve.png``. Returns the run statistics.
+
+    Args:
+        stop_at: checkpoint and return after this step (an interruption that a rerun resumes
+            from; the schedule still follows ``steps``).
+    """
+    out_dir = Path(out_dir)
+    stage2, train_cfg = cfg["stage2"], cfg["stage2"]["train"]
+    encoder = build_encoder(stage2["prior"])
+    scenes = load_split(cfg, "train", encoder)
+    data_cfg = PointDataConfig.from_mapping(stage2["data"])
+    state = TrainState(cfg, rcw_config(stage2, encoder.feature_dim))
+    metrics = JsonlMetrics(out_dir / "metrics.jsonl")
+    ckpt_path = out_dir / "checkpoint.pt"
+    if ckpt_path.is_file():
+        state.load(ckpt_path)
+        metrics.truncate_after(state.step)
+        log.info("resumed from %s at step %d", ckpt_path, state.step)
+    else:
+        metrics.truncate_after(-1)
+    alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"]))
+    total, every = int(train_cfg["steps"]), int(train_cfg["checkpoint_every"])
+    log_every = int(train_cfg.get("log_every", 100))
+    start_step, t0 = state.step, time.perf_counter()
+    end = total if stop_at is None else min(total, int(stop_at))
+    while state.step < end:
+        f0, inputs = sample_batch(scenes, data_cfg, int(train_cfg["batch_size"]), state.data_rng)
+        values = train_step(state, f0, inputs, cfg, alphas_cumprod)
+        metrics.log(state.step, values)
+        if state.step % log_every == 0:
+            log.info("step %d  loss %.4f  lr %.2e", state.step, values[LOSS_KEY], values["stage2/train/lr"])
+        if state.step % every == 0 and state.step < end:
+            state.elapsed_s += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            save_checkpoint(state, cfg, out_dir)
+    state.elapsed_s += time.perf_counter() - t0
+    if state.step > start_step or not ckpt_path.is_file():
+        save_checkpoint(state, cfg, out_dir)
+    plot_loss_curve(metrics, out_dir / "loss_curve.png")
+    _, losses = metrics.series(LOSS_KEY)
+    return {"steps": state.step, "resumed_from": start_step, "wall_time_s": round(state.elapsed_s, 2),
+            "final_loss": float(losses[-100:].mean()) if len(losses) else None,
+            "parameters": count_parameters(state.model), "seed": int(cfg["seed"]),
+            "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim}
+
+
+@torch.no_grad()
+def predict_point_pbr(
+    model: RCWDenoiser,
+    xyz: Tensor | np.ndarray,  # [N, 3] world coordinates of the whole cloud
+    local_cond: Tensor | np.ndarray,  # [N, C] per-point condition (same layout as in training)
+    global_feats: Optional[Tensor],  # [32, D, 5, 5] lattice prior features, or None (A1)
+    *,
+    num_steps: int = 50,
+    seed: int = 0,
+    frame: Optional[SphereFrame] = None,
+    write_chunk: Optional[int] = 32768,
+    guidance_scale: float = 1.0,
+    num_train_timesteps: int = 1000,
+) -> Tensor:
+    """DDIM-samples PBR features for the ENTIRE cloud at once (paper: N_test = N, no view-dropout).
+
+    Use the EMA weights (``load_stage2_checkpoint`` returns them). ``write_chunk`` bounds the
+    memory of the point-side attention/MLP; the Read attention is O(N) memory (SDPA).
+
+    Args:
+        frame: unit-sphere frame; None fits it on ``xyz`` (what Stage I inference has).
+    Returns:
+        [N, 5] float32 in [0, 1]: albedo (sRGB-encoded) RGB, roughness, metallic.
+    """
+    xyz = torch.as_tensor(np.asarray(xyz), dtype=torch.float64)
+    frame = fit_unit_sphere(xyz) if frame is None else frame
+    xyz_unit = to_unit_sphere(xyz, frame).float()[None]
+    tokens = None
+    if global_feats is not None and global_feats.shape[1] > 0:
+        tokens = global_feats.float().flatten(2).transpose(1, 2)[None]  # [1, 32, 25, D]
+    inputs = Stage2Inputs(xyz=xyz_unit, local_cond=torch.as_tensor(np.asarray(local_cond)).float()[None],
+                          global_tokens=tokens)
+    generator = torch.Generator().manual_seed(int(seed))
+    f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
+                    write_chunk=write_chunk, alphas_cumprod=cosine_alphas_cumprod(num_train_timesteps))
+    return pbr_from_model(f[0])

@@ -1,0 +1,150 @@
+"""Tests of Stage II's training data (gspi/stage2/data.py) on lattice sphere scenes built in code.
+
+``make_lattice_dataset`` is shared with tests/test_stage2_train.py and tests/test_encoders.py.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gspi.stage2.data import (LOCAL_CONDITIONS, PointDataConfig, load_scene_points, local_condition,
+                              local_subset, multiview_condition, perturb_along_rays, pixel_footprint,
+                              sample_batch, whole_scene_inputs)
+
+SIZE = 32  # px: the smallest size eval.metrics' LPIPS accepts
+
+
+def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0) -> Path:
+    """A sphere scene whose train split is the canonical 32-view lattice, with gt_points.npz."""
+    from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
+    from gspi.data.lattice import lattice_cameras
+    from gspi.data.point_clouds import write_scene_point_cloud
+    from tests.fixtures import render_sphere_maps
+
+    K, w2c = lattice_cameras(num_views=32, radius=3.0, fov_deg=45.0, width=size, height=size)
+    views = {"train": [View(f"{k:03d}", "train", K[k], w2c[k]) for k in range(32)]}
+    scene = Scene(root=root / name, name=name, width=size, height=size, views=views,
+                  capture_env="cap", relight_envs=[])
+    write_scene_json(scene)
+    for v in views["train"]:
+        maps = render_sphere_maps(v.K, v.w2c, size, seed)
+        vdir = scene.view_dir("train", v.id)
+        for channel in ("albedo", "roughness", "metallic"):
+            write_material(vdir, channel, maps[channel])
+        write_view_file(vdir, "depth.exr", maps["depth"])
+        write_view_file(vdir, "mask.png", maps["mask"])
+        write_view_file(vdir, "rgb.exr", (maps["albedo"] ** 2.2 * 0.8).astype(np.float32))
+    write_scene_point_cloud(scene)
+    return scene.root
+
+
+def make_lattice_dataset(root: Path, *, num_train: int = 2, num_test: int = 1) -> Path:
+    from eval.layout import write_json_atomic
+
+    names = {"train": [f"train_{k}" for k in range(num_train)], "test": [f"test_{k}" for k in range(num_test)]}
+    for k, name in enumerate(names["train"] + names["test"]):
+        make_lattice_scene(root, name, seed=k)
+    write_json_atomic(root / "splits.json", {**names, "val": []})
+    return root
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    root = make_lattice_scene(tmp_path_factory.mktemp("s2data"), "sphere")
+    feats = torch.randn(32, 8, 5, 5, generator=torch.Generator().manual_seed(0))
+    return load_scene_points(root, feats)
+
+
+@pytest.mark.parametrize("mode", sorted(LOCAL_CONDITIONS))
+def test_batch_shapes_per_condition(scene, mode):
+    cfg = PointDataConfig(num_points=64, local_condition=mode, train_views=16)
+    f0, inputs = sample_batch([scene], cfg, 3, np.random.default_rng(0))
+    assert f0.shape == (3, 64, 5) and inputs.xyz.shape == (3, 64, 3)
+    assert inputs.local_cond.shape == (3, 64, LOCAL_CONDITIONS[mode])  # 35 / 3 / 128
+    assert inputs.global_tokens.shape == (3, 16, 25, 8) and inputs.view_ids.shape == (3, 16)
+    assert f0.min() >= -1 and f0.max() <= 1
+    assert inputs.local_cond[..., :3].min() >= 0 and inputs.local_cond[..., :3].max() <= 1
+    ids = inputs.view_ids[0]
+    torch.testing.assert_close(inputs.global_tokens[0], scene.global_tokens[ids])  # dropout keeps the ids' tokens
+    assert len(set(ids.tolist())) == 16
+
+
+def test_targets_and_top_rgb_follow_the_stored_values(scene, tmp_path):
+    from eval.colorspace import linear_to_srgb
+
+    with np.load(scene.root / "gt_points.npz") as npz:
+        albedo, rough, rgb = npz["albedo"], npz["roughness"], npz["rgb"]
+    np.testing.assert_allclose(scene.f0[:, :3], albedo * 2 - 1, atol=1e-6)
+    np.testing.assert_allclose(scene.f0[:, 3], rough * 2 - 1, atol=1e-6)
+    np.testing.assert_allclose(scene.top_rgb, linear_to_srgb(torch.from_numpy(rgb).clamp(0, 1)).numpy(), atol=1e-6)
+
+
+def test_onehot_binds_lattice_camera_and_source_pixel(scene):
+    """One-hot index k = lattice camera k: the point projects onto its stored pixel in camera k,
+    also after the perturbation (which moves along that ray)."""
+    from gspi.data.lattice import lattice_cameras
+
+    K, w2c = lattice_cameras(num_views=32, radius=3.0, fov_deg=45.0, width=SIZE, height=SIZE)
+    np.testing.assert_allclose(scene.cameras.w2c, w2c, atol=1e-6)
+    idx = np.arange(scene.num_points)
+    cond = local_condition(scene, idx, scene.xyz, "top_rgb_onehot")
+    assert (cond[:, 3:].argmax(1) == scene.view).all() and (cond[:, 3:].sum(1) == 1).all()
+    moved = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=0.5,
+                               rng=np.random.default_rng(0))
+    for xyz in (scene.xyz, moved):
+        uv, _ = scene.cameras.project(xyz, scene.view)
+        assert (np.floor(uv[:, 0]) == scene.pixel[:, 1]).all() and (np.floor(uv[:, 1]) == scene.pixel[:, 0]).all()
+
+
+def test_perturbation_magnitude(scene):
+    k = 0.5
+    moved = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=k, rng=np.random.default_rng(1))
+    centres = scene.cameras.centers[scene.view]
+    d0 = np.linalg.norm(scene.xyz - centres, axis=1)
+    d1 = np.linalg.norm(moved - centres, axis=1)
+    z = np.einsum("ni,ni->n", scene.xyz - centres, scene.cameras.w2c[scene.view, 2, :3])
+    ratio = (d1 - d0) / pixel_footprint(z, scene.cameras, scene.view)
+    assert abs(ratio.mean()) < 0.05 and ratio.std() == pytest.approx(k, rel=0.08)
+    offset = moved - scene.xyz  # along the source ray: parallel to (x - c)
+    cross = np.cross(offset, scene.xyz - centres)
+    assert np.abs(cross).max() < 1e-9
+    np.testing.assert_array_equal(perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=0.0,
+                                                     rng=np.random.default_rng(1)), scene.xyz)
+
+
+def test_local_subset_is_spatially_local(scene):
+    rng = np.random.default_rng(0)
+    n = 128
+    for _ in range(5):
+        idx = local_subset(scene, n, rng)
+        assert len(set(idx.tolist())) == n
+        pts = scene.xyz[idx]
+        # the subset is a kNN ball: every other point is at least as far from its centre
+        centre = pts[0]  # cKDTree returns the query point itself first
+        radius = np.linalg.norm(pts - centre, axis=1).max()
+        others = np.delete(np.arange(scene.num_points), idx)
+        assert np.linalg.norm(scene.xyz[others] - centre, axis=1).min() >= radius - 1e-9
+        assert radius < 0.5 * np.linalg.norm(scene.xyz - centre, axis=1).max()
+
+
+def test_multiview_condition_visibility(scene):
+    cond = multiview_condition(scene, scene.xyz, tol_pixels=2.0).reshape(-1, 32, 4)
+    vis = cond[..., 3]
+    assert set(np.unique(vis).tolist()) <= {0.0, 1.0}
+    assert vis[np.arange(scene.num_points), scene.view].mean() > 0.99  # seen by its source view
+    assert 0.2 < vis.mean() < 0.8  # a sphere: roughly half of the views see each point
+    assert cond[..., :3].min() >= 0 and cond[..., :3].max() <= 1
+
+
+def test_whole_scene_inputs_cover_all_points(scene):
+    cfg = PointDataConfig(local_condition="top_rgb_onehot")
+    xyz, cond = whole_scene_inputs(scene, cfg, np.random.default_rng(0))
+    assert xyz.shape == (scene.num_points, 3) and cond.shape == (scene.num_points, 35)
+
+
+def test_unknown_condition_is_rejected():
+    with pytest.raises(ValueError, match="top_rgb_onehot"):
+        PointDataConfig.from_mapping({"local_condition": "six_views"})
