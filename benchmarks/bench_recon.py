@@ -74,7 +74,7 @@ def main() -> None:
             for n in args.surfels:
                 per_iter, count, size = time_iterations(scene, n, args.iters)
                 print(f"{size}x{size} px, {count} surfels, SH 3: {per_iter:.3f} s/iteration "
-                      f"({args.iters} iterations; 3000 iterations ~ {3000 * per_iter / 60:.1f} min)")
+                      f"({args.iters} iterations; default 1500 iterations ~ {1500 * per_iter / 60:.1f} min)")
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
 
 
