@@ -29,15 +29,14 @@ test: install
 test-all: install
 	$(PY) -m pytest -q -m "not gpu"
 
-# Until the pipeline exists, the demo scores two synthetic predictions (and the oracle)
-# on analytic sphere scenes made by tests/fixtures.py, then prints Table 1.
+# The demo: the `small` preset's 4 test scenes (generated here), GS-PI end to end (fast Stage 0,
+# Stage I, the shipped Stage II checkpoint, Stage III) and the in-house baselines, scored by
+# gspi-eval, then Table 1 (docs/REPRODUCE.md). Everything lands in $(DEMO)/.
 demo: install
 	rm -rf $(DEMO)
-	$(PY) -m tests.fixtures $(DEMO)
-	$(VENV)/bin/gspi-eval gt=$(DEMO)/gt pred=$(DEMO)/gt out=$(DEMO)/eval/oracle method=oracle
-	$(VENV)/bin/gspi-eval gt=$(DEMO)/gt pred=$(DEMO)/pred_roughness_offset out=$(DEMO)/eval/roughness_offset
-	$(VENV)/bin/gspi-eval gt=$(DEMO)/gt pred=$(DEMO)/pred_albedo_only out=$(DEMO)/eval/albedo_only
-	$(VENV)/bin/gspi-table $(DEMO)/eval out=$(DEMO)/tables
+	$(VENV)/bin/gspi-data preset=small out=$(DEMO)/data seed=0 'data.only_splits=[test]'
+	$(VENV)/bin/gspi-run -m data=$(DEMO)/data out=$(DEMO)/runs +experiment=demo
+	$(VENV)/bin/gspi-table $(DEMO)/runs out=$(DEMO)/tables
 
 bench: install
 	$(PY) -m benchmarks.bench_eval

@@ -2,8 +2,13 @@
 
     gspi-table runs/gspi/eval runs/no_decomposition/eval out=tables
     gspi-table 'runs=[runs/a/eval,runs/b/eval]' out=tables
+    gspi-table multirun/2025-01-01/12-00-00 out=tables             # a gspi-run sweep
+    gspi-table multirun/... table=table2 bootstrap.n=20000 bootstrap.seed=1
 
-Each run folder (searched recursively) holds a summary.json and eval_meta.json written by
+Sweeps: when the folders hold gspi-run records (result.json, docs/TABLES.md), Tables 1-3 are
+built from them with mean ± SE, Δ vs the full model and a per-scene breakdown
+(`eval.sweep`, `eval.tables_sweep`, `eval.tables_render`). Otherwise, plain gspi-eval folders:
+each run folder (searched recursively) holds a summary.json and eval_meta.json written by
 gspi-eval. Rows are methods (runs of the same method are averaged); column groups are PSNR,
 SSIM(%), LPIPS(%) over albedo, roughness, metallic, relight, then the runtime in minutes,
 "material (end-to-end)". "--" marks a channel the method does not model; the best value of a
@@ -18,6 +23,8 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+
+from eval.tables_render import write_text_atomic
 
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 METRICS = (("psnr", "PSNR↑", 1.0, True), ("ssim", "SSIM(%)↑", 100.0, True),
@@ -155,16 +162,51 @@ def write_tables(table: pd.DataFrame, out_dir: Path, stem: str = "table1") -> di
              "csv": out_dir / f"{stem}.csv"}
     for kind, text in (("md", to_markdown(table)), ("tex", to_latex(table)),
                        ("csv", table.to_csv())):
-        tmp = paths[kind].with_name(paths[kind].name + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(paths[kind])
+        write_text_atomic(paths[kind], text)
     return paths
 
 
-def run(cfg) -> pd.DataFrame:
+def is_sweep(paths: list[str | Path]) -> bool:
+    """True when the folders hold gspi-run records or Hydra job folders (even all killed)."""
+    from eval.sweep import find_records
+
+    records, unfinished = find_records(paths)
+    return bool(records or unfinished)
+
+
+def run_sweep(cfg) -> dict:
+    """Tables 1-3 (those with rows, or `cfg.table`) of a sweep -> files; returns the tables."""
+    from eval.sweep import TABLES, load_sweep
+    from eval.tables_render import to_markdown, write_sweep_table
+    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+
+    chosen = cfg.get("table")
+    if chosen is not None and chosen not in TABLES:
+        raise ValueError(f"table={chosen!r}: allowed values are {', '.join(TABLES)} or null")
+    names = (chosen,) if chosen else TABLES
+    sweep = load_sweep(list(cfg.runs), tables=names)
+    boot = dict(cfg.get("bootstrap") or {})
+    built = {n: build_sweep_table(sweep, TABLE_SPECS[n], bootstrap=boot) for n in names}
+    built = {n: t for n, t in built.items() if t is not None}
+    if not built:
+        failed = "; ".join(f"{r.run_dir}: {r.error}" for r in sweep.failed)
+        raise ValueError(f"no complete run record of {', '.join(names)} below "
+                         f"{', '.join(map(str, cfg.runs))} ({len(sweep.failed)} failed"
+                         f"{': ' + failed if failed else ''}; {len(sweep.unfinished)} job "
+                         "folder(s) without result.json)")
+    for table in built.values():
+        write_sweep_table(table, sweep, Path(cfg.out))
+        print(to_markdown(table, sweep))
+    return built
+
+
+def run(cfg):
+    """Sweep folders -> Tables 1-3 (dict of SweepTable); gspi-eval folders -> Table 1 frame."""
     runs = list(cfg.runs) if cfg.runs else []
     if not runs:
         raise ValueError("give evaluated run folders: gspi-table DIR [DIR ...] or runs=[...]")
+    if is_sweep(runs):
+        return run_sweep(cfg)
     table = build_table1([load_run(r) for r in find_runs(runs)])
     paths = write_tables(table, Path(cfg.out))
     print(paths["md"].read_text())

@@ -35,3 +35,10 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "gpu" in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.fixture(scope="session")
+def micro_dataset(tmp_path_factory) -> Path:
+    """2 training scenes + 1 test scene at 32 px made by gspi-data (tests/run_helpers.py)."""
+    from tests.run_helpers import make_micro_dataset
+    return make_micro_dataset(tmp_path_factory.mktemp("micro") / "data")

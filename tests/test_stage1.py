@@ -118,3 +118,15 @@ def test_point_cloud_round_trip_and_errors(clean, tmp_path):
     np.savez(tmp_path / "bad.npz", xyz=points.xyz)
     with pytest.raises(ValueError, match="bad.npz: not a Stage I point cloud"):
         PointCloud.load(tmp_path / "bad.npz")
+
+
+def test_nearest_surface_depth_window_reads_the_near_side_of_an_edge():
+    depth = np.array([[[2.0, 2.0, 4.0, 4.0]] * 3], dtype=np.float32)  # [1, 3, 4]: near | far
+    alpha = np.ones_like(depth)
+    alpha[0, :, 3] = 0  # background column: no surface there
+    exact = filters.nearest_surface_depth(depth, alpha, alpha_threshold=0.5, window_px=0)
+    np.testing.assert_array_equal(exact[0, 1], [2.0, 2.0, 4.0, np.inf])
+    window = filters.nearest_surface_depth(depth, alpha, alpha_threshold=0.5, window_px=1)
+    # the far pixel next to the edge now reports the near surface; background stays inf only
+    # where no foreground pixel is within 1 px
+    np.testing.assert_array_equal(window[0, 1], [2.0, 2.0, 2.0, 4.0])

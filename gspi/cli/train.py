@@ -48,7 +48,7 @@ def run(cfg: DictConfig) -> dict:
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain.pop("hydra", None)
     out = Path(cfg.out)
-    stats = train(plain, out)
+    stats = train(plain, out, stop_at=plain["stage2"]["train"].get("stop_at"))
     ev = plain["stage2"]["eval"]
     if ev["enabled"]:
         model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")

@@ -20,6 +20,7 @@ import multiprocessing
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Optional
 
 import torch
 
@@ -53,6 +54,7 @@ class BenchmarkConfig:
     contact_sheets: bool = True               # write contact_sheet.png
     threads: int = 1                          # torch threads per process
     workers: int = 1                          # scene-parallel processes
+    only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
     lattice: dict = field(default_factory=lambda: {"num_views": 32, "radius": 3.0,
                                                    "fov_deg": 45.0, "min_elevation_deg": 0.0})
 
@@ -147,6 +149,13 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
     splits = assign_splits([r["name"] for r in recipes], seed, num_train=cfg.num_train_scenes,
                            num_val=cfg.num_val_scenes, num_test=cfg.num_test_scenes,
                            groups=[(r["family"], r["material"]["class"]) for r in recipes])
+    if cfg.only_splits:  # same scenes and names as the full dataset, fewer of them (make demo)
+        unknown = sorted(set(cfg.only_splits) - set(splits))
+        if unknown:
+            raise ValueError(f"only_splits: unknown splits {unknown} (known: {sorted(splits)})")
+        splits = {k: (v if k in cfg.only_splits else []) for k, v in splits.items()}
+        keep = {n for v in splits.values() for n in v}
+        recipes = [r for r in recipes if r["name"] in keep]
     scratch = Path(scratch_dir) if scratch_dir is not None else out_dir / ".cache"
     needed = sorted({n for r in recipes for n in [r["capture_env"], *r["relight_envs"]]})
     threads = torch.get_num_threads()

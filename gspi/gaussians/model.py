@@ -34,7 +34,8 @@ class Gaussians2D:
         opacity_logits: [N] inverse-sigmoid opacities.
         sh_dc: [N, 1, 3] SH DC coefficients.
         sh_rest: [N, K - 1, 3] higher SH coefficients, K = (degree + 1) ** 2.
-        albedo_logits: optional [N, 3] inverse-sigmoid albedo (linear RGB).
+        albedo_logits: optional [N, 3] inverse-sigmoid albedo (LINEAR RGB; renderers composite
+            it linearly and sRGB-encode the map, as Stage III and its exports do).
         roughness_logits: optional [N, 1] inverse-sigmoid roughness.
         metallic_logits: optional [N, 1] inverse-sigmoid metallic.
     """

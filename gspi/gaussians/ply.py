@@ -12,9 +12,14 @@ official order (``GaussianModel.construct_list_of_attributes``)::
 * Values are raw: log scales, inverse-sigmoid opacity, unnormalised quaternion
   (w, x, y, z) = rot_0..3.
 
-GS-PI extension (written after ``rot_3`` when present, all-or-none):
-``albedo_0 albedo_1 albedo_2 roughness metallic``, the inverse-sigmoid LOGITS of
-linear albedo RGB, roughness and metallic (activated with sigmoid).
+GS-PI extension, the PBR-GS material attributes (written after ``rot_3`` when present,
+all-or-none): ``albedo_0 albedo_1 albedo_2 roughness metallic``. Like ``opacity`` they are
+stored raw, as inverse-sigmoid LOGITS: a reader gets the material as ``sigmoid(value)``, i.e.
+base colour = sigmoid(albedo_0..2) in LINEAR RGB (not sRGB-encoded), perceptual roughness
+(GGX alpha = roughness^2) = sigmoid(roughness), metalness = sigmoid(metallic), each in (0, 1).
+Logits rather than activated values keep the round trip bit-exact (sigmoid followed by logit
+is not) and match the 2DGS convention for ``opacity`` and ``scale_*``. Files with these
+attributes carry header ``comment`` lines stating this (:data:`PBR_COMMENTS`).
 
 Reading accepts any property order and any numeric type (cast to float32); float32
 data round-trips bit-exactly.
@@ -40,6 +45,10 @@ SCALE = ("scale_0", "scale_1")
 ROT = ("rot_0", "rot_1", "rot_2", "rot_3")
 PBR = ("albedo_0", "albedo_1", "albedo_2", "roughness", "metallic")
 REQUIRED = POSITION + F_DC + ("opacity",) + SCALE + ROT
+PBR_COMMENTS = (
+    "GS-PI PBR-GS: albedo_0..2 roughness metallic are logits; value = sigmoid(logit)",
+    "GS-PI PBR-GS: albedo is linear RGB; roughness is perceptual (GGX alpha = roughness^2)",
+)
 
 
 class PlyFormatError(ValueError):
@@ -148,8 +157,8 @@ def read_ply(path: PathLike) -> Gaussians2D:
 def write_ply(path: PathLike, gaussians: Gaussians2D) -> None:
     """Writes surfels in the official 2DGS layout (binary little endian, float32).
 
-    Normals are written as zeros like the official code; PBR logits are appended
-    when ``gaussians.has_pbr``. Tensors are detached, moved to CPU and cast to float32.
+    Normals are written as zeros like the official code; PBR logits are appended (with the
+    header comments :data:`PBR_COMMENTS`) when ``gaussians.has_pbr``. Tensors are detached, moved to CPU and cast to float32.
 
     Args:
         path: output file (parent directories are created).
@@ -167,4 +176,5 @@ def write_ply(path: PathLike, gaussians: Gaussians2D) -> None:
     for i, name in enumerate(names):
         records[name] = values[:, i]
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    PlyData([PlyElement.describe(records, "vertex")], byte_order="<").write(str(path))
+    comments = list(PBR_COMMENTS) if g.has_pbr else []
+    PlyData([PlyElement.describe(records, "vertex")], byte_order="<", comments=comments).write(str(path))

@@ -1,80 +1,59 @@
 """Stage I: render the canonical lattice views of a 2DGS asset, unproject, filter.
 
-    points, stats = extract_point_cloud(gaussians, Stage1Config(image_size=128))
+    points, renders, stats = extract_point_cloud(gaussians, Stage1Config(image_size=128))
 
-Foreground pixels (rendered alpha >= `alpha_threshold`) of each of the V = 32 lattice views are
-unprojected with the rendered MEDIAN depth (2DGS's surface depth) into world points; each keeps
-its view, pixel and rendered RGB. Then the filters of `gspi.stage1.filters`, each switchable.
+The 32 lattice views are rendered by ``gspi.recon.lattice_render.render_lattice_views`` (the
+same renderer and cameras as Stage 0 and the dataset's ``train`` split). Foreground pixels
+(rendered alpha >= ``alpha_threshold``) of each view are unprojected with the rendered MEDIAN
+depth (2DGS's surface depth) into world points; each keeps its view, pixel and rendered RGB.
+Then the filters of ``gspi.stage1.filters``, each switchable, with a per-step report
+(``gspi.stage1.report``), and an optional seeded subsample (``max_points``, a CPU-scale knob).
 """
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
+from typing import Callable, Optional
 
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from gspi.data.lattice import lattice_cameras
 from gspi.gaussians.cameras import unproject
 from gspi.gaussians.model import Gaussians2D
-from gspi.gaussians.rasterize import render_gaussians
+from gspi.recon.lattice_render import lattice_camera_tensors, render_lattice_views
 from gspi.stage1 import filters
-from gspi.stage1.point_cloud import NUM_LATTICE_VIEWS, PointCloud
+from gspi.stage1.config import Stage1Config
+from gspi.stage1.point_cloud import PointCloud
+from gspi.stage1.report import source_footprint, step_stats
 
-
-@dataclass
-class OutlierConfig:
-    enabled: bool = True
-    k: int = 16               # neighbours for the mean distance
-    std_ratio: float = 2.0    # keep mean_dist <= mean + std_ratio * std
-
-
-@dataclass
-class MaskConsistencyConfig:
-    enabled: bool = True
-    max_violations: int = 1   # views in which the point may land on background
-    dilate_px: int = 1        # silhouette tolerance
-
-
-@dataclass
-class DepthConsensusConfig:
-    enabled: bool = True
-    num_neighbours: int = 6   # closest lattice views to the source view
-    tolerance_px: float = 3.0  # in pixel footprints at the point's depth
-    max_violations: int = 1   # neighbour views that see empty space where the point is
-
-
-@dataclass
-class Stage1Config:
-    image_size: int = 128          # lattice render size (paper: 512)
-    num_views: int = NUM_LATTICE_VIEWS
-    radius: float = 3.0            # lattice camera distance (gspi/data/lattice.py)
-    fov_deg: float = 45.0
-    alpha_threshold: float = 0.5   # foreground = rendered opacity >= this
-    outliers: OutlierConfig = field(default_factory=OutlierConfig)
-    mask_consistency: MaskConsistencyConfig = field(default_factory=MaskConsistencyConfig)
-    depth_consensus: DepthConsensusConfig = field(default_factory=DepthConsensusConfig)
+__all__ = ["Stage1Config", "LatticeRenders", "render_lattice", "unproject_renders", "apply_filters",
+           "maybe_subsample", "extract_point_cloud"]
 
 
 @dataclass
 class LatticeRenders:
+    """Stage I's numpy view of ``render_lattice_views``' output (float32 maps, float64 cameras)."""
+
     rgb: np.ndarray     # [V, H, W, 3] linear
     alpha: np.ndarray   # [V, H, W]
-    depth: np.ndarray   # [V, H, W] median depth (camera z)
+    depth: np.ndarray   # [V, H, W] median depth (camera z), 0 where nothing is composited
     K: np.ndarray       # [V, 3, 3]
-    w2c: np.ndarray     # [V, 4, 4]
+    w2c: np.ndarray     # [V, 4, 4] OpenCV world -> camera
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return self.alpha.shape[1], self.alpha.shape[2]
 
 
 def render_lattice(gaussians: Gaussians2D, cfg: Stage1Config) -> LatticeRenders:
     """RGB, alpha and median depth of the canonical lattice views (no gradients)."""
-    K, w2c = lattice_cameras(num_views=cfg.num_views, radius=cfg.radius, fov_deg=cfg.fov_deg,
-                             width=cfg.image_size, height=cfg.image_size)
     with torch.no_grad():
-        out = render_gaussians(gaussians, torch.from_numpy(w2c).float(),
-                               torch.from_numpy(K).float(), cfg.image_size, cfg.image_size)
-    return LatticeRenders(rgb=out.rgb.numpy(), alpha=out.alpha[..., 0].numpy(),
-                          depth=out.depth_median[..., 0].numpy(), K=K, w2c=w2c)
+        out = render_lattice_views(gaussians, image_size=cfg.image_size, lattice=cfg.lattice)
+    w2c, K = lattice_camera_tensors(cfg.image_size, lattice=cfg.lattice, dtype=torch.float64)
+    as_np = lambda t: t.detach().float().cpu().numpy()  # noqa: E731
+    return LatticeRenders(rgb=as_np(out.rgb), alpha=as_np(out.alpha[..., 0]),
+                          depth=as_np(out.depth_median[..., 0]), K=K.numpy(), w2c=w2c.numpy())
 
 
 def unproject_renders(renders: LatticeRenders, alpha_threshold: float) -> PointCloud:
@@ -89,63 +68,81 @@ def unproject_renders(renders: LatticeRenders, alpha_threshold: float) -> PointC
                       np.stack([rows, cols], -1).astype(np.int32), renders.rgb[v][rows, cols]))
     xyz, view, pixel, rgb = (np.concatenate(p) for p in zip(*parts))
     return PointCloud(xyz=xyz.astype(np.float32), view=view, pixel=pixel,
-                      rgb=rgb.astype(np.float32))
+                      rgb=rgb.astype(np.float32), image_size=renders.image_size)
 
 
-def surface_distance_stats(xyz: np.ndarray, reference: np.ndarray | None) -> dict:
-    """Count and distances to a reference surface sample (e.g. the GT point cloud)."""
-    stats = {"count": int(len(xyz))}
-    if reference is not None and len(xyz):
-        d, _ = cKDTree(reference).query(xyz, k=1)
-        stats.update(mean_dist=float(d.mean()), median_dist=float(np.median(d)),
-                     p95_dist=float(np.percentile(d, 95)), max_dist=float(d.max()))
-    return stats
+def filter_steps(renders: LatticeRenders, cfg: Stage1Config
+                 ) -> list[tuple[str, Callable[[PointCloud], np.ndarray]]]:
+    """The enabled filters in cascade order: (name, points -> keep-mask [P] bool)."""
+    steps = []
+    if cfg.outliers.enabled:
+        c = cfg.outliers
+        steps.append(("statistical_outliers", lambda p: filters.statistical_outliers_keep(
+            p.xyz, k=c.k, std_ratio=c.std_ratio)))
+    if cfg.mask_consistency.enabled:
+        m = cfg.mask_consistency
+        steps.append(("mask_consistency", lambda p: filters.mask_consistency_keep(
+            p.xyz, p.view, renders.alpha, renders.K, renders.w2c, alpha_threshold=cfg.alpha_threshold,
+            max_violations=m.max_violations, dilate_px=m.dilate_px)))
+    if cfg.depth_consensus.enabled:
+        d = cfg.depth_consensus
+        steps.append(("depth_consensus", lambda p: filters.depth_consensus_keep(
+            p.xyz, p.view, renders.depth, renders.alpha, renders.K, renders.w2c,
+            num_neighbours=d.num_neighbours, tolerance_px=d.tolerance_px,
+            max_violations=d.max_violations, alpha_threshold=cfg.alpha_threshold,
+            window_px=d.window_px)))
+    return steps
 
 
 def apply_filters(points: PointCloud, renders: LatticeRenders, cfg: Stage1Config,
-                  reference: np.ndarray | None = None) -> tuple[PointCloud, list[dict]]:
-    """Cascade the enabled filters; per step, what it removed and the surface distances."""
-    steps = [{"step": "unprojected", **surface_distance_stats(points.xyz, reference)}]
-    if cfg.outliers.enabled:
-        keep = filters.statistical_outliers_keep(points.xyz, k=cfg.outliers.k,
-                                                 std_ratio=cfg.outliers.std_ratio)
+                  reference: Optional[np.ndarray] = None) -> tuple[PointCloud, list[dict]]:
+    """Cascades the enabled filters; per step what it removed and, with ``reference`` [R, 3]
+    (GT surface samples), the distances of the kept and removed points (``gspi.stage1.report``)."""
+    tree = None if reference is None else cKDTree(reference)
+    footprint = lambda p: source_footprint(p.xyz.astype(np.float64), p.view, renders.K, renders.w2c)  # noqa: E731
+    report = [{"step": "unprojected", **step_stats(points.xyz, footprint(points), tree)}]
+    for name, keep_fn in filter_steps(renders, cfg):
+        keep = keep_fn(points)
+        report.append({"step": name, **step_stats(points.xyz, footprint(points), tree, removed=~keep)})
         points = points.subset(keep)
-        steps.append({"step": "statistical_outliers", "removed": int((~keep).sum()),
-                      **surface_distance_stats(points.xyz, reference)})
-    if cfg.mask_consistency.enabled:
-        c = cfg.mask_consistency
-        keep = filters.mask_consistency_keep(points.xyz, points.view, renders.alpha, renders.K,
-                                             renders.w2c, alpha_threshold=cfg.alpha_threshold,
-                                             max_violations=c.max_violations,
-                                             dilate_px=c.dilate_px)
-        points = points.subset(keep)
-        steps.append({"step": "mask_consistency", "removed": int((~keep).sum()),
-                      **surface_distance_stats(points.xyz, reference)})
-    if cfg.depth_consensus.enabled:
-        c = cfg.depth_consensus
-        keep = filters.depth_consensus_keep(points.xyz, points.view, renders.depth, renders.alpha,
-                                            renders.K, renders.w2c,
-                                            num_neighbours=c.num_neighbours,
-                                            tolerance_px=c.tolerance_px,
-                                            max_violations=c.max_violations,
-                                            alpha_threshold=cfg.alpha_threshold)
-        points = points.subset(keep)
-        steps.append({"step": "depth_consensus", "removed": int((~keep).sum()),
-                      **surface_distance_stats(points.xyz, reference)})
-    return points, steps
+    return points, report
+
+
+def maybe_subsample(points: PointCloud, max_points: Optional[int], seed: int) -> PointCloud:
+    """A seeded uniform subsample of ``max_points`` points (kept in their original order); all
+    points when ``max_points`` is None or not below the count.
+
+    A CPU-scale knob, not the paper's method: the paper runs Stage II on the whole cloud.
+    """
+    if max_points is None or max_points >= len(points):
+        return points
+    if max_points <= 0:
+        raise ValueError(f"stage1.max_points must be a positive integer or null, got {max_points}")
+    idx = np.random.default_rng(seed).choice(len(points), size=max_points, replace=False)
+    return points.subset(np.sort(idx))
 
 
 def extract_point_cloud(gaussians: Gaussians2D, cfg: Stage1Config, *,
-                        reference: np.ndarray | None = None
+                        reference: Optional[np.ndarray] = None
                         ) -> tuple[PointCloud, LatticeRenders, dict]:
-    """Stage I end to end. `reference` [R, 3] (optional) = GT surface samples for the report."""
+    """Stage I end to end. ``reference`` [R, 3] (optional) = GT surface samples for the report.
+
+    Returns:
+        (points, renders, stats): stats = {"config", "filters" (per-step report), "num_points",
+        "seconds" {"render", "filters", "total"}}.
+    """
     start = time.perf_counter()
     renders = render_lattice(gaussians, cfg)
+    t_render = time.perf_counter() - start
     points = unproject_renders(renders, cfg.alpha_threshold)
     points, steps = apply_filters(points, renders, cfg, reference)
     if len(points) == 0:
         raise ValueError("Stage I kept no point: the asset renders no foreground on the lattice "
                          f"(alpha >= {cfg.alpha_threshold}); check the asset's scale and position")
-    stats = {"config": asdict(cfg), "filters": steps, "num_points": len(points),
-             "seconds": time.perf_counter() - start}
+    num_filtered = len(points)
+    points = maybe_subsample(points, cfg.max_points, cfg.seed)
+    total = time.perf_counter() - start
+    stats = {"config": cfg.to_dict(), "filters": steps, "num_filtered": num_filtered,
+             "num_points": len(points),
+             "seconds": {"render": t_render, "filters": total - t_render, "total": total}}
     return points, renders, stats

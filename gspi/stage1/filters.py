@@ -11,8 +11,9 @@ the lattice renders, so their effect can be measured one by one (`gspi.stage1.ex
       `max_violations` views -> removed;
 (iii) depth consensus across neighbouring views: in the `num_neighbours` lattice views closest
       in direction to the source view, a point lying clearly IN FRONT of the rendered median
-      depth (by more than `tolerance_px` pixel footprints) occupies space those views see as
-      empty: more than `max_violations` such views -> removed. Points behind the rendered depth
+      depth (by more than `tolerance_px` pixel footprints; the nearest foreground depth within
+      `window_px` pixels, so a depth edge is not read as empty space) occupies space those views
+      see as empty: more than `max_violations` such views -> removed. Points behind the rendered depth
       are occluded there and count neither way. Points are removed, never moved: moving them
       would break the hard binding between a point and the pixel its RGB came from.
 """
@@ -80,17 +81,36 @@ def neighbour_views(w2c: np.ndarray, num_neighbours: int) -> np.ndarray:
     return np.argsort(-cos, axis=1)[:, :num_neighbours]
 
 
+def nearest_surface_depth(depth: np.ndarray, alpha: np.ndarray, *, alpha_threshold: float,
+                          window_px: int) -> np.ndarray:
+    """[V, H, W] smallest foreground depth in a (2 window_px + 1)^2 window; inf where none.
+
+    At a depth discontinuity a projected point's nearest pixel may show the FAR side; the window
+    minimum compares it with the nearest surface around, so an edge is not read as empty space.
+    """
+    fg_depth = np.where((alpha >= alpha_threshold) & (depth > 0), depth, np.inf).astype(np.float32)
+    if window_px <= 0:
+        return fg_depth
+    neg = torch.from_numpy(-fg_depth)[:, None]
+    pooled = torch.nn.functional.max_pool2d(neg, 2 * window_px + 1, stride=1, padding=window_px)
+    return -pooled[:, 0].numpy()
+
+
 def depth_consensus_keep(xyz: np.ndarray, source_view: np.ndarray, depth: np.ndarray,
                          alpha: np.ndarray, K: np.ndarray, w2c: np.ndarray, *,
                          num_neighbours: int = 6, tolerance_px: float = 3.0,
-                         max_violations: int = 1, alpha_threshold: float = 0.5) -> np.ndarray:
-    """Keep-mask of filter (iii). depth, alpha: [V, H, W] rendered median depth and opacity."""
+                         max_violations: int = 0, alpha_threshold: float = 0.5,
+                         window_px: int = 1) -> np.ndarray:
+    """Keep-mask of filter (iii). depth, alpha: [V, H, W] rendered median depth and opacity.
+
+    A neighbour view counts against a point when the point lies in front of the nearest rendered
+    surface within `window_px` pixels of its projection by more than `tolerance_px` footprints.
+    """
     rc, z = project(xyz, K, w2c)
-    d_at, inside = _lookup(depth, rc)
-    a_at, _ = _lookup(alpha, rc)
+    surface = nearest_surface_depth(depth, alpha, alpha_threshold=alpha_threshold, window_px=window_px)
+    d_at, inside = _lookup(surface, rc)
     footprint = z / K[:, 0, 0][:, None]                 # world size of one pixel at depth z
-    in_front = inside & (z > 0) & (a_at >= alpha_threshold) & \
-        (z < d_at - tolerance_px * footprint)
+    in_front = inside & (z > 0) & np.isfinite(d_at) & (z < d_at - tolerance_px * footprint)
     neighbours = neighbour_views(w2c, num_neighbours)   # [V, n]
     is_neighbour = np.zeros((len(w2c), len(xyz)), dtype=bool)
     for col in range(neighbours.shape[1]):

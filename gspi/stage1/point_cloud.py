@@ -6,8 +6,9 @@ so per-point predictions can be scattered back into per-view maps.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import torch
@@ -18,23 +19,34 @@ from eval.colorspace import linear_to_srgb
 NUM_LATTICE_VIEWS = 32
 
 
+POINT_FIELDS = ("xyz", "view", "pixel", "rgb")  # per-point arrays, in this order
+
+
 @dataclass
 class PointCloud:
     xyz: np.ndarray    # [P, 3] float32 world
     view: np.ndarray   # [P] int32, source lattice view v*
     pixel: np.ndarray  # [P, 2] int32, (row, col) in view v*
     rgb: np.ndarray    # [P, 3] float32, linear radiance observed at that pixel
+    # (height, width) in px of the lattice views the pixels index; None if unknown
+    image_size: Optional[tuple[int, int]] = None
 
     def __len__(self) -> int:
         return len(self.xyz)
 
     def subset(self, keep: np.ndarray) -> "PointCloud":
-        return PointCloud(**{f.name: getattr(self, f.name)[keep] for f in fields(self)})
+        """The points selected by a boolean mask or index array `keep` (same image size)."""
+        return PointCloud(**{name: getattr(self, name)[keep] for name in POINT_FIELDS},
+                          image_size=self.image_size)
 
     def save(self, path: str | Path) -> Path:
+        """Writes `path` (.npz): the per-point arrays and, if known, `image_size` [2] (H, W)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, **{f.name: getattr(self, f.name) for f in fields(self)})
+        arrays = {name: getattr(self, name) for name in POINT_FIELDS}
+        if self.image_size is not None:
+            arrays["image_size"] = np.asarray(self.image_size, dtype=np.int64)
+        np.savez_compressed(path, **arrays)
         return path
 
     @classmethod
@@ -43,10 +55,11 @@ class PointCloud:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: point cloud file not found")
         with np.load(path) as data:
-            missing = [f.name for f in fields(cls) if f.name not in data]
+            missing = [name for name in POINT_FIELDS if name not in data]
             if missing:
                 raise ValueError(f"{path}: not a Stage I point cloud (missing {missing})")
-            return cls(**{f.name: data[f.name] for f in fields(cls)})
+            size = tuple(int(x) for x in data["image_size"]) if "image_size" in data else None
+            return cls(**{name: data[name] for name in POINT_FIELDS}, image_size=size)
 
 
 def top_rgb(rgb_linear: Tensor) -> Tensor:

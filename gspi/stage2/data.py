@@ -190,12 +190,23 @@ def multiview_condition(scene: ScenePoints, xyz: np.ndarray, *, tol_pixels: floa
                         chunk: int = 65536) -> np.ndarray:
     """A5 condition [n, 32 * 4]: per lattice view (view-major) sRGB at the projection + visibility."""
     images, depth = scene.lattice_views()
-    cams, num_views = scene.cameras, len(images)
-    out = np.zeros((len(xyz), num_views, 4), dtype=np.float32)
-    views = np.arange(num_views)[:, None]
+    return multiview_condition_from_views(images, depth, scene.cameras, xyz, tol_pixels=tol_pixels, chunk=chunk)
+
+
+def multiview_condition_from_views(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
+                                   *, tol_pixels: float, chunk: int = 65536) -> np.ndarray:
+    """A5 condition [n, V * 4] from lattice images [V, H, W, 3] (sRGB) and depths [V, H, W].
+
+    Per view: the colour at the point's projection (nearest pixel; 0 outside the image) and a
+    visibility flag (inside, depth > 0, ``|z - depth| < tol_pixels * z / f_x``). Training
+    passes the GT views and depth, inference (``gspi.stage2.infer``) the asset's renders.
+    """
+    cams_views = len(images)
+    out = np.zeros((len(xyz), cams_views, 4), dtype=np.float32)
+    views = np.arange(cams_views)[:, None]
     for s in range(0, len(xyz), chunk):
         pts = xyz[None, s:s + chunk]  # [1, n, 3]
-        uv, z = cams.project(pts, np.broadcast_to(views, (num_views, pts.shape[1])))
+        uv, z = cams.project(pts, np.broadcast_to(views, (cams_views, pts.shape[1])))
         col, row = np.floor(uv[..., 0]).astype(np.int64), np.floor(uv[..., 1]).astype(np.int64)
         inside = (z > 0) & (col >= 0) & (col < cams.width) & (row >= 0) & (row < cams.height)
         col, row = np.where(inside, col, 0), np.where(inside, row, 0)
@@ -204,7 +215,7 @@ def multiview_condition(scene: ScenePoints, xyz: np.ndarray, *, tol_pixels: floa
         visible = inside & (d_gt > 0) & (np.abs(d_gt - z) < tol)
         rgb = images[views, row, col] * inside[..., None]  # [V, n, 3]
         out[s:s + chunk] = np.concatenate([rgb, visible[..., None]], axis=-1).transpose(1, 0, 2)
-    return out.reshape(len(xyz), num_views * 4)
+    return out.reshape(len(xyz), cams_views * 4)
 
 
 def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,

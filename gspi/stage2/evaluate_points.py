@@ -30,6 +30,7 @@ import torch
 
 from gspi.stage2.data import PointDataConfig, ScenePoints, whole_scene_inputs
 from gspi.stage2.normalize import pbr_from_model
+from gspi.stage2.score_generated import scatter_pixel_values
 
 log = logging.getLogger(__name__)
 CHANNELS = {"albedo": slice(0, 3), "roughness": slice(3, 4), "metallic": slice(4, 5)}
@@ -40,13 +41,8 @@ METRICS = ("psnr", "ssim", "lpips")
 def scatter_to_views(values: np.ndarray, scene: ScenePoints) -> tuple[np.ndarray, np.ndarray]:
     """Per-point values [P, C] -> per-view maps [V, H, W, C] and mask [V, H, W] (pixels hit)."""
     cams = scene.cameras
-    num_views = len(cams.K)
-    maps = np.zeros((num_views, cams.height, cams.width, values.shape[1]), dtype=np.float32)
-    mask = np.zeros((num_views, cams.height, cams.width), dtype=bool)
-    rows, cols = scene.pixel[:, 0], scene.pixel[:, 1]
-    maps[scene.view, rows, cols] = values
-    mask[scene.view, rows, cols] = True
-    return maps, mask
+    return scatter_pixel_values(scene.view, scene.pixel, values, height=cams.height, width=cams.width,
+                                num_views=len(cams.K))
 
 
 def gt_view_maps(scene: ScenePoints) -> np.ndarray:

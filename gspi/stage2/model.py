@@ -55,6 +55,8 @@ class RCWConfig:
     num_lattice_views: int = 32  # size of the per-view positional embedding table
     self_condition: bool = True  # latent self-conditioning input
     cond_drop_prob: float = 0.1  # training probability of the null condition (CFG)
+    prediction: str = "eps"  # what the output head predicts: "eps" (paper) or "x0" (see forward)
+    num_train_timesteps: int = 1000  # cosine schedule length (the x0 -> eps conversion uses it)
 
     def __post_init__(self) -> None:
         for name in ("latent_dim", "point_dim"):
@@ -63,6 +65,8 @@ class RCWConfig:
         if self.use_view_onehot and self.local_cond_dim < VIEW_ONEHOT_DIM:
             raise ValueError(f"use_view_onehot needs local_cond_dim >= {VIEW_ONEHOT_DIM}, "
                              f"got {self.local_cond_dim}")
+        if self.prediction not in ("eps", "x0"):
+            raise ValueError(f"prediction must be 'eps' or 'x0', got {self.prediction!r}")
         if not 0.0 <= self.cond_drop_prob < 1.0:
             raise ValueError(f"cond_drop_prob must be in [0, 1), got {self.cond_drop_prob}")
 
@@ -152,7 +156,30 @@ class RCWDenoiser(nn.Module):
         latents = self.add_self_condition(latents, prev_latents)
         for block in self.blocks:
             latents, points = block(latents, points, write_chunk=write_chunk)
-        return DenoiserOutput(eps=self.out(self.out_norm(points)), latents=latents)
+        head = self.out(self.out_norm(points))
+        eps = head if self.config.prediction == "eps" else self.eps_from_x0(head, f_t, t)
+        return DenoiserOutput(eps=eps, latents=latents)
+
+    def eps_from_x0(self, f0_hat: Tensor, f_t: Tensor, t: Tensor) -> Tensor:
+        """``(f_t - sqrt(abar_t) f0_hat) / sqrt(1 - abar_t)``: an x0-predicting head, read as eps.
+
+        The loss (Min-SNR-gamma eps MSE) and the DDIM sampler are unchanged; only what the
+        network has to represent changes. With an eps head, the clean-feature estimate at
+        high noise is ``(f_t - sqrt(1 - abar) eps_hat) / sqrt(abar)``, a tiny correction to an
+        identity map that a small network reproduces poorly, so its conditions hardly matter
+        (docs/STAGE2.md "Why an x0 head for the CPU checkpoint").
+        """
+        abar = self._alphas_cumprod(f_t.device)[t.long()].to(f_t.dtype).reshape(-1, 1, 1)
+        return (f_t - abar.sqrt() * f0_hat) / (1.0 - abar).sqrt()
+
+    def _alphas_cumprod(self, device: torch.device) -> Tensor:
+        from gspi.stage2.schedule import cosine_alphas_cumprod
+
+        cached = getattr(self, "_abar", None)
+        if cached is None or cached.device != device:
+            cached = cosine_alphas_cumprod(self.config.num_train_timesteps).to(device)
+            self._abar = cached
+        return cached
 
     def embed_points(self, f_t: Tensor, inputs: Stage2Inputs, keep: Optional[Tensor]) -> Tensor:
         """[B, N, point_dim] point tokens from Fourier xyz, local condition and noisy features."""

@@ -41,8 +41,11 @@ LOSS_KEY = "stage2/train/loss"
 def rcw_config(stage2: Mapping[str, Any], global_token_dim: int) -> RCWConfig:
     """RCWConfig from ``stage2.model``; the condition widths follow ``stage2.data`` and the encoder."""
     local = stage2["data"]["local_condition"]
+    diffusion = stage2.get("diffusion", {})
     return RCWConfig(**stage2["model"], local_cond_dim=local_condition_dim(local),
-                     use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim)
+                     use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim,
+                     prediction=str(diffusion.get("prediction", "eps")),
+                     num_train_timesteps=int(diffusion.get("num_train_timesteps", 1000)))
 
 
 def cache_dir(cfg: Mapping[str, Any]) -> Path:
@@ -173,6 +176,15 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         log.info("resumed from %s at step %d", ckpt_path, state.step)
     else:
         metrics.truncate_after(-1)
+        init_from = train_cfg.get("init_from")
+        if init_from:  # fine-tuning: weights (not optimizer or step) of another Stage II model
+            from gspi.stage2.checkpoint import read_checkpoint, load_weights
+
+            src = read_checkpoint(init_from)
+            weights = src.get("ema") or src.get("model")
+            load_weights(state.model, weights, init_from, "init_from")
+            load_weights(state.ema, weights, init_from, "init_from")
+            log.info("initialised the weights from %s", init_from)
     alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"]))
     total, every = int(train_cfg["steps"]), int(train_cfg["checkpoint_every"])
     log_every = int(train_cfg.get("log_every", 100))

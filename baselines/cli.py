@@ -1,0 +1,99 @@
+"""`gspi-export` / `gspi-import`: move a canonical scene to an external system and back.
+
+    gspi-export system=gs_ir scene=data/small/s002_multipart_ceramic out=exports/gs_ir/s002
+    gspi-export system=gs_ir scene=... out=... run=true method.checkout=~/src/GS-IR  # + train
+    gspi-export system=lumigauss scene=... out=... model=runs/lumigauss/s002
+    gspi-export system=materialanything scene=... out=... method.mesh=meshes/   # <scene>.obj
+    gspi-import system=gs_ir src=exports/gs_ir/s002/model scene=data/small/s002_... out=preds/gs_ir
+    gspi-import system=gs_ir src=... scene=... out=... method.gamma=false runtime_s=5400
+
+`system=<name>` is an alias of the config-group override `method=<name>` (conf/method/);
+adapter options are overridden as `method.<option>=<value>`. `gspi-export` writes the system's
+input folder to `out`, prints the commands that train the system and render its test views into
+`model` (default `<out>/model`) and saves them as `<out>/commands.sh`; with `run=true` it runs
+them in `method.checkout` and times them (`<model>/gspi_runtime.json`, read back by
+`gspi-import`). `gspi-import` writes `<out>/<scene name>/test/<view id>/*.png` + `meta.json`.
+Configs: conf/gspi_export.yaml, conf/gspi_import.yaml. The working directory never changes.
+"""
+from __future__ import annotations
+
+import logging
+import shlex
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from baselines.adapter import as_dict, get_adapter
+
+log = logging.getLogger(__name__)
+# Absolute, as gspi/cli/*.py: a relative path would resolve as a Python package when the module
+# is imported by a console script.
+CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+SYSTEM_ALIAS = ("system=", "method=")
+
+
+def model_dir(cfg: DictConfig) -> Path:
+    return Path(cfg.model) if cfg.get("model") else Path(cfg.out) / "model"
+
+
+def run_export(cfg: DictConfig) -> dict:
+    """Export `cfg.scene` for system `cfg.method.name`; print (and with `run`, run) commands."""
+    method = as_dict(cfg.method)
+    adapter = get_adapter(str(method["name"]))
+    out = adapter.export(Path(cfg.scene), Path(cfg.out), method)
+    model = model_dir(cfg)
+    argvs = adapter.commands(out, model, method)
+    checkout = method.get("checkout") or "<checkout>"
+    script = ["#!/bin/sh", f"# {method['name']}: train and render test views "
+              f"(repo {method.get('repo', {}).get('url')})", "set -e",
+              f"cd {shlex.quote(str(checkout))}", *(shlex.join(a) for a in argvs)]
+    (out / "commands.sh").write_text("\n".join(script) + "\n")
+    runtime = adapter.run(out, model, method, dry_run=not bool(cfg.get("run", False)))
+    return {"system": method["name"], "export": str(out), "model": str(model),
+            "commands": argvs, "runtime_s": runtime}
+
+
+def run_import(cfg: DictConfig) -> dict:
+    """Import the outputs in `cfg.src` of system `cfg.method.name` into `cfg.out`."""
+    method = as_dict(cfg.method)
+    adapter = get_adapter(str(method["name"]))
+    runtime = cfg.get("runtime_s")
+    scene_out = adapter.import_outputs(Path(cfg.src), Path(cfg.scene), Path(cfg.out), method,
+                                       runtime_s=None if runtime is None else float(runtime))
+    log.info("wrote %s", scene_out)
+    return {"system": method["name"], "prediction": str(scene_out)}
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_export")
+def _export(cfg: DictConfig) -> None:
+    run_export(cfg)
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_import")
+def _import(cfg: DictConfig) -> None:
+    print(OmegaConf.to_yaml(run_import(cfg)), end="")
+
+
+def alias_system(argv: list[str]) -> list[str]:
+    """Rewrite `system=X` to Hydra's group override `method=X`."""
+    old, new = SYSTEM_ALIAS
+    return [new + a[len(old):] if a.startswith(old) else a for a in argv]
+
+
+def export_main() -> None:
+    sys.argv = [sys.argv[0], *alias_system(sys.argv[1:])]
+    _export()
+
+
+def import_main() -> None:
+    sys.argv = [sys.argv[0], *alias_system(sys.argv[1:])]
+    _import()
+
+
+if __name__ == "__main__":  # python -m baselines.cli {export|import} system=... ...
+    command = sys.argv.pop(1) if len(sys.argv) > 1 else ""
+    if command not in ("export", "import"):
+        sys.exit("usage: python -m baselines.cli {export|import} system=<name> ...")
+    export_main() if command == "export" else import_main()

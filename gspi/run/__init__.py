@@ -1,0 +1,1 @@
+"""The end-to-end runner (`gspi-run`): assets, methods, evaluation, records, tracking."""

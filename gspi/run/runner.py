@@ -1,0 +1,215 @@
+"""One `gspi-run` job: a method on a dataset's scenes, scored, recorded, tracked.
+
+    <out>/
+      predictions/<scene>/{meta.json, test/<view>/*.png}   canonical layout (docs/FORMAT.md)
+      work/<scene>/                                         intermediate files (pipeline.py)
+      eval/        per_view.csv, summary.json, eval_meta.json   (as gspi-eval writes them)
+      points_eval/summary.json                               Table 2's measure (GS-PI only)
+      figures/<scene>.png                                    GT vs prediction, PSNR under each
+      result.json                                            written LAST (gspi/run/record.py)
+
+Failure policy: an error in one scene is recorded (traceback in the log, message in
+result.json) and the other scenes go on; the job then ends "failed" and its finished scenes
+stay on disk. A rerun of the same config skips a complete job, and inside a failed one redoes
+only the scenes without a finished prediction (their meta.json carries the config hash).
+"""
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import numpy as np
+import torch
+
+from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
+from gspi.run.assets import scene_asset
+from gspi.run.methods import Method
+from gspi.run.record import config_hash, is_complete, read_result, write_result
+from gspi.run.stages import StageClock
+from gspi.run.tracking import flatten, make_tracker
+
+log = logging.getLogger(__name__)
+
+
+def select_scenes(data_dir: Path, split: str, scenes: Optional[list[str]]) -> list[str]:
+    """The run's scene names: ``scenes`` if given (checked), else the dataset split's."""
+    if scenes:
+        missing = [s for s in scenes if not (data_dir / s / "scene.json").is_file()]
+        if missing:
+            raise FileNotFoundError(f"{data_dir}: scenes not found: {missing}")
+        return list(scenes)
+    if (data_dir / "scene.json").is_file():  # a single scene folder
+        return [data_dir.name]
+    names = read_splits(data_dir).get(split, [])
+    if not names:
+        raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} has no scenes")
+    return names
+
+
+def scene_done(pred_scene: Path, cfg_hash: str, scene: Scene, split: str) -> bool:
+    """A finished prediction of this config: meta.json with the hash and every view folder."""
+    meta = read_meta(pred_scene) if (pred_scene / "meta.json").is_file() else {}
+    if meta.get("config_hash") != cfg_hash:
+        return False
+    return all((pred_scene / split / v.id).is_dir() for v in scene.split_views(split))
+
+
+def seed_everything(seed: int) -> None:
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+
+
+def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, Any], out: Path,
+              cfg_hash: str, cache_root: Path, num_scenes: int, progress: bool) -> dict:
+    """Predicts one scene into ``out/predictions/<name>`` and writes its meta.json."""
+    scene = read_scene(data_dir if data_dir.name == name and (data_dir / "scene.json").is_file()
+                       else data_dir / name)
+    split = cfg["split"]
+    pred_scene, work = out / "predictions" / name, out / "work" / name
+    if scene_done(pred_scene, cfg_hash, scene, split):
+        log.info("%s: finished prediction found, reused", name)
+        return read_meta(pred_scene)
+    seed_everything(int(cfg["seed"]))
+    clock = StageClock(name, tag=str(cfg.get("ablation_name", "")))
+    asset, asset_info = None, {}
+    if method.needs_asset:
+        with clock.stage("recon"):
+            asset, asset_info = scene_asset(scene, assets=cfg.get("assets"), num_scenes=num_scenes,
+                                            recon_cfg=cfg["recon"], cache_root=cache_root,
+                                            device=cfg.get("device", "cpu"))
+    stats = method.predict(scene, pred_scene, asset=asset, clock=clock, work_dir=work, split=split,
+                           progress=progress)
+    material_s = clock.seconds(*method.material_stages)
+    recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
+    end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
+    if method.kind == "external":  # the system's own runtime (user value or timed run), not the import's
+        runtime = read_meta(pred_scene).get("runtime_s", {})
+        material_s, end_to_end = runtime.get("material"), runtime.get("end_to_end")
+    points_scores = stats.pop("points_scores", None) if isinstance(stats, dict) else None
+    if points_scores is not None:
+        write_json_atomic(work / "points_scores.json", points_scores)
+    write_meta(pred_scene, method=method.name, material_s=None if material_s is None else round(material_s, 3),
+               end_to_end_s=None if end_to_end is None else round(end_to_end, 3), config_hash=cfg_hash,
+               stages=clock.stages, asset={k: v for k, v in asset_info.items() if k != "config"},
+               stats=stats)
+    return read_meta(pred_scene)
+
+
+def points_summary(out: Path, names: list[str]) -> Optional[dict]:
+    """Table 2's measure over the scenes that have one: {"mean": ..., "per_scene": ...}."""
+    import json
+
+    per_scene = {}
+    for name in names:
+        path = out / "work" / name / "points_scores.json"
+        if path.is_file():
+            per_scene[name] = json.loads(path.read_text())
+    if not per_scene:
+        return None
+    channels = [c for c in ("albedo", "roughness", "metallic", "avg") if c in next(iter(per_scene.values()))]
+    mean = {c: {m: float(np.mean([s[c][m] for s in per_scene.values()])) for m in ("psnr", "ssim", "lpips")}
+            for c in channels}
+    return {"mean": mean, "per_scene": per_scene}
+
+
+def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, method_name: str):
+    """gspi-eval on ``out/predictions`` into ``out/eval``; returns the EvalResult."""
+    from omegaconf import OmegaConf
+
+    from eval.config import validate_protocol
+    from eval.evaluate import evaluate
+    from eval.report import write_result as write_eval
+
+    protocol = OmegaConf.create(cfg["eval"])
+    validate_protocol(protocol)
+    result = evaluate(data_dir, out / "predictions", protocol, method=method_name)
+    write_eval(out / "eval", result, dict(cfg["eval"]))
+    return result
+
+
+def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
+    """Runs (or skips, when complete) one job; returns its result.json content."""
+    out, data_dir = Path(cfg["out"]), Path(cfg["data_dir"])
+    cfg_hash = config_hash(cfg)
+    if is_complete(out, cfg_hash):
+        log.info("%s: complete result of this config found, skipped", out)
+        return read_result(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(int(cfg.get("threads", 1)))
+    cache_root = Path(cfg.get("cache_dir") or data_dir / ".cache")
+    method_cfg = cfg["method"]
+    record = dict(cfg_hash=cfg_hash, method=str(method_cfg["name"]), ablation=str(cfg.get("ablation_name", "full")),
+                  table=cfg.get("table"), seed=int(cfg["seed"]), data=str(data_dir))
+    tracker = make_tracker(cfg.get("logger"), cfg, out)
+    names: list[str] = []
+    t0 = time.perf_counter()
+    try:
+        names = select_scenes(data_dir, cfg["split"], cfg.get("scenes"))
+        method = Method(method_cfg, cfg, cache_root)
+        prepared = method.prepare()
+        errors, progress = {}, bool(cfg.get("progress", True))
+        iterator = names
+        if progress:
+            from tqdm import tqdm
+            iterator = tqdm(names, desc=f"{method.name}", unit="scene")
+        for name in iterator:
+            try:
+                meta = run_scene(name, data_dir=data_dir, method=method, cfg=cfg, out=out, cfg_hash=cfg_hash,
+                                 cache_root=cache_root, num_scenes=len(names), progress=progress)
+                tracker.log(flatten(f"{name}/stages", meta.get("stages", {})))
+            except Exception as exc:  # one scene failing must not lose the others
+                log.error("%s: %s failed:\n%s", name, method.name, traceback.format_exc())
+                errors[name] = f"{type(exc).__name__}: {exc}"
+        done = [n for n in names if n not in errors]
+        material_eval = points_eval = None
+        if done:
+            result = evaluate_predictions(cfg, data_dir, out, method.name)
+            material_eval = "eval"
+            tracker.log(flatten("eval", result.summary))
+            tracker.summary(flatten("eval", result.summary))
+            import pandas as pd
+            tracker.log_table("eval/per_view", pd.DataFrame(result.rows))
+            pts = points_summary(out, done)
+            if pts is not None:
+                write_json_atomic(out / "points_eval" / "summary.json", pts)
+                points_eval = "points_eval"
+                tracker.summary(flatten("points_eval", pts["mean"]))
+            if cfg.get("figures", True):
+                write_figures(cfg, data_dir, out, done, tracker)
+        status = "failed" if errors else "complete"
+        error = None if not errors else "; ".join(f"{k}: {v}" for k, v in errors.items())
+        write_result(out, status=status, error=error, scenes=names, material_eval=material_eval,
+                     points_eval=points_eval, extra={"prepare": prepared, "scene_errors": errors,
+                                                     "seconds": round(time.perf_counter() - t0, 2)}, **record)
+        tracker.finish(exit_code=0 if not errors else 1)
+        if errors and reraise:
+            raise RuntimeError(f"{out}: {len(errors)} of {len(names)} scenes failed: {error}")
+    except Exception as exc:
+        if read_result(out) is None or read_result(out).get("config_hash") != cfg_hash or \
+                read_result(out).get("status") != "failed":
+            write_result(out, status="failed", error=f"{type(exc).__name__}: {exc}", scenes=names,
+                         extra={"traceback": traceback.format_exc()}, **record)
+        tracker.finish(exit_code=1)
+        if reraise:
+            raise
+        log.error("%s: job failed, recorded in result.json:\n%s", out, traceback.format_exc())
+    return read_result(out)
+
+
+def write_figures(cfg: Mapping[str, Any], data_dir: Path, out: Path, names: list[str], tracker) -> None:
+    from omegaconf import OmegaConf
+
+    from gspi.run.figure import scene_figure
+
+    protocol = OmegaConf.create(cfg["eval"])
+    for name in names:
+        scene_dir = data_dir if (data_dir / "scene.json").is_file() else data_dir / name
+        try:
+            path = scene_figure(read_scene(scene_dir), out / "predictions" / name, out / "figures" / f"{name}.png",
+                                protocol, split=cfg["split"])
+            tracker.log_image(f"figures/{name}", path)
+        except Exception:  # a figure must never fail a run
+            log.warning("%s: figure failed:\n%s", name, traceback.format_exc())

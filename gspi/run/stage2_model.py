@@ -1,0 +1,81 @@
+"""The Stage II model of a run: a given checkpoint, or one trained once per config and reused.
+
+``stage2.checkpoint=<path>`` loads it (relative paths are tried against the working
+directory, then the repository root, so the shipped ``checkpoints/stage2_small.pt`` works
+from anywhere). ``stage2.checkpoint=null`` trains ``gspi-train``'s recipe on the dataset's
+training split into ``<cache>/stage2/<hash>/`` (hash of the Stage II config, the training
+scenes and the seed), resuming a partial run, under a file lock so that the parallel jobs of
+a sweep that share a model (Table 3: A6-A9 and Full) train it once.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Mapping
+
+from eval.layout import read_splits
+from gspi.run.locks import file_lock
+from gspi.run.record import config_hash
+
+log = logging.getLogger(__name__)
+REPO_ROOT = Path(__file__).resolve().parents[2]
+# Keys of `stage2` that do not change the trained weights.
+NOT_TRAINING = ("eval", "inference", "checkpoint")
+
+
+def resolve_path(path: str | Path) -> Path:
+    """``path`` as given if it exists, else relative to the repository root."""
+    p = Path(path)
+    if p.exists() or p.is_absolute():
+        return p
+    return REPO_ROOT / p
+
+
+def training_hash(cfg: Mapping[str, Any]) -> str:
+    """Identity of a trained model: Stage II config (minus inference keys), training scenes, seed."""
+    stage2 = {k: v for k, v in cfg["stage2"].items() if k not in NOT_TRAINING}
+    train_scenes = read_splits(cfg["data_dir"]).get("train", [])
+    return config_hash({"stage2": stage2, "train_scenes": train_scenes, "seed": cfg["seed"],
+                        "data": str(Path(cfg["data_dir"]).resolve())}, volatile=())
+
+
+def check_compatible(saved: Mapping[str, Any], wanted: Mapping[str, Any], path: Path) -> None:
+    """The run's ablation switches must be those the checkpoint was trained with."""
+    pairs = {"stage2.data.local_condition": (saved["stage2"]["data"]["local_condition"],
+                                             wanted["stage2"]["data"]["local_condition"]),
+             "stage2.prior.encoder": (saved["stage2"]["prior"]["encoder"], wanted["stage2"]["prior"]["encoder"])}
+    bad = {k: v for k, v in pairs.items() if v[0] != v[1]}
+    if bad:
+        desc = "; ".join(f"{k}: checkpoint {a!r}, run {b!r}" for k, (a, b) in bad.items())
+        raise ValueError(f"{path}: the Stage II checkpoint does not match the run's config ({desc}); "
+                         f"set stage2.checkpoint=null to train a matching model")
+
+
+def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
+    """(model in eval mode with EMA weights, the checkpoint's config, info)."""
+    from gspi.stage2.checkpoint import load_stage2_checkpoint
+    from gspi.stage2.train import train
+
+    ckpt = cfg["stage2"].get("checkpoint")
+    if ckpt:
+        path = resolve_path(ckpt)
+        model, saved = load_stage2_checkpoint(path)
+        check_compatible(saved, cfg, path)
+        return model, saved, {"checkpoint": str(path), "trained": False}
+    folder = Path(cache_root) / "stage2" / training_hash(cfg)
+    train_cfg = {"stage2": {k: v for k, v in cfg["stage2"].items() if k != "checkpoint"},
+                 "data_dir": str(cfg["data_dir"]), "seed": int(cfg["seed"])}
+    with file_lock(folder):
+        done = folder / "checkpoint.pt"
+        stats = None
+        if not (done.is_file() and _finished(done, train_cfg)):
+            log.info("training Stage II into %s", folder)
+            stats = train(train_cfg, folder)
+        model, saved = load_stage2_checkpoint(done)
+    return model, saved, {"checkpoint": str(done), "trained": stats is not None, "train_stats": stats}
+
+
+def _finished(path: Path, train_cfg: Mapping[str, Any]) -> bool:
+    from gspi.stage2.checkpoint import read_checkpoint
+
+    return int(read_checkpoint(path)["step"]) >= int(train_cfg["stage2"]["train"]["steps"])

@@ -1,0 +1,125 @@
+"""Stage II inference on a GENERATED (Stage I) point cloud of a 2DGS asset.
+
+Training reads GT point clouds (``gspi.stage2.data``); inference reads what Stage I made from
+the asset: the points with their source view/pixel and observed RGB, and the asset's own 32
+lattice renders (RGB for the global prior and A5's multi-view colours, median depth for A5's
+visibility). The conditions are built exactly as in training (docs/STAGE2.md "Conditioning"):
+
+* ``top_rgb_onehot`` / ``top_rgb``: ``linear_to_srgb(clamp(rgb, 0, 1))`` (+ one-hot of v*);
+* ``multiview`` (A5): the lattice renders replace the GT views and GT depth;
+* global prior: the frozen encoder on the asset's lattice renders (sRGB of clamped linear).
+
+``max_points`` (CPU-scale knob, default None = the paper's whole cloud) samples a seeded
+uniform subset, and the other points take their nearest sampled neighbour's prediction.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from eval.colorspace import linear_to_srgb
+from gspi.stage1.point_cloud import NUM_LATTICE_VIEWS, PointCloud
+from gspi.stage2.data import LatticeCameras, local_condition_dim, multiview_condition_from_views, srgb_top_rgb
+from gspi.stage2.model import RCWDenoiser
+from gspi.stage2.train import predict_point_pbr
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    """``stage2.inference``: how the whole cloud is sampled."""
+
+    num_steps: int = 50  # DDIM steps (paper: 50)
+    guidance_scale: float = 1.0  # classifier-free guidance (1 = off, the paper)
+    num_samples: int = 1  # DDIM samples averaged per point (1 = the paper)
+    max_points: Optional[int] = None  # None = whole cloud (paper); else seeded subset + 1-NN fill
+    write_chunk: Optional[int] = 32768  # points per Write chunk (memory bound)
+    seed: int = 0
+
+    @classmethod
+    def from_mapping(cls, cfg) -> "InferenceConfig":
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(cfg) - known)
+        if unknown:
+            raise ValueError(f"stage2.inference: unknown keys {unknown} (known: {sorted(known)})")
+        return cls(**dict(cfg))
+
+
+def lattice_srgb(rgb_linear: Tensor | np.ndarray) -> Tensor:
+    """[V, H, W, 3] linear renders -> [V, 3, H, W] sRGB in [0, 1] (the encoders' input)."""
+    rgb = torch.as_tensor(np.asarray(rgb_linear), dtype=torch.float32)
+    return linear_to_srgb(rgb.clamp(0.0, 1.0)).permute(0, 3, 1, 2).contiguous()
+
+
+def prior_features(encoder, rgb_linear: np.ndarray) -> Optional[Tensor]:
+    """[32, D, 5, 5] global-prior features of the asset's lattice renders, None without a prior."""
+    if encoder.feature_dim == 0:
+        return None
+    if len(rgb_linear) != NUM_LATTICE_VIEWS:
+        raise ValueError(f"the global prior needs the {NUM_LATTICE_VIEWS} lattice renders, got {len(rgb_linear)}")
+    with torch.no_grad():
+        return encoder.encode(lattice_srgb(rgb_linear)).float()
+
+
+def point_conditions(points: PointCloud, mode: str, *, rgb_linear: np.ndarray, depth: np.ndarray,
+                     K: np.ndarray, w2c: np.ndarray, tol_pixels: float = 2.0) -> np.ndarray:
+    """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training)."""
+    local_condition_dim(mode)
+    top = srgb_top_rgb(points.rgb)
+    if mode == "top_rgb":
+        return top
+    if mode == "top_rgb_onehot":
+        onehot = np.eye(NUM_LATTICE_VIEWS, dtype=np.float32)[points.view]
+        return np.concatenate([top, onehot], axis=1)
+    height, width = depth.shape[1:3]
+    cams = LatticeCameras(K=np.asarray(K, np.float64), w2c=np.asarray(w2c, np.float64), width=width, height=height)
+    images = srgb_top_rgb(rgb_linear)
+    return multiview_condition_from_views(images, depth, cams, points.xyz.astype(np.float64), tol_pixels=tol_pixels)
+
+
+def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> Optional[np.ndarray]:
+    """Sorted seeded uniform subset of ``range(num_points)``, None when no subsampling is needed."""
+    if max_points is None or num_points <= max_points:
+        return None
+    if max_points <= 0:
+        raise ValueError(f"stage2.inference.max_points must be positive or null, got {max_points}")
+    return np.sort(np.random.default_rng(seed).choice(num_points, size=max_points, replace=False))
+
+
+def nearest_fill(xyz_sub: np.ndarray, values_sub: np.ndarray, xyz_all: np.ndarray) -> np.ndarray:
+    """Each point of ``xyz_all`` takes the value of its nearest point of ``xyz_sub`` (1-NN, 3D)."""
+    _, idx = cKDTree(xyz_sub).query(xyz_all, k=1)
+    return values_sub[idx]
+
+
+def predict_generated_points(model: RCWDenoiser, points: PointCloud, *, local_mode: str,
+                             rgb_linear: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray,
+                             encoder, cfg: InferenceConfig, tol_pixels: float = 2.0) -> tuple[np.ndarray, dict]:
+    """Stage II on a Stage I cloud: [P, 5] (albedo sRGB RGB, roughness, metallic) in [0, 1] + stats."""
+    t0 = time.perf_counter()
+    if model.config.local_cond_dim != local_condition_dim(local_mode):
+        raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
+                         f"stage2.data.local_condition={local_mode!r} gives {local_condition_dim(local_mode)}")
+    feats = prior_features(encoder, rgb_linear)
+    if (feats is None) != (model.config.global_token_dim == 0):
+        raise ValueError(f"prior encoder {getattr(encoder, 'name', encoder)!r} does not match the model "
+                         f"(global_token_dim={model.config.global_token_dim})")
+    sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
+    pts = points if sub is None else points.subset(sub)
+    cond = point_conditions(pts, local_mode, rgb_linear=rgb_linear, depth=depth, K=K, w2c=w2c, tol_pixels=tol_pixels)
+    t_cond = time.perf_counter() - t0
+    samples = [predict_point_pbr(model, pts.xyz, cond, feats, num_steps=cfg.num_steps, seed=cfg.seed + k,
+                                 write_chunk=cfg.write_chunk, guidance_scale=cfg.guidance_scale).numpy()
+               for k in range(max(1, cfg.num_samples))]
+    pbr = np.mean(samples, axis=0).astype(np.float32)
+    if sub is not None:
+        pbr = nearest_fill(pts.xyz, pbr, points.xyz)
+    stats = {"num_points": len(points), "num_sampled": len(pts), "num_steps": cfg.num_steps,
+             "num_samples": max(1, cfg.num_samples), "guidance_scale": cfg.guidance_scale,
+             "seconds_conditions": round(t_cond, 3), "seconds": round(time.perf_counter() - t0, 3)}
+    return pbr, stats

@@ -1,0 +1,115 @@
+"""The end-to-end runner (gspi-run): records, skip/resume, failure capture, a tiny real run."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from gspi.run.record import config_hash, is_complete, read_result, write_result
+from gspi.run.stages import StageClock
+from gspi.stage2.infer import nearest_fill, subsample_indices
+
+from tests.run_helpers import run_config
+
+
+def test_config_hash_ignores_volatile_keys_only():
+    cfg = {"out": "a", "threads": 1, "seed": 0, "stage3": {"iterations": 5}, "logger": {"name": "none"}}
+    assert config_hash(cfg) == config_hash({**cfg, "out": "b", "threads": 4, "logger": {"name": "wandb"}})
+    assert config_hash(cfg) != config_hash({**cfg, "seed": 1})
+    assert config_hash(cfg) != config_hash({**cfg, "stage3": {"iterations": 6}})
+
+
+def test_result_record_round_trip_and_completeness(tmp_path):
+    assert read_result(tmp_path) is None and not is_complete(tmp_path, "h")
+    write_result(tmp_path, status="failed", cfg_hash="h", method="gspi", ablation="full", table=None, seed=0,
+                 data="d", scenes=["s"], error="boom")
+    assert read_result(tmp_path)["error"] == "boom" and not is_complete(tmp_path, "h")
+    write_result(tmp_path, status="complete", cfg_hash="h", method="gspi", ablation="full", table="table3",
+                 seed=0, data="d", scenes=["s"], material_eval="eval")
+    assert is_complete(tmp_path, "h") and not is_complete(tmp_path, "other")
+    (tmp_path / "result.json").write_text("{half")  # a torn file is "no result", never a crash
+    assert read_result(tmp_path) is None
+    with pytest.raises(ValueError, match="status"):
+        write_result(tmp_path, status="ok", cfg_hash="h", method="m", ablation="a", table=None, seed=0,
+                     data="d", scenes=[])
+
+
+def test_stage_clock_records_time_and_memory():
+    clock = StageClock("s")
+    with clock.stage("alloc"):
+        block = np.ones((64, 2**20 // 8))  # 64 MB
+        block += 1
+    info = clock.stages["alloc"]
+    assert info["seconds"] >= 0 and info["peak_rss_mb"] > 64
+    assert clock.seconds("alloc", "absent") == info["seconds"]
+
+
+def test_subsample_and_nearest_fill():
+    assert subsample_indices(10, None, 0) is None and subsample_indices(10, 20, 0) is None
+    idx = subsample_indices(100, 10, seed=3)
+    assert len(idx) == 10 and np.array_equal(idx, subsample_indices(100, 10, seed=3))
+    xyz_sub = np.array([[0.0, 0, 0], [1, 0, 0]])
+    values = np.array([[1.0], [2.0]])
+    filled = nearest_fill(xyz_sub, values, np.array([[0.1, 0, 0], [0.9, 0, 0], [0.49, 0, 0]]))
+    assert filled[:, 0].tolist() == [1.0, 2.0, 1.0]
+
+
+def test_x0_head_is_read_as_eps_consistently():
+    """With prediction=x0, the sampler's f0 estimate from the returned eps IS the head's output."""
+    from gspi.stage2.inputs import Stage2Inputs
+    from gspi.stage2.model import RCWConfig, RCWDenoiser
+    from gspi.stage2.schedule import cosine_alphas_cumprod
+
+    torch.manual_seed(0)
+    cfg = RCWConfig(num_latents=4, latent_dim=16, point_dim=16, num_blocks=1, num_compute_layers=1, num_heads=2,
+                    global_token_dim=0, prediction="x0")
+    model = RCWDenoiser(cfg).double()
+    inputs = Stage2Inputs(xyz=torch.randn(2, 30, 3).double(), local_cond=torch.rand(2, 30, 35).double(),
+                          global_tokens=None)
+    f_t, t = torch.randn(2, 30, 5).double(), torch.tensor([10, 900])
+    eps = model(f_t, t, inputs).eps
+    eps_head = RCWDenoiser(RCWConfig(**{**cfg.__dict__, "prediction": "eps"})).double()
+    eps_head.load_state_dict(model.state_dict())
+    head = eps_head(f_t, t, inputs).eps
+    abar = cosine_alphas_cumprod()[t].reshape(-1, 1, 1).double()
+    f0_from_eps = (f_t - (1 - abar).sqrt() * eps) / abar.sqrt()
+    assert torch.allclose(f0_from_eps, head, atol=1e-6)
+    with pytest.raises(ValueError, match="prediction"):
+        RCWConfig(prediction="v")
+
+
+def test_tiny_end_to_end_run_then_rerun_skips(micro_dataset, tmp_path):
+    """Stage 0 -> I -> II (trained here) -> III -> eval on a 32-px scene; a rerun skips the job."""
+    from gspi.run.runner import run_job
+
+    cfg = run_config(micro_dataset, tmp_path / "run")
+    result = run_job(cfg)
+    assert result["status"] == "complete", result
+    test_scene = json.loads((micro_dataset / "splits.json").read_text())["test"][0]
+    out = tmp_path / "run"
+    meta = json.loads((out / "predictions" / test_scene / "meta.json").read_text())
+    assert meta["method"] == "gspi" and set(meta["stages"]) >= {"recon", "stage1", "stage2", "stage3", "render"}
+    assert meta["runtime_s"]["material"] > 0 and meta["runtime_s"]["end_to_end"] >= meta["runtime_s"]["material"]
+    summary = json.loads((out / "eval" / "summary.json").read_text())
+    assert set(summary) == {"albedo", "roughness", "metallic", "relight"}
+    points = json.loads((out / "points_eval" / "summary.json").read_text())
+    assert set(points["per_scene"]) == {test_scene} and "avg" in points["mean"]
+    assert (out / "work" / test_scene / "pbr_gs.ply").is_file() and (out / "figures" / f"{test_scene}.png").is_file()
+    stamp = (out / "result.json").stat().st_mtime_ns
+    assert run_job(cfg)["status"] == "complete"
+    assert (out / "result.json").stat().st_mtime_ns == stamp  # skipped, not redone
+
+
+def test_failed_scene_is_recorded_and_rerun_redoes_only_it(micro_dataset, tmp_path):
+    from gspi.run.runner import run_job
+
+    out = tmp_path / "run"
+    bad = run_config(micro_dataset, out, ["method=no_decomposition", "assets=/nonexistent/assets"])
+    result = run_job(bad, reraise=False)
+    assert result["status"] == "failed" and "/nonexistent/assets" in result["error"]
+    with pytest.raises(RuntimeError, match="scenes failed"):
+        run_job(bad, reraise=True)
+    good = run_config(micro_dataset, out, ["method=no_decomposition"])
+    assert run_job(good)["status"] == "complete"
