@@ -70,7 +70,7 @@ def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
         stats = None
         if not (done.is_file() and _finished(done, train_cfg)):
             log.info("training Stage II into %s", folder)
-            stats = train(train_cfg, folder)
+            stats = train(train_cfg, folder, stop_at=train_cfg["stage2"]["train"].get("stop_at"))
         model, saved = load_stage2_checkpoint(done)
     return model, saved, {"checkpoint": str(done), "trained": stats is not None, "train_stats": stats}
 
@@ -78,4 +78,6 @@ def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
 def _finished(path: Path, train_cfg: Mapping[str, Any]) -> bool:
     from gspi.stage2.checkpoint import read_checkpoint
 
-    return int(read_checkpoint(path)["step"]) >= int(train_cfg["stage2"]["train"]["steps"])
+    train = train_cfg["stage2"]["train"]
+    last = min(int(train["steps"]), int(train.get("stop_at") or train["steps"]))
+    return int(read_checkpoint(path)["step"]) >= last

@@ -180,6 +180,9 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         if init_from:  # fine-tuning: weights (not optimizer or step) of another Stage II model
             from gspi.stage2.checkpoint import read_checkpoint, load_weights
 
+            init_from = Path(init_from)
+            if not init_from.exists() and not init_from.is_absolute():  # relative to the repository
+                init_from = Path(__file__).resolve().parents[2] / init_from
             src = read_checkpoint(init_from)
             weights = src.get("ema") or src.get("model")
             load_weights(state.model, weights, init_from, "init_from")
