@@ -10,6 +10,7 @@ Writes <out>/per_view.csv, <out>/summary.json, <out>/eval_meta.json and <out>/.h
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 import hydra
@@ -25,7 +26,7 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Evaluate `cfg.pred` against `cfg.gt` under protocol `cfg.eval`; returns the summary."""
     validate_protocol(cfg.eval)
-    result = evaluate(Path(cfg.gt), Path(cfg.pred), cfg.eval, method=cfg.get("method"),
+    result = evaluate(Path(cfg.gt), Path(cfg.pred), cfg.eval, method=cfg.get("method_name"),
                       progress=bool(cfg.get("progress", True)))
     write_result(Path(cfg.out), result, OmegaConf.to_container(cfg.eval, resolve=True))
     text = format_summary(result)
@@ -37,9 +38,25 @@ def run(cfg: DictConfig) -> dict:
 register_configs()
 
 
+# `method=<name>` is an alias of the key `method_name=<name>`: conf/method/ is a config group
+# (the methods gspi-run can run), so Hydra would read `method=...` as a group override.
+METHOD_ALIAS = ("method=", "method_name=")
+
+
+def rewrite_method_alias(argv: list[str]) -> list[str]:
+    """``method=X`` -> ``method_name=X`` (other arguments unchanged)."""
+    old, new = METHOD_ALIAS
+    return [new + a[len(old):] if a.startswith(old) else a for a in argv]
+
+
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_eval")
-def main(cfg: DictConfig) -> None:
+def _hydra_main(cfg: DictConfig) -> None:
     run(cfg)
+
+
+def main() -> None:
+    sys.argv = [sys.argv[0], *rewrite_method_alias(sys.argv[1:])]
+    _hydra_main()
 
 
 if __name__ == "__main__":

@@ -34,3 +34,9 @@ def test_gspi_eval_reports_a_bad_override(sphere_dataset, tmp_path):
                            f"pred={sphere_dataset}", f"out={tmp_path}", "eval.albedo_alignment=mean"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode != 0 and "albedo_alignment" in proc.stderr
+
+
+def test_method_alias_is_rewritten_to_method_name():
+    from eval.cli import rewrite_method_alias
+
+    assert rewrite_method_alias(["gt=a", "method=x", "out=o"]) == ["gt=a", "method_name=x", "out=o"]

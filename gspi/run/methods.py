@@ -49,9 +49,16 @@ class Method:
             return {"stage2": {k: v for k, v in ctx.info.items() if k != "train_stats"}}
         if self.kind == "inhouse" and self.name == "no_decomposition":
             from baselines.no_decomposition import fit_constants
+            from eval.layout import read_splits
 
-            self.shared["constants"] = fit_constants(Path(self.run_cfg["data_dir"]))
-            return {"constants": self.shared["constants"]}
+            data_dir = Path(self.run_cfg["data_dir"])
+            has_train = (data_dir / "splits.json").is_file() and read_splits(data_dir).get("train")
+            if has_train or not self.cfg.get("fallback_constants"):
+                self.shared["constants"] = fit_constants(data_dir)
+                return {"constants": self.shared["constants"], "constants_source": "fitted on the training split"}
+            self.shared["constants"] = {k: float(v) for k, v in self.cfg["fallback_constants"].items()}
+            return {"constants": self.shared["constants"],
+                    "constants_source": "method.fallback_constants (the dataset has no training scenes)"}
         if self.kind == "external" and not self.cfg.get("outputs"):
             raise MethodUnavailable(f"method {self.name!r}: no outputs configured; place the system's outputs "
                                     f"under a folder and pass method.outputs=<folder> (docs/BASELINES.md)")
