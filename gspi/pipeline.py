@@ -88,7 +88,10 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None
-    if s1cfg.image_size == scene.width == scene.height:
+    if not s1cfg.image_size == scene.width == scene.height:
+        log.warning("%s: no Table 2 measure (points_eval): Stage I renders %d px, the scene is %dx%d; "
+                    "set stage1.image_size=%d", scene.name, s1cfg.image_size, scene.height, scene.width, scene.width)
+    else:
         from gspi.stage2.score_generated import score_generated_points
 
         with clock.stage("points_eval"):
