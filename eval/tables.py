@@ -215,9 +215,11 @@ def run(cfg):
 
 def positional_to_overrides(argv: list[str]) -> list[str]:
     """Let `gspi-table DIR DIR` mean `gspi-table runs=[DIR,DIR]` (Hydra takes key=value only)."""
-    dirs = [a for a in argv if "=" not in a and not a.startswith("-")]
+    # An existing path is a folder even with "=" in it (Hydra's sweep job folders: method=gspi).
+    dirs = [a for a in argv if not a.startswith("-") and ("=" not in a or Path(a).exists())]
     rest = [a for a in argv if a not in dirs]
-    return rest + ([f"runs=[{','.join(dirs)}]"] if dirs else [])
+    quoted = ",".join(f"'{d}'" if "=" in d or "," in d else d for d in dirs)
+    return rest + ([f"runs=[{quoted}]"] if dirs else [])
 
 
 def main() -> None:

@@ -81,3 +81,14 @@ def test_positional_dirs_become_runs_override():
 def test_missing_folder_is_an_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="no summary.json"):
         find_runs([tmp_path])
+
+
+def test_positional_folders_may_contain_equals_signs(tmp_path):
+    """Hydra names sweep job folders `method=gspi`: an existing path is a folder, not an override."""
+    from eval.tables import positional_to_overrides
+
+    job = tmp_path / "method=gspi"
+    job.mkdir()
+    args = positional_to_overrides([str(job), "out=x"])
+    assert args == ["out=x", f"runs=['{job}']"]
+    assert positional_to_overrides(["a", "b", "out=x"]) == ["out=x", "runs=[a,b]"]
