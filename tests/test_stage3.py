@@ -11,7 +11,7 @@ import torch
 from omegaconf import OmegaConf
 from plyfile import PlyData
 
-from eval.colorspace import srgb_to_linear
+from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.metrics import masked_psnr, masked_ssim
 from gspi.gaussians.cameras import intrinsics_from_fov, look_at
 from gspi.gaussians.model import Gaussians2D
@@ -20,9 +20,9 @@ from gspi.gaussians.sh import rgb_to_sh
 from gspi.recon.lattice_render import lattice_camera_tensors
 from gspi.stage1.point_cloud import PointCloud
 from gspi.stage3.config import Stage3Config
-from gspi.stage3.distill import distill
+from gspi.stage3.distill import distill, harmonized_albedo_targets
 from gspi.stage3.export import render_material_maps, write_prediction_meta, write_scene_predictions
-from gspi.stage3.init import initialize_pbr
+from gspi.stage3.init import initialize_pbr, sh_gain
 from gspi.stage3.loss import masked_dssim, masked_material_loss
 from gspi.stage3.targets import StagedTargets, stage_targets
 from tests.fixtures import surfel_sphere
@@ -74,6 +74,8 @@ class TestConfig:
             Stage3Config.from_dict({"init": {"fallback": "zero"}})
         with pytest.raises(ValueError, match="ssim_lambda"):
             Stage3Config.from_dict({"loss": {"ssim_lambda": 1.5}})
+        with pytest.raises(ValueError, match="sh_gain must be one of"):
+            Stage3Config.from_dict({"init": {"sh_gain": "luma"}})
 
     def test_default_yaml_is_the_dataclass_default_and_paper_recipe(self):
         data = OmegaConf.to_container(OmegaConf.load(CONF / "stage3" / "default.yaml"))
@@ -226,6 +228,65 @@ class TestInitialize:
         assert_near(out.albedo.double(), expected, atol=2e-5, rtol=0)
         assert_near(torch.tensor(stats["sh_gain"]).double(), gain, atol=1e-5, rtol=0)
         assert_near(out.roughness, plain.roughness)  # albedo only
+
+    def harmonised(self, beta, kind):
+        asset = two_layer_asset()
+        n = asset.num_gaussians // 2
+        base = torch.tensor([0.5, 0.5, 0.5]).repeat(2 * n, 1)
+        base[0] = torch.tensor([0.25, 0.5, 1.0])
+        base[n] = torch.tensor([0.6, 0.3, 0.0])
+        asset.sh_dc = rgb_to_sh(base)[:, None, :]
+        out, stats = initialize_pbr(asset, front_back_targets(),
+                                    config(init={"sh_harmonize": beta, "sh_gain": kind}))
+        plain, _ = initialize_pbr(asset, front_back_targets(), config(init={"sh_harmonize": 0.0}))
+        return out, stats, plain.albedo.double(), base.double(), n
+
+    def test_scalar_gain_keeps_the_sh_hue(self):
+        out, stats, a, c, _ = self.harmonised(1.0, "scalar")
+        gain = (a * c).sum() / (c * c).sum()  # one least-squares gain over all channels
+        assert_near(out.albedo.double(), (gain * c).clamp(1e-3, 1 - 1e-3), atol=2e-5)  # logit_eps clamp
+        assert stats["sh_gain"] == pytest.approx([float(gain)] * 3, abs=1e-5)
+
+    def test_chroma_takes_the_albedo_level_and_the_sh_chromaticity(self):
+        out, stats, a, c, n = self.harmonised(0.5, "chroma")
+        moved = a.mean(1, keepdim=True) * c / c.mean(1, keepdim=True)
+        assert_near(out.albedo.double(), (0.5 * a + 0.5 * moved.clamp(0, 1)).clamp(1e-3, 1 - 1e-3), atol=2e-5)
+        # the surfel whose SH colour is (0.25, 0.5, 1) keeps its level but turns bluer
+        front = a[0]
+        assert float(out.albedo[0].double().mean()) == pytest.approx(float(front.mean()), abs=2e-5)
+        assert float(out.albedo[0, 2] / out.albedo[0].sum()) > float(front[2] / front.sum()) + 0.1
+        assert stats["sh_gain"] == [1.0, 1.0, 1.0] and stats["sh_gain_kind"] == "chroma"
+
+    def test_chroma_leaves_black_sh_colours_alone(self):
+        albedo = torch.tensor([[0.2, 0.4, 0.6]], dtype=torch.float64)
+        from gspi.stage3.init import harmonize_albedo
+        out, gain = harmonize_albedo(albedo, torch.zeros(1, 3, dtype=torch.float64),
+                                     torch.ones(1, dtype=torch.bool), 1.0, "chroma")
+        assert_near(out, albedo) and assert_near(gain, torch.ones(3))
+
+    def test_unknown_gain_kind_raises(self):
+        with pytest.raises(ValueError, match="sh_gain kind"):
+            sh_gain(torch.ones(2, 3), torch.ones(2, 3), torch.ones(2, dtype=torch.bool), "luma")
+
+    def test_harmonised_targets_get_the_rendered_sh_chromaticity(self):
+        asset = surfel_sphere(400)
+        colour = torch.tensor([0.2, 0.4, 0.6])
+        asset.sh_dc = rgb_to_sh(colour.expand(400, 3))[:, None, :]
+        targets = lattice_targets(((0.5, 0.5, 0.5), 0.5, 0.0))
+        t = targets.tensors()
+        cfg = config(init={"sh_harmonize": 1.0, "sh_gain": "chroma", "harmonize_targets": True})
+        out = harmonized_albedo_targets(asset, t["albedo"], t["w2c"], t["K"], SIZE, SIZE, [1.0, 1.0, 1.0], cfg)
+        from gspi.stage3.render import render_geometry
+        alpha, _ = render_geometry(asset, t["w2c"], t["K"], SIZE, SIZE)
+        solid = alpha > 0.99
+        level = srgb_to_linear(torch.tensor(0.5))
+        expected = linear_to_srgb(level * colour / colour.mean())
+        assert solid.sum() > 100
+        assert_near(out[solid], expected.expand(int(solid.sum()), 3), atol=1e-4)
+        # beta = 0 leaves the targets as they are
+        same = harmonized_albedo_targets(asset, t["albedo"], t["w2c"], t["K"], SIZE, SIZE, [1.0, 1.0, 1.0],
+                                         config(init={"sh_harmonize": 0.0, "sh_gain": "chroma"}))
+        assert_near(same, t["albedo"], atol=1e-6)
 
     def test_no_valid_pixel_raises(self):
         targets = lattice_targets(((0.5, 0.5, 0.5), 0.5, 0.5))

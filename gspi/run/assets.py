@@ -31,8 +31,12 @@ class AssetError(FileNotFoundError):
 
 
 def user_asset_path(assets: str | Path, scene_name: str, num_scenes: int) -> Path:
-    """The PLY of ``scene_name`` under ``assets`` (a file for one scene, or a folder)."""
-    root = Path(assets)
+    """The PLY of ``scene_name`` under ``assets`` (a file for one scene, or a folder; a relative
+    path that does not exist from the working directory is read from the repository root, so
+    the shipped demo assets ``checkpoints/demo_assets`` work from anywhere)."""
+    from gspi.run.stage2_model import resolve_path
+
+    root = resolve_path(assets)
     if root.is_file():
         if num_scenes != 1:
             raise AssetError(f"{root}: one PLY given for {num_scenes} scenes; pass a folder with "

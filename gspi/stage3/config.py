@@ -10,12 +10,15 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 
 FALLBACKS = ("nearest", "mean")
+SH_MODES = ("channel", "scalar", "chroma")
 
 
 @dataclass
 class InitConfig:
     depth_tolerance_px: float = 2.0   # |z_centre - median depth| allowed, in pixel footprints z / fx
     sh_harmonize: float = 0.2         # beta: albedo = (1 - beta) gathered + beta * gain * SH-DC colour
+    sh_gain: str = "channel"          # SH colour onto the albedo: per-channel gain | scalar gain | chroma
+    harmonize_targets: bool = False   # also blend the rendered SH colour into the staged albedo targets
     fallback: str = "nearest"         # Gaussians without a valid sample: nearest initialised | mean
     logit_eps: float = 1e-3           # values clamped to [eps, 1 - eps] before the logit
 
@@ -62,6 +65,8 @@ class Stage3Config:
     def __post_init__(self) -> None:
         if self.init.fallback not in FALLBACKS:
             raise ValueError(f"stage3.init.fallback must be one of {FALLBACKS}, got {self.init.fallback!r}")
+        if self.init.sh_gain not in SH_MODES:
+            raise ValueError(f"stage3.init.sh_gain must be one of {SH_MODES}, got {self.init.sh_gain!r}")
         if not 0.0 <= self.init.sh_harmonize <= 1.0:
             raise ValueError(f"stage3.init.sh_harmonize must be in [0, 1], got {self.init.sh_harmonize}")
         if not 0.0 <= self.loss.ssim_lambda <= 1.0:

@@ -21,9 +21,10 @@ import torch
 
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage3.config import Stage3Config
-from gspi.stage3.init import initialize_pbr
+from eval.colorspace import linear_to_srgb, srgb_to_linear
+from gspi.stage3.init import blend_base_color, initialize_pbr
 from gspi.stage3.loss import PROPERTIES, masked_material_loss
-from gspi.stage3.render import render_geometry, render_materials
+from gspi.stage3.render import render_base_color, render_geometry, render_materials
 from gspi.stage3.targets import StagedTargets
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,20 @@ def _check_sizes(targets: StagedTargets, cfg: Stage3Config) -> None:
     if (targets.height, targets.width) != (cfg.image_size, cfg.image_size):
         raise ValueError(f"staged targets are {targets.height}x{targets.width} but stage3.image_size is "
                          f"{cfg.image_size}: stage the targets at the configured size")
+
+
+def harmonized_albedo_targets(asset: Gaussians2D, albedo_srgb: torch.Tensor, w2c, K, width: int, height: int,
+                              gain, cfg: Stage3Config) -> torch.Tensor:
+    """Staged albedo targets with the same SH-DC harmonisation as the initialisation.
+
+    ``A_v <- srgb((1 - beta) lin(A_v) + beta clamp(g C_v, 0, 1))`` where ``C_v`` is the input
+    asset's rendered SH degree-0 base colour in view v and ``g`` the initialisation's gain, so
+    the distillation keeps what the initialisation blended in instead of undoing it.
+    """
+    base = render_base_color(asset.detach(), w2c, K, width, height, backend=cfg.backend).to(albedo_srgb)
+    gain_t = torch.as_tensor(gain, dtype=albedo_srgb.dtype, device=albedo_srgb.device)
+    blended = blend_base_color(srgb_to_linear(albedo_srgb), base, gain_t, cfg.init.sh_harmonize, cfg.init.sh_gain)
+    return linear_to_srgb(blended.clamp(0.0, 1.0))
 
 
 def distill(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config, *,
@@ -99,6 +114,9 @@ def distill(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config, *,
     gamma = cfg.lr.final_factor ** (1.0 / max(cfg.iterations, 1))
     scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma)
     target_maps = {p: t[p].to(asset.means) for p in PROPERTIES}
+    if cfg.init.harmonize_targets and cfg.init.sh_harmonize > 0:
+        target_maps["albedo"] = harmonized_albedo_targets(asset, target_maps["albedo"], w2c, K, targets.width,
+                                                          targets.height, init_stats["sh_gain"], cfg)
     schedule = view_schedule(targets.num_views, cfg.iterations, cfg.views_per_iteration, cfg.seed)
     steps = range(cfg.iterations)
     if progress:

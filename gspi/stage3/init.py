@@ -40,7 +40,7 @@ from torch import Tensor
 
 from eval.colorspace import srgb_to_linear
 from gspi.gaussians.model import Gaussians2D
-from gspi.stage3.config import Stage3Config
+from gspi.stage3.config import SH_MODES, Stage3Config
 from gspi.stage3.render import render_geometry
 from gspi.stage3.targets import StagedTargets
 
@@ -122,15 +122,53 @@ def _fallback(values: Tensor, has: Tensor, means: Tensor, kind: str, target_mean
     return out
 
 
-def harmonize_albedo(albedo_linear: Tensor, base_color: Tensor, has: Tensor, beta: float) -> tuple[Tensor, Tensor]:
-    """SH-DC harmonisation (module docstring): returns (albedo [N, 3] linear, gain [3])."""
+def sh_gain(albedo_linear: Tensor, base_color: Tensor, has: Tensor, kind: str = "channel") -> Tensor:
+    """[3] least-squares gain mapping the SH colours onto the gathered albedo (module docstring).
+
+    ``kind="channel"`` fits one gain per channel, ``g_k = sum_i a_ik c_ik / sum_i c_ik^2``;
+    ``"scalar"`` one gain for all three, ``g = sum_ik a_ik c_ik / sum_ik c_ik^2`` (repeated x3), so
+    ``g c_i`` keeps the reconstruction's hue and takes only the albedo's level. ``"chroma"`` needs
+    no gain (ones).
+    """
+    if kind == "chroma":
+        return torch.ones(3, dtype=albedo_linear.dtype, device=albedo_linear.device)
     c = base_color.clamp(0.0, 1.0)
     fit = has if has.any() else torch.ones_like(has)
-    denom = (c[fit] ** 2).sum(0)
-    gain = torch.where(denom > 0, (albedo_linear[fit] * c[fit]).sum(0) / denom.clamp_min(1e-12), 0.0)
+    num, den = (albedo_linear[fit] * c[fit]).sum(0), (c[fit] ** 2).sum(0)
+    if kind == "scalar":
+        num, den = num.sum().expand(3), den.sum().expand(3)
+    elif kind != "channel":
+        raise ValueError(f"sh_gain kind must be one of {SH_MODES}, got {kind!r}")
+    return torch.where(den > 0, num / den.clamp_min(1e-12), torch.zeros_like(num))
+
+
+def sh_colour_on_albedo_scale(albedo_linear: Tensor, base_color: Tensor, gain: Tensor, kind: str) -> Tensor:
+    """The SH colour mapped onto the albedo: ``clamp(g c)`` (gain kinds) or, for ``"chroma"``, the
+    albedo's own level with the SH colour's chromaticity ``mean_k(a) c / mean_k(c)`` (the albedo
+    where ``mean_k(c)`` < 1e-4)."""
+    c = base_color.clamp(0.0, 1.0)
+    if kind != "chroma":
+        return (gain * c).clamp(0.0, 1.0)
+    level_c = c.mean(-1, keepdim=True)
+    dark = level_c < 1e-4
+    moved = albedo_linear.mean(-1, keepdim=True) * c / torch.where(dark, torch.ones_like(level_c), level_c)
+    return torch.where(dark, albedo_linear, moved).clamp(0.0, 1.0)
+
+
+def blend_base_color(albedo_linear: Tensor, base_color: Tensor, gain: Tensor, beta: float,
+                     kind: str = "channel") -> Tensor:
+    """``(1 - beta) a + beta S(a, c)``, S = :func:`sh_colour_on_albedo_scale` (linear RGB, any
+    leading shape, channels last)."""
     if beta == 0.0:
-        return albedo_linear, gain
-    return (1.0 - beta) * albedo_linear + beta * (gain * c).clamp(0.0, 1.0), gain
+        return albedo_linear
+    return (1.0 - beta) * albedo_linear + beta * sh_colour_on_albedo_scale(albedo_linear, base_color, gain, kind)
+
+
+def harmonize_albedo(albedo_linear: Tensor, base_color: Tensor, has: Tensor, beta: float,
+                     kind: str = "channel") -> tuple[Tensor, Tensor]:
+    """SH-DC harmonisation (module docstring): returns (albedo [N, 3] linear, gain [3])."""
+    gain = sh_gain(albedo_linear, base_color, has, kind)
+    return blend_base_color(albedo_linear, base_color, gain, beta, kind), gain
 
 
 def initialize_pbr(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config, *,
@@ -170,7 +208,8 @@ def initialize_pbr(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config
     mean = (values * use[..., None]).sum(0) / count.clamp_min(1)[:, None]
     target_mean = maps[t["valid"]].mean(0)
     mean = _fallback(mean, has, means, cfg.init.fallback, target_mean)
-    albedo, gain = harmonize_albedo(mean[:, :3], asset.base_color().detach(), has, cfg.init.sh_harmonize)
+    albedo, gain = harmonize_albedo(mean[:, :3], asset.base_color().detach(), has, cfg.init.sh_harmonize,
+                                   cfg.init.sh_gain)
     eps = cfg.init.logit_eps
     out = asset.detach().clone().with_pbr(_logit(albedo, eps), _logit(mean[:, 3:4], eps), _logit(mean[:, 4:5], eps))
     stats = {
@@ -180,5 +219,6 @@ def initialize_pbr(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config
         "mean_samples": float(count.mean()),
         "occluded_samples": int((on_target & ~visible & (z > NEAR_PLANE)).sum()),
         "sh_gain": [float(x) for x in gain], "sh_harmonize": cfg.init.sh_harmonize,
+        "sh_gain_kind": cfg.init.sh_gain,
     }
     return out, stats

@@ -63,3 +63,19 @@ def render_geometry(asset: Gaussians2D, viewmats: Tensor, Ks: Tensor, width: int
         alphas.append(out.alpha[..., 0])
         depths.append(out.depth_median[..., 0])
     return torch.cat(alphas), torch.cat(depths)
+
+
+@torch.no_grad()
+def render_base_color(asset: Gaussians2D, viewmats: Tensor, Ks: Tensor, width: int, height: int, *,
+                      backend: str = "auto", batch: int = 8, min_alpha: float = 1e-4) -> Tensor:
+    """[C, H, W, 3] LINEAR blend-weight average of the surfels' SH degree-0 base colour
+    (``Gaussians2D.base_color``, clamped to [0, 1]); 0 where alpha <= ``min_alpha``."""
+    base = asset.base_color().clamp(0.0, 1.0)
+    maps = []
+    for start in range(0, len(viewmats), batch):
+        out = rasterize_2dgs(asset.means, asset.quats, asset.scales, asset.opacities, None,
+                             viewmats[start:start + batch], Ks[start:start + batch], width, height,
+                             features=base, backend=backend)
+        covered = out.alpha > min_alpha
+        maps.append(torch.where(covered, out.features / torch.where(covered, out.alpha, torch.ones_like(out.alpha)), 0.0))
+    return torch.cat(maps)
