@@ -16,9 +16,9 @@ SH_MODES = ("channel", "scalar", "chroma")
 @dataclass
 class InitConfig:
     depth_tolerance_px: float = 2.0   # |z_centre - median depth| allowed, in pixel footprints z / fx
-    sh_harmonize: float = 0.2         # beta: albedo = (1 - beta) gathered + beta * gain * SH-DC colour
-    sh_gain: str = "channel"          # SH colour onto the albedo: per-channel gain | scalar gain | chroma
-    harmonize_targets: bool = False   # also blend the rendered SH colour into the staged albedo targets
+    sh_harmonize: float = 1.0         # beta: albedo = (1 - beta) gathered + beta * S(gathered, SH-DC colour)
+    sh_gain: str = "chroma"           # S: per-channel gain | scalar gain | chroma (docs/STAGE3.md)
+    harmonize_targets: bool = True    # the staged albedo targets get the same blend (distillation keeps it)
     fallback: str = "nearest"         # Gaussians without a valid sample: nearest initialised | mean
     logit_eps: float = 1e-3           # values clamped to [eps, 1 - eps] before the logit
 

@@ -17,14 +17,22 @@ sample take the value of the nearest initialised Gaussian (``fallback: nearest``
 distance) or the mean of all valid target pixels (``fallback: mean``, also used when no
 Gaussian got a sample).
 
-SH-DC harmonisation of the albedo (strength beta = ``sh_harmonize``): the base colour of the
-SH degree-0 term, ``c_i = clamp(0.5 + C0 f_dc, 0, 1)`` (linear radiance), is mapped onto the
-albedo scale with one least-squares gain per channel fitted over the initialised Gaussians,
-``g = sum_i a_i c_i / sum_i c_i^2`` (the mean irradiance the reconstruction baked into its
-colours), and blended in: ``a_i <- (1 - beta) a_i + beta clamp(g c_i, 0, 1)``, all linear. The
-SH colour holds the reconstruction's per-surfel detail at full resolution; the gathered
-target holds the lighting-free level. Constant targets over a constant-colour asset stay
-exactly constant (g c_i = a_i).
+SH-DC harmonisation of the albedo (strength beta = ``sh_harmonize``, mode ``sh_gain``): the
+base colour of the SH degree-0 term, ``c_i = clamp(0.5 + C0 f_dc, 0, 1)`` (linear radiance), is
+mapped onto the albedo scale and blended in, ``a_i <- (1 - beta) a_i + beta S_i``, all linear:
+
+* ``channel``: ``S_i = clamp(g c_i, 0, 1)`` with one least-squares gain per channel fitted over the
+  initialised Gaussians, ``g_k = sum_i a_ik c_ik / sum_i c_ik^2`` (the mean irradiance the
+  reconstruction baked into its colours);
+* ``scalar``: the same with one gain for the three channels (keeps the SH hue);
+* ``chroma`` (the default, chosen on the validation scenes, docs/STAGE3.md): ``S_i = mean_k(a_i)
+  c_i / mean_k(c_i)``, the gathered albedo's own level with the reconstruction's chromaticity.
+  Under near-white capture light the SH colour's hue is the albedo's, while its level carries
+  the baked shading; Stage II removes the shading but the small model loses the hue.
+
+Constant targets over a constant-colour asset stay exactly constant in the gain modes (g c_i =
+a_i); with ``stage3.init.harmonize_targets`` the staged albedo targets get the same blend per
+pixel (``gspi.stage3.distill.harmonized_albedo_targets``), so distillation keeps it.
 
 Logits are ``logit(clamp(value, eps, 1 - eps))``.
 """
