@@ -1,5 +1,4 @@
 """The evaluator on a fixture made by the tests: oracle, known errors, missing data, errors."""
-import json
 import math
 import shutil
 
@@ -9,7 +8,7 @@ from omegaconf import OmegaConf
 
 from eval.config import ProtocolConfig, validate_protocol
 from eval.evaluate import evaluate
-from eval.layout import LayoutError, read_scene, read_view_file, write_material
+from eval.layout import LayoutError, read_scene, write_material
 from tests.fixtures import make_prediction
 
 

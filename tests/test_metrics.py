@@ -1,7 +1,6 @@
 """Masked PSNR / SSIM / LPIPS: golden values, invariants and error messages."""
 import math
 
-import numpy as np
 import pytest
 import torch
 from skimage.metrics import structural_similarity

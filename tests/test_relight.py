@@ -11,7 +11,7 @@ from eval import relight
 from eval.brdf_lut import _dfg_rows, dfg_lut, hammersley, lookup_dfg
 from eval.envmap import (downsample_latlong, latlong_directions, latlong_solid_angles,
                          sample_latlong, zonal_filter)
-from eval.relight import (PrefilteredEnvironment, ggx_prefilter, irradiance_map,
+from eval.relight import (ggx_prefilter, irradiance_map,
                           prefilter_environment, split_sum)
 
 F64 = torch.float64
