@@ -1,4 +1,5 @@
 """Shared fixtures: built in code, nothing downloaded."""
+import logging
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,34 @@ def single_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def _is_pytest_handler(handler: logging.Handler) -> bool:
+    return type(handler).__module__.startswith("_pytest")
+
+
+def _all_loggers() -> list[logging.Logger]:
+    return [logging.getLogger()] + [lg for lg in logging.root.manager.loggerDict.values()
+                                    if isinstance(lg, logging.Logger)]
+
+
+@pytest.fixture(autouse=True)
+def isolated_logging():
+    """A CLI run in-process under @hydra.main configures logging: a StreamHandler on the test's
+    captured stdout, closed when the test ends, which later tests' log calls then hit ("Logging
+    error ... I/O operation on closed file"). Put the loggers back as they were after each test
+    (pytest's own capture handlers come and go per test phase and are left to pytest)."""
+    saved = {lg: ([h for h in lg.handlers if not _is_pytest_handler(h)], lg.level, lg.propagate,
+                  lg.disabled) for lg in _all_loggers()}
+    yield
+    for lg in _all_loggers():
+        handlers, level, propagate, disabled = saved.get(lg, ([], logging.NOTSET, True, False))
+        for handler in lg.handlers:
+            if handler not in handlers and not _is_pytest_handler(handler):
+                handler.close()
+        lg.handlers[:] = [h for h in lg.handlers if _is_pytest_handler(h)] + handlers
+        lg.setLevel(level)
+        lg.propagate, lg.disabled = propagate, disabled
 
 
 @pytest.fixture(scope="session")

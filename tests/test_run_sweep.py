@@ -64,14 +64,19 @@ def test_wandb_offline_run_holds_config_and_metrics(micro_dataset, tmp_path):
     pytest.importorskip("wandb")
     from gspi.run.runner import run_job
 
-    out = tmp_path / "run"
-    cfg = run_config(micro_dataset, out, ["method=no_decomposition", "logger=wandb", "figures=false"])
-    assert run_job(cfg)["status"] == "complete"
-    runs = list((out / "wandb").glob("offline-run-*"))
-    assert len(runs) == 1
-    # Offline runs keep config, history and summary in the run's protobuf log (`wandb sync`
-    # uploads it); its records hold the keys and values verbatim.
-    (log_file,) = runs[0].glob("run-*.wandb")
-    data = log_file.read_bytes()
-    assert b"no_decomposition" in data and b"stage3" in data  # the resolved config
-    assert b"eval/albedo/psnr" in data and b"eval/relight/psnr" in data  # the metrics
+    # Two jobs in one process, as a multirun worker runs them: each run's log must be complete
+    # when run_job returns (the tracker waits for wandb's service), and the second starts afresh.
+    for job in ("a", "b"):
+        out = tmp_path / job
+        cfg = run_config(micro_dataset, out, ["method=no_decomposition", "logger=wandb", "figures=false",
+                                              f"logger.run_name=job_{job}"])
+        assert run_job(cfg)["status"] == "complete"
+        runs = list((out / "wandb").glob("offline-run-*"))
+        assert len(runs) == 1
+        # Offline runs keep config, history and summary in the run's protobuf log (`wandb sync`
+        # uploads it); its records hold the keys and values verbatim.
+        (log_file,) = runs[0].glob("run-*.wandb")
+        data = log_file.read_bytes()
+        assert b"no_decomposition" in data and b"stage3" in data  # the resolved config
+        assert f"job_{job}".encode() in data
+        assert b"eval/albedo/psnr" in data and b"eval/relight/psnr" in data  # the metrics

@@ -48,7 +48,7 @@ class WandbTracker(NullTracker):
                               mode=cfg.get("mode", "offline"), dir=str(out), group=cfg.get("group"),
                               job_type=str(run_cfg.get("method", {}).get("name", "run")),
                               name=cfg.get("run_name"), tags=list(cfg.get("tags") or []),
-                              config=dict(run_cfg), reinit=True)
+                              config=dict(run_cfg))  # finish() ends each run: no reinit needed
         self.run_dir = Path(self.run.dir).parent
 
     def log(self, values: Mapping[str, Any], step: Optional[int] = None) -> None:
@@ -66,6 +66,11 @@ class WandbTracker(NullTracker):
 
     def finish(self, exit_code: int = 0) -> None:
         self.run.finish(exit_code=exit_code)
+        # run.finish() returns before wandb-core has closed the run's .wandb log; teardown() waits
+        # for the service to flush and exit. Its atexit hook would do the same, but it is not
+        # reliable under joblib/multiprocessing workers, and in-process callers (tests, notebooks)
+        # read the log right after run_job returns. The next wandb.init starts a fresh service.
+        self._wandb.teardown(exit_code=exit_code)
 
 
 def make_tracker(logger_cfg: Optional[Mapping[str, Any]], run_cfg: Mapping[str, Any], out: Path) -> NullTracker:
