@@ -38,8 +38,11 @@ demo: install
 	$(VENV)/bin/gspi-run -m data=$(DEMO)/data out=$(DEMO)/runs +experiment=demo
 	$(VENV)/bin/gspi-table $(DEMO)/runs out=$(DEMO)/tables
 
+# Every benchmark at its CPU defaults, one torch thread each (~4 min on the 2-core VM); each
+# prints the machine it ran on. Paper sizes: see each module's docstring (--paper, --sizes 512).
+BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage3
 bench: install
-	$(PY) -m benchmarks.bench_eval
+	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache
