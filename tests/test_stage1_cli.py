@@ -41,7 +41,7 @@ class TestConfig:
     @pytest.mark.parametrize("data,key", [({"image_sise": 64}, "stage1.image_sise"),
                                           ({"outliers": {"std": 2.0}}, "stage1.outliers.std")])
     def test_unknown_key_is_named(self, data, key):
-        with pytest.raises(ValueError, match=f"unknown Stage I config key.*{key}"):
+        with pytest.raises(ValueError, match=f"unknown stage1 config key.*{key}"):
             Stage1Config.from_dict(data)
 
     @pytest.mark.parametrize("option,size", [("default", 128), ("paper", 512), ("tiny", 48)])
@@ -227,3 +227,22 @@ class TestCli:
         cfg.asset = str(tmp_path / "nope.ply")
         with pytest.raises(FileNotFoundError, match="nope.ply: asset file not found"):
             run(cfg)
+
+
+@pytest.mark.parametrize("build,where,bad", [("gspi.recon.trainer:ReconConfig", "recon.lr", {"lr": {"mean": 1}}),
+                                             ("gspi.stage3.config:Stage3Config", "stage3.init",
+                                              {"init": {"sh_gian": "chroma"}}),
+                                             ("gspi.stage1.config:Stage1Config", "stage1", {"sise": 1})])
+def test_every_stage_config_names_a_misspelt_key_and_its_place(build, where, bad):
+    """The three stage configs share gspi.strict_config: the error gives the dotted path."""
+    import importlib
+
+    module, name = build.split(":")
+    kind = getattr(importlib.import_module(module), name)
+    key = next(iter(bad.values()))
+    key = next(iter(key)) if isinstance(key, dict) else next(iter(bad))
+    with pytest.raises(ValueError, match=rf"unknown {where.split('.')[0]} config key\(s\) "
+                                         rf"\['{where}\.{key}'\]; allowed in {where}: \["):
+        kind.from_dict(bad)
+    with pytest.raises(ValueError, match=f"{where}: expected a mapping"):
+        kind.from_dict({where.split(".")[1]: 3} if "." in where else 3)

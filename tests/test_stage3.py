@@ -64,9 +64,9 @@ def config(**overrides) -> Stage3Config:
 
 class TestConfig:
     def test_unknown_keys_are_rejected_with_their_place(self):
-        with pytest.raises(ValueError, match=r"unknown stage3 config key\(s\) \['lr_pbr'\] in stage3"):
+        with pytest.raises(ValueError, match=r"unknown stage3 config key\(s\) \['stage3.lr_pbr'\]"):
             Stage3Config.from_dict({"lr_pbr": 1.0})
-        with pytest.raises(ValueError, match=r"\['albedo_w'\] in loss.weights"):
+        with pytest.raises(ValueError, match=r"\['stage3.loss.weights.albedo_w'\]; allowed in stage3.loss.weights"):
             Stage3Config.from_dict({"loss": {"weights": {"albedo_w": 2.0}}})
 
     def test_bad_values_are_rejected(self):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Callable, Optional
 
 import torch
@@ -31,6 +31,7 @@ from gspi.recon.init import init_gaussians
 from gspi.recon.losses import display, normal_consistency, photometric_loss
 from gspi.recon.render import render_views
 from gspi.recon.strategy import from_params, make_strategy, maybe_reset_opacity, to_params
+from gspi.strict_config import dataclass_from_dict
 
 log = logging.getLogger(__name__)
 
@@ -100,22 +101,7 @@ class ReconConfig:
     @classmethod
     def from_dict(cls, data: dict) -> "ReconConfig":
         """Builds the config from plain nested dicts; unknown keys raise ``ValueError``."""
-        def build(kind, values: dict, where: str):
-            known = {f.name: f for f in fields(kind)}
-            unknown = sorted(set(values) - set(known))
-            if unknown:
-                raise ValueError(f"unknown recon config key(s) {unknown} in {where or 'recon'}; "
-                                 f"allowed: {sorted(known)}")
-            kw = {}
-            for name, value in values.items():
-                default = known[name].default_factory() if callable(known[name].default_factory) else None
-                if default is not None and hasattr(default, "__dataclass_fields__"):
-                    kw[name] = build(type(default), dict(value or {}), f"{where}.{name}".strip("."))
-                else:
-                    kw[name] = value
-            return kind(**kw)
-
-        return build(cls, dict(data), "")
+        return dataclass_from_dict(cls, dict(data), "recon")
 
     def to_dict(self) -> dict:
         return asdict(self)

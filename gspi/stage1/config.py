@@ -7,10 +7,11 @@ not silently run the default). Filter details: ``gspi.stage1.filters``.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping, Optional
 
 from gspi.stage1.point_cloud import NUM_LATTICE_VIEWS
+from gspi.strict_config import dataclass_from_dict
 
 
 @dataclass
@@ -68,26 +69,9 @@ class Stage1Config:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "Stage1Config":
         """Builds the config from plain nested dicts; unknown keys raise ``ValueError``."""
-        return _build(cls, data, "stage1")
+        return dataclass_from_dict(cls, data, "stage1")
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def _build(kind, values: Mapping[str, Any], where: str):
-    if not isinstance(values, Mapping):
-        raise ValueError(f"{where}: expected a mapping of keys, got {type(values).__name__}")
-    known = {f.name: f for f in fields(kind)}
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise ValueError(f"unknown Stage I config key(s) {[f'{where}.{k}' for k in unknown]}; "
-                         f"allowed in {where}: {sorted(known)}")
-    kwargs = {}
-    for name, value in values.items():
-        factory = known[name].default_factory
-        default = factory() if callable(factory) else None
-        if default is not None and is_dataclass(default):
-            kwargs[name] = _build(type(default), value or {}, f"{where}.{name}")
-        else:
-            kwargs[name] = value
-    return kind(**kwargs)

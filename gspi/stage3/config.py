@@ -1,13 +1,15 @@
 """Stage III hyperparameters (paper, "Distilling PBR Attributes onto Gaussian Primitives").
 
 ``Stage3Config.from_dict`` builds the config from plain nested dicts (a resolved Hydra
-``stage3`` node) and rejects unknown keys, like ``gspi.recon.trainer.ReconConfig``. The
+``stage3`` node) and rejects unknown keys (``gspi.strict_config``). The
 Table 3 ablations are switches: A6 ``distill: false``, A7 ``freeze_opacity: true``, A8
 ``freeze_scales: true``, A9 both (``conf/ablation/a6_*.yaml`` .. ``a9_*.yaml``).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
+
+from gspi.strict_config import dataclass_from_dict
 
 FALLBACKS = ("nearest", "mean")
 SH_MODES = ("channel", "scalar", "chroma")
@@ -77,23 +79,7 @@ class Stage3Config:
     @classmethod
     def from_dict(cls, data: dict) -> "Stage3Config":
         """Builds the config from plain nested dicts; unknown keys raise ``ValueError``."""
-        def build(kind, values: dict, where: str):
-            known = {f.name: f for f in fields(kind)}
-            unknown = sorted(set(values) - set(known))
-            if unknown:
-                raise ValueError(f"unknown stage3 config key(s) {unknown} in {where or 'stage3'}; "
-                                 f"allowed: {sorted(known)}")
-            kw = {}
-            for name, value in values.items():
-                factory = known[name].default_factory
-                default = factory() if callable(factory) else None
-                if default is not None and hasattr(default, "__dataclass_fields__"):
-                    kw[name] = build(type(default), dict(value or {}), f"{where}.{name}".strip("."))
-                else:
-                    kw[name] = value
-            return kind(**kw)
-
-        return build(cls, dict(data), "")
+        return dataclass_from_dict(cls, dict(data), "stage3")
 
     def to_dict(self) -> dict:
         """Plain nested dict (round-trips through :meth:`from_dict`)."""
