@@ -16,7 +16,7 @@ import torch
 
 from eval.imageio import read_exr
 from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_meta,
-                         read_scene, read_view_file)
+                         read_scene, read_splits, read_view_file)
 from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
 from eval.views import relight_view, view_directions
@@ -60,6 +60,19 @@ def scenes_in_prediction(pred_root: Path, gt_scenes: dict[str, Path]) -> list[st
         raise LayoutError(f"{pred_root}: no scene of the ground truth is present in the "
                           f"prediction (ground-truth scenes: {', '.join(sorted(gt_scenes))})")
     return names
+
+
+def expected_scenes(gt_root: Path, present: list[str], gt_scenes: dict[str, Path]) -> list[str]:
+    """Ground-truth scenes a complete prediction would hold: those of every dataset split
+    (``splits.json``) that one of the ``present`` scenes belongs to; every ground-truth scene
+    when the dataset has no ``splits.json``; just the scene for a single scene folder."""
+    gt_root = Path(gt_root)
+    if (gt_root / "scene.json").is_file():
+        return list(present)
+    if not (gt_root / "splits.json").is_file():
+        return sorted(gt_scenes)
+    splits = read_splits(gt_root)
+    return sorted({n for names in splits.values() if set(names) & set(present) for n in names} & set(gt_scenes))
 
 
 def _tensor(arr: np.ndarray) -> torch.Tensor:
@@ -208,10 +221,14 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         missing += scene_missing
         metas.append(read_meta(pred_scene))
     methods = sorted({m["method"] for m in metas if "method" in m})
+    missing_scenes = [n for n in expected_scenes(Path(gt_root), names, gt_scenes) if n not in names]
+    if missing_scenes:  # a method that skips a hard scene must not look better unnoticed
+        log.warning("%s: %d ground-truth scene(s) of the evaluated split(s) have no prediction and "
+                    "are not scored: %s", pred_root, len(missing_scenes), ", ".join(missing_scenes))
     info = {
         "method": method or (methods[0] if len(methods) == 1 else Path(pred_root).name),
         "protocol": {"name": protocol.name, "version": int(protocol.version)},
-        "scenes": names, "num_images": len(rows), "missing": missing,
+        "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
         "runtime_min": {"material": _mean_runtime(metas, "material"),
                         "end_to_end": _mean_runtime(metas, "end_to_end")},
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},

@@ -63,6 +63,10 @@ def format_summary(result: EvalResult) -> str:
     for channel, m in result.summary.items():
         psnr = "inf" if math.isinf(m["psnr"]) else f"{m['psnr']:.2f}"
         lines.append(f"{channel:<10} {psnr:>8} {100 * m['ssim']:>8.2f} {100 * m['lpips']:>9.2f}")
+    if result.info.get("missing_scenes"):
+        absent = result.info["missing_scenes"]
+        lines.append(f"missing scenes: {len(absent)} of the split(s) have no prediction and are not in "
+                     f"these means ({', '.join(absent)}); scored: {len(result.info['scenes'])}")
     if result.info.get("missing"):
         lines.append(f"missing predictions: {len(result.info['missing'])} (view, channel) "
                      f"entries, e.g. {result.info['missing'][0]}; see eval_meta.json")

@@ -144,9 +144,11 @@ def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str =
 
 def main(argv: list[str] | None = None) -> None:
     """`python -m tests.fixtures OUT`: OUT/gt (2 sphere scenes) and two predictions under OUT."""
-    import sys
+    import argparse
 
-    out = Path((argv or sys.argv[1:])[0])
+    parser = argparse.ArgumentParser(description="Two analytic sphere scenes (gt/) and two predictions.")
+    parser.add_argument("out", type=Path, help="folder to write OUT/gt and OUT/pred_* into")
+    out = parser.parse_args(argv).out
     gt = make_dataset(out / "gt", num_scenes=2, size=64)
     make_prediction(gt, out / "pred_roughness_offset", method="roughness+0.1")
     make_prediction(gt, out / "pred_albedo_only", method="albedo-only x0.8",

@@ -69,6 +69,21 @@ def test_missing_view_is_reported(sphere_dataset, tmp_path, lpips_net):
         evaluate(sphere_dataset, pred, protocol(fail_on_missing_view=True), net=lpips_net)
 
 
+def test_missing_scene_is_reported_not_silently_dropped(sphere_dataset, tmp_path, lpips_net):
+    from eval.report import format_summary
+
+    pred = make_prediction(sphere_dataset, tmp_path / "pred")
+    full = evaluate(sphere_dataset, pred, protocol(channels=["roughness"]), net=lpips_net)
+    assert full.info["missing_scenes"] == [] and "missing scenes" not in format_summary(full)
+    shutil.rmtree(pred / "sphere_0")
+    part = evaluate(sphere_dataset, pred, protocol(channels=["roughness"]), net=lpips_net)
+    assert part.info["scenes"] == ["sphere_1"] and part.info["missing_scenes"] == ["sphere_0"]
+    assert "missing scenes: 1 of the split(s)" in format_summary(part)
+    # A single scene folder as the ground truth expects only that scene.
+    one = evaluate(sphere_dataset / "sphere_1", pred, protocol(channels=["roughness"]), net=lpips_net)
+    assert one.info["missing_scenes"] == []
+
+
 def test_no_scene_present_is_an_error(sphere_dataset, tmp_path, lpips_net):
     (tmp_path / "empty" / "not_a_scene").mkdir(parents=True)
     with pytest.raises(LayoutError, match="no scene of the ground truth"):
