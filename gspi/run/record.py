@@ -18,7 +18,7 @@ RESULT_FILE = "result.json"
 FORMAT = "gspi-run"
 FORMAT_VERSION = 1
 # Keys that do not change any number a run produces.
-VOLATILE_KEYS = ("out", "threads", "logger", "hydra", "figures", "progress", "cache_dir")
+VOLATILE_KEYS = ("out", "threads", "scene_workers", "logger", "hydra", "figures", "progress", "cache_dir")
 
 
 def config_hash(cfg: Mapping[str, Any], *, volatile: tuple[str, ...] = VOLATILE_KEYS) -> str:

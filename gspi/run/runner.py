@@ -63,7 +63,7 @@ def seed_everything(seed: int) -> None:
 
 
 def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, Any], out: Path,
-              cfg_hash: str, cache_root: Path, num_scenes: int, progress: bool) -> dict:
+              cfg_hash: str, cache_root: Path, num_scenes: int, progress: bool = False) -> dict:
     """Predicts one scene into ``out/predictions/<name>`` and writes its meta.json."""
     scene = read_scene(data_dir if data_dir.name == name and (data_dir / "scene.json").is_file()
                        else data_dir / name)
@@ -96,6 +96,73 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
                stages=clock.stages, asset={k: v for k, v in asset_info.items() if k != "config"},
                stats=stats)
     return read_meta(pred_scene)
+
+
+def _run_scene_safely(name: str, scene_args: dict, progress: bool) -> tuple[str, Optional[dict], Optional[str]]:
+    """(name, meta.json, None) or (name, None, "<error type>: <message>"), the traceback logged."""
+    try:
+        return name, run_scene(name, progress=progress, **scene_args), None
+    except Exception as exc:
+        log.error("%s: %s failed:\n%s", name, scene_args["method"].name, traceback.format_exc())
+        return name, None, f"{type(exc).__name__}: {exc}"
+
+
+LOG_FORMAT = "[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"  # Hydra's job_logging format
+
+
+def _init_scene_worker(threads: int, log_files: list[str]) -> None:
+    """A scene worker (a fresh spawned process): its torch threads, and its log lines on stderr
+    and appended to the parent's log files (the Hydra job log), as a serial run would have them."""
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
+    for path in log_files:
+        handler = logging.FileHandler(path, mode="a")
+        handler.setFormatter(logging.Formatter(LOG_FORMAT))
+        logging.getLogger().addHandler(handler)
+    torch.set_num_threads(threads)
+
+
+def predict_scenes(names: list[str], scene_args: dict, *, workers: int = 1, progress: bool = True):
+    """Yields ``(name, meta, error)`` per scene as it finishes (:func:`run_scene` on each).
+
+    ``workers > 1`` runs that many scenes at once, each in a spawned process with ``threads``
+    torch threads. Every scene seeds itself (``seed_everything``) and writes only its own
+    folders, so the predictions are the same as a serial run's; the method's prepared state
+    (e.g. the loaded Stage II model) is pickled to the workers, not prepared again. Scene
+    progress bars are off in the workers (one bar over scenes instead).
+    """
+    workers = max(1, min(int(workers), len(names)))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(names), desc=scene_args["method"].name, unit="scene")
+    try:
+        if workers == 1:
+            for name in names:
+                yield _run_scene_safely(name, scene_args, progress)
+                if bar is not None:
+                    bar.update()
+            return
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        threads = int(scene_args["cfg"].get("threads", 1))
+        log_files = [h.baseFilename for h in logging.getLogger().handlers if isinstance(h, logging.FileHandler)]
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_init_scene_worker, initargs=(threads, log_files)) as pool:
+            futures = {pool.submit(_run_scene_safely, name, scene_args, False): name for name in names}
+            for future in as_completed(futures):
+                try:
+                    result = future.result()
+                except Exception as exc:  # the worker itself died (e.g. killed for memory)
+                    name = futures[future]
+                    log.error("%s: scene worker failed: %s", name, exc)
+                    result = (name, None, f"{type(exc).__name__}: {exc}")
+                if bar is not None:
+                    bar.update()
+                yield result
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def points_summary(out: Path, names: list[str]) -> Optional[dict]:
@@ -150,19 +217,15 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
         names = select_scenes(data_dir, cfg["split"], cfg.get("scenes"))
         method = Method(method_cfg, cfg, cache_root)
         prepared = method.prepare()
-        errors, progress = {}, bool(cfg.get("progress", True))
-        iterator = names
-        if progress:
-            from tqdm import tqdm
-            iterator = tqdm(names, desc=f"{method.name}", unit="scene")
-        for name in iterator:
-            try:
-                meta = run_scene(name, data_dir=data_dir, method=method, cfg=cfg, out=out, cfg_hash=cfg_hash,
-                                 cache_root=cache_root, num_scenes=len(names), progress=progress)
+        errors = {}
+        scene_args = dict(data_dir=data_dir, method=method, cfg=cfg, out=out, cfg_hash=cfg_hash,
+                          cache_root=cache_root, num_scenes=len(names))
+        for name, meta, error in predict_scenes(names, scene_args, workers=int(cfg.get("scene_workers", 1)),
+                                                progress=bool(cfg.get("progress", True))):
+            if error is None:
                 tracker.log(flatten(f"{name}/stages", meta.get("stages", {})))
-            except Exception as exc:  # one scene failing must not lose the others
-                log.error("%s: %s failed:\n%s", name, method.name, traceback.format_exc())
-                errors[name] = f"{type(exc).__name__}: {exc}"
+            else:  # one scene failing must not lose the others
+                errors[name] = error
         done = [n for n in names if n not in errors]
         material_eval = points_eval = None
         if done:
