@@ -199,3 +199,26 @@ def surfel_sphere(num: int = 3000, *, radius: float = 0.8, color=(0.6, 0.4, 0.2)
     return Gaussians2D(means=means.float(), quats=quats.float(), log_scales=scales.log().float(),
                        opacity_logits=torch.full((n,), math.log(opacity / (1 - opacity))),
                        sh_dc=dc.float().clone(), sh_rest=torch.zeros(n, 0, 3))
+
+
+def random_gaussians(n: int, degree: int, pbr: bool, seed: int = 0):
+    """A ``Gaussians2D`` of n surfels, every attribute drawn from N(0, 1) (logits, log scales, SH
+    of ``degree``; PBR logits if ``pbr``)."""
+    import torch
+
+    from gspi.gaussians.model import Gaussians2D
+
+    gen = torch.Generator().manual_seed(seed)
+    k = (degree + 1) ** 2
+    extra = {}
+    if pbr:
+        extra = {
+            "albedo_logits": torch.randn(n, 3, generator=gen),
+            "roughness_logits": torch.randn(n, 1, generator=gen),
+            "metallic_logits": torch.randn(n, 1, generator=gen),
+        }
+    return Gaussians2D(
+        means=torch.randn(n, 3, generator=gen), quats=torch.randn(n, 4, generator=gen),
+        log_scales=torch.randn(n, 2, generator=gen), opacity_logits=torch.randn(n, generator=gen),
+        sh_dc=torch.randn(n, 1, 3, generator=gen), sh_rest=torch.randn(n, k - 1, 3, generator=gen), **extra,
+    )

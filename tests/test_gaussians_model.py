@@ -9,24 +9,12 @@ import torch
 
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.projection import quat_to_rotmat
+from tests.fixtures import random_gaussians
 from gspi.gaussians.sh import SH_C0, eval_sh, num_sh_bases, rgb_to_sh, sh_colors, sh_degree_from_bases, sh_to_rgb
 
 
 def make(n: int = 4, degree: int = 2, pbr: bool = True) -> Gaussians2D:
-    gen = torch.Generator().manual_seed(1)
-    extra = {}
-    if pbr:
-        extra = {
-            "albedo_logits": torch.randn(n, 3, generator=gen),
-            "roughness_logits": torch.randn(n, 1, generator=gen),
-            "metallic_logits": torch.randn(n, 1, generator=gen),
-        }
-    return Gaussians2D(
-        means=torch.randn(n, 3, generator=gen), quats=torch.randn(n, 4, generator=gen),
-        log_scales=torch.randn(n, 2, generator=gen), opacity_logits=torch.randn(n, generator=gen),
-        sh_dc=torch.randn(n, 1, 3, generator=gen), sh_rest=torch.randn(n, num_sh_bases(degree) - 1, 3, generator=gen),
-        **extra,
-    )
+    return random_gaussians(n, degree, pbr, seed=1)
 
 
 class TestGaussians2D:

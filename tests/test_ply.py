@@ -11,6 +11,7 @@ from plyfile import PlyData, PlyElement
 
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import PlyFormatError, property_names, read_ply, write_ply
+from tests.fixtures import random_gaussians
 
 FIXTURE = Path(__file__).parent / "data" / "ply" / "official_2dgs_sh3.ply"
 
@@ -52,23 +53,6 @@ def write_official_fixture(path: Path, n: int = 5) -> None:
     elements = np.empty(n, dtype=[(name, "f4") for name in official_attribute_names()])
     elements[:] = list(map(tuple, attributes))
     PlyData([PlyElement.describe(elements, "vertex")]).write(str(path))
-
-
-def random_gaussians(n: int, degree: int, pbr: bool, seed: int = 0) -> Gaussians2D:
-    gen = torch.Generator().manual_seed(seed)
-    k = (degree + 1) ** 2
-    extra = {}
-    if pbr:
-        extra = {
-            "albedo_logits": torch.randn(n, 3, generator=gen),
-            "roughness_logits": torch.randn(n, 1, generator=gen),
-            "metallic_logits": torch.randn(n, 1, generator=gen),
-        }
-    return Gaussians2D(
-        means=torch.randn(n, 3, generator=gen), quats=torch.randn(n, 4, generator=gen),
-        log_scales=torch.randn(n, 2, generator=gen), opacity_logits=torch.randn(n, generator=gen),
-        sh_dc=torch.randn(n, 1, 3, generator=gen), sh_rest=torch.randn(n, k - 1, 3, generator=gen), **extra,
-    )
 
 
 def assert_bit_equal(a: Gaussians2D, b: Gaussians2D) -> None:

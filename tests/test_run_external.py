@@ -8,22 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from eval.layout import read_scene, read_splits, read_view_file
+from eval.layout import read_scene, read_splits
 from gspi.run.runner import run_job
 from tests.run_helpers import run_config
-from tests.test_baselines_adapters import write_gs_ir
+from tests.test_baselines_adapters import gt_maps, write_gs_ir
 
-
-def gt_maps(scene):
-    out = []
-    for v in scene.split_views("test"):
-        d = scene.view_dir("test", v.id)
-        out.append({"albedo": read_view_file(d, "albedo.png").astype(np.float64),
-                    "roughness": read_view_file(d, "roughness.png")[..., 0].astype(np.float64),
-                    "metallic": read_view_file(d, "metallic.png")[..., 0].astype(np.float64)})
-    return out
 
 
 def test_external_outputs_give_a_table1_row(micro_dataset, tmp_path):
