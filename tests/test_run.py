@@ -151,3 +151,18 @@ def test_scene_workers_give_the_serial_predictions_and_isolate_a_failure(micro_d
     assert scenes[0] in result["error"]
     for name in scenes[1:]:
         assert (tmp_path / "broken" / "predictions" / name / "meta.json").is_file()
+
+
+def test_scene_workers_inside_a_joblib_sweep_worker(micro_dataset, tmp_path):
+    """`hydra/launcher=joblib` runs each job in a loky worker; its scene workers must start there
+    (a plain multiprocessing spawn cannot resolve loky's start method and every scene died)."""
+    from joblib import Parallel, delayed
+
+    from gspi.run.runner import run_job
+
+    scenes = sorted(p.parent.name for p in micro_dataset.glob("*/scene.json"))
+    cfg = run_config(micro_dataset, tmp_path / "job", [f"scenes=[{','.join(scenes)}]", "scene_workers=2",
+                                                       "method=no_decomposition"])
+    (result,) = Parallel(n_jobs=2, backend="loky")(delayed(run_job)(cfg, reraise=False) for _ in range(1))
+    assert result["status"] == "complete" and result["scene_errors"] == {}, result
+    assert all((tmp_path / "job" / "predictions" / name / "meta.json").is_file() for name in scenes)

@@ -142,13 +142,16 @@ def predict_scenes(names: list[str], scene_args: dict, *, workers: int = 1, prog
                 if bar is not None:
                     bar.update()
             return
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures import as_completed
+
+        # loky's executor (joblib's; spawned workers, no fork) rather than concurrent.futures': a
+        # job of a `hydra/launcher=joblib` sweep runs inside a loky worker, whose multiprocessing
+        # start method "loky" a plain spawned child cannot resolve ("cannot find context").
+        from joblib.externals.loky import ProcessPoolExecutor
 
         threads = int(scene_args["cfg"].get("threads", 1))
         log_files = [h.baseFilename for h in logging.getLogger().handlers if isinstance(h, logging.FileHandler)]
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_init_scene_worker, initargs=(threads, log_files)) as pool:
+        with ProcessPoolExecutor(workers, initializer=_init_scene_worker, initargs=(threads, log_files)) as pool:
             futures = {pool.submit(_run_scene_safely, name, scene_args, False): name for name in names}
             for future in as_completed(futures):
                 try:
