@@ -55,6 +55,8 @@ class BenchmarkConfig:
     threads: int = 1                          # torch threads per process
     workers: int = 1                          # scene-parallel processes
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
+    training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
+    image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
     lattice: dict = field(default_factory=lambda: {"num_views": 32, "radius": 3.0,
                                                    "fov_deg": 45.0, "min_elevation_deg": 0.0})
 
@@ -98,8 +100,9 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
     envs, pre = {}, {}
     for n in names:
         envs[n], pre[n] = _environment(n)
+    size = int(recipe.get("image_size", cfg.image_size))
     stats = generate_scene(recipe, Path(out_dir), envs=envs, prefiltered=pre,
-                           width=cfg.image_size, height=cfg.image_size,
+                           width=size, height=size,
                            supersample=cfg.supersample, lattice=cfg.lattice,
                            extra={"name": GENERATOR_NAME, "version": GENERATOR_VERSION,
                                   "seed": seed, "preset": cfg.name,
@@ -110,6 +113,10 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
         write_scene_point_cloud(scene)
     if cfg.contact_sheets:
         write_contact_sheet(scene)
+    if cfg.training_pool:
+        from gspi.data.training_pool import mark_complete
+
+        mark_complete(scene.root, recipe, seed)
     stats["seconds"] += time.perf_counter() - t0
     return stats
 
@@ -138,13 +145,13 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
             each scene (default `<out>/.cache`, removed at the end).
     Returns:
         {"out_dir", "splits", "scenes": [per-scene stats], "seconds", "rays", "rays_per_s",
-         "env_seconds"}.
+         "env_seconds"}; with ``cfg.training_pool`` also "skipped" (scenes already complete).
     """
-    import shutil
-
     start = time.perf_counter()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if cfg.training_pool:
+        return generate_training_pool(out_dir, cfg, seed=seed, scratch_dir=scratch_dir)
     recipes = scene_recipes(seed, cfg)
     splits = assign_splits([r["name"] for r in recipes], seed, num_train=cfg.num_train_scenes,
                            num_val=cfg.num_val_scenes, num_test=cfg.num_test_scenes,
@@ -156,6 +163,42 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
         splits = {k: (v if k in cfg.only_splits else []) for k, v in splits.items()}
         keep = {n for v in splits.values() for n in v}
         recipes = [r for r in recipes if r["name"] in keep]
+    stats, env_seconds = _render_recipes(out_dir, recipes, cfg, seed=seed, scratch_dir=scratch_dir)
+    write_json_atomic(out_dir / "splits.json", splits)
+    return _summary(out_dir, splits, stats, start, env_seconds)
+
+
+def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
+                           scratch_dir: str | Path | None = None) -> dict:
+    """The Stage II training pool (gspi.data.training_pool): resumes, skips complete scenes."""
+    from gspi.data.training_pool import pending_recipes, pool_recipes, read_pool_done
+
+    start = time.perf_counter()
+    if cfg.only_splits or cfg.num_val_scenes or cfg.num_test_scenes:
+        raise ValueError("a training pool has train scenes only: set data.num_val_scenes=0, "
+                         "data.num_test_scenes=0 and no data.only_splits")
+    recipes = pool_recipes(seed, cfg.num_train_scenes, list(cfg.image_sizes or [cfg.image_size]))
+    todo = pending_recipes(out_dir, recipes)
+    stats, env_seconds = _render_recipes(out_dir, todo, cfg, seed=seed, scratch_dir=scratch_dir)
+    done = set(read_pool_done(out_dir))
+    splits = {"train": sorted(r["name"] for r in recipes if r["name"] in done), "val": [], "test": []}
+    write_json_atomic(out_dir / "splits.json", splits)
+    return {**_summary(out_dir, splits, stats, start, env_seconds), "skipped": len(recipes) - len(todo)}
+
+
+def _summary(out_dir: Path, splits: dict, stats: list[dict], start: float, env_seconds: float) -> dict:
+    rays = sum(s["rays"] for s in stats)
+    return {"out_dir": str(out_dir), "splits": splits, "scenes": stats,
+            "seconds": time.perf_counter() - start, "env_seconds": env_seconds, "rays": rays,
+            "rays_per_s": rays / max(sum(s["seconds"] for s in stats), 1e-9)}
+
+
+def _render_recipes(out_dir: Path, recipes: list[dict], cfg: BenchmarkConfig, *, seed: int,
+                    scratch_dir: str | Path | None) -> tuple[list[dict], float]:
+    """Render every recipe's scene (in `cfg.workers` processes); (per-scene stats, env seconds)."""
+    import shutil
+
+    start = time.perf_counter()
     scratch = Path(scratch_dir) if scratch_dir is not None else out_dir / ".cache"
     needed = sorted({n for r in recipes for n in [r["capture_env"], *r["relight_envs"]]})
     threads = torch.get_num_threads()
@@ -179,12 +222,7 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
         _WORKER.clear()
         if scratch_dir is None:
             shutil.rmtree(scratch, ignore_errors=True)
-    write_json_atomic(out_dir / "splits.json", splits)
-    seconds = time.perf_counter() - start
-    rays = sum(s["rays"] for s in stats)
-    return {"out_dir": str(out_dir), "splits": splits, "scenes": stats, "seconds": seconds,
-            "env_seconds": env_seconds, "rays": rays,
-            "rays_per_s": rays / max(sum(s["seconds"] for s in stats), 1e-9)}
+    return stats, env_seconds
 
 
 def merge_splits(out_dir: str | Path, added: dict[str, list[str]]) -> dict[str, list[str]]:

@@ -1,0 +1,112 @@
+"""The Stage II training pool: many train-only scenes, disjoint from every benchmark scene.
+
+Paper, "Training vs. Inference Dynamics": Stage II trains on GT point clouds of many objects.
+The benchmark presets hold 16 training scenes (`small`); this mode writes as many as asked
+(`conf/data/stage2_pool.yaml`: 256) and only what `gspi-train` reads:
+
+    <out>/splits.json                 {"train": [every pool scene], "val": [], "test": []}
+    <out>/<p0000_family_class>/       scene.json, envmaps/<capture>.exr, train/<000..031>/ (the
+                                      32 lattice views), gt_points.npz, complete.json (last)
+
+No val/test views, no relit GT, no contact sheet. Disjoint from the benchmark by construction:
+pool scene `i` of seed `s` draws from `SeedSequence([s, POOL_NAMESPACE, i])` (benchmark scenes
+use namespace 0, `gspi.data.scene_recipe.scene_rng`) and is named `p{i:04d}_...` (benchmark
+scenes are `s{i:03d}_...`). Shape family and material class cycle jointly, so every one of the
+7 x 6 (family, class) pairs occurs once the pool has 42 scenes; the capture environment cycles
+through every capture environment; the image size cycles through `image_sizes` (the presets'
+resolutions, hence their point densities).
+
+Resumable: a scene is done when its `complete.json` exists (written after everything else); a
+rerun skips done scenes and regenerates partial ones from scratch, so a killed run loses at most
+the scenes in flight. Deterministic: the same seed and config give the same bytes whatever the
+number of workers or interruptions (as `gspi.data.generate`).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from gspi.data.environments import env_names
+from gspi.data.materials import MATERIAL_CLASSES, sample_material
+from gspi.data.sdf_shapes import FAMILIES, sample_shape
+
+POOL_NAMESPACE = 2          # benchmark scenes: 0 (scene_rng), dataset-level draws: 1 (dataset_rng)
+DONE_FILE = "complete.json"
+
+
+def pool_rng(seed: int, index: int) -> np.random.Generator:
+    """Generator of pool scene `index` (a stream no benchmark scene of any seed uses)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), POOL_NAMESPACE, int(index)]))
+
+
+def pool_scene_name(index: int, family: str, material_class: str) -> str:
+    return f"p{index:04d}_{family}_{material_class}"
+
+
+def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int]) -> dict:
+    """Recipe of pool scene `index` (the benchmark recipe's keys, no held-out views or envs)."""
+    family = FAMILIES[index % len(FAMILIES)]
+    material_class = MATERIAL_CLASSES[(index // len(FAMILIES)) % len(MATERIAL_CLASSES)]
+    rng = pool_rng(seed, index)
+    capture = env_names("capture")
+    return {
+        "index": int(index), "name": pool_scene_name(index, family, material_class),
+        "family": family, "shape": sample_shape(family, rng),
+        "material": sample_material(material_class, rng),
+        "capture_env": capture[(index // (len(FAMILIES) * len(MATERIAL_CLASSES)) + index) % len(capture)],
+        "relight_envs": [], "test_directions": [], "val_directions": [],
+        "view_seed": int(rng.integers(0, 2**31 - 1)),
+        "image_size": int(image_sizes[index % len(image_sizes)]),
+        "pool_namespace": POOL_NAMESPACE,
+    }
+
+
+def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int]) -> list[dict]:
+    if num_scenes < 1:
+        raise ValueError(f"data.num_train_scenes must be >= 1 for a training pool, got {num_scenes}")
+    if not image_sizes or any(int(s) < 8 for s in image_sizes):
+        raise ValueError(f"data.image_sizes must be a non-empty list of sizes >= 8, got {image_sizes}")
+    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes)) for i in range(num_scenes)]
+
+
+def is_complete(scene_dir: Path) -> bool:
+    return (scene_dir / DONE_FILE).is_file()
+
+
+def pending_recipes(out_dir: Path, recipes: list[dict]) -> list[dict]:
+    """Recipes whose scene is not complete; partial scene folders are removed."""
+    todo = []
+    for r in recipes:
+        root = out_dir / r["name"]
+        if is_complete(root):
+            continue
+        if root.exists():
+            shutil.rmtree(root)
+        todo.append(r)
+    return todo
+
+
+def mark_complete(scene_dir: Path, recipe: dict, seed: int) -> None:
+    """Written last: the scene's files are all there (no timings: byte-reproducible)."""
+    from eval.layout import write_json_atomic
+
+    write_json_atomic(scene_dir / DONE_FILE, {"seed": int(seed), "index": recipe["index"],
+                                              "name": recipe["name"]})
+
+
+def read_pool_done(out_dir: Path) -> list[str]:
+    return sorted(p.parent.name for p in Path(out_dir).glob(f"*/{DONE_FILE}"))
+
+
+def describe(out_dir: Path) -> dict:
+    """Counts of a pool folder by family, class, environment and image size (for the docs)."""
+    counts: dict[str, dict] = {"family": {}, "class": {}, "capture_env": {}, "image_size": {}}
+    for name in read_pool_done(out_dir):
+        gen = json.loads((Path(out_dir) / name / "scene.json").read_text())["generator"]
+        for key, value in (("family", gen["family"]), ("class", gen["material"]["class"]),
+                           ("capture_env", gen["capture_env"]), ("image_size", gen["image_size"])):
+            counts[key][str(value)] = counts[key].get(str(value), 0) + 1
+    return counts
