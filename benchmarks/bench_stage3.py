@@ -31,7 +31,7 @@ import torch
 from benchmarks.common import machine
 from eval.colorspace import linear_to_srgb
 from gspi.gaussians.ply import read_ply
-from gspi.recon.lattice_render import lattice_camera_tensors
+from gspi.gaussians.lattice_render import lattice_camera_tensors
 from gspi.stage3.config import Stage3Config
 from gspi.stage3.distill import distill, trainable_groups
 from gspi.stage3.init import initialize_pbr
@@ -103,11 +103,11 @@ def main() -> None:
         print(f"\n{size}x{size} px, 32 lattice views, 1 view per iteration")
         print(f"  {'config':<28} " + " ".join(f"{p:>9}" for p in PHASES) + f" {'total':>9}   (median ms)")
         for label, freeze in (("default (opacity+scales)", False), ("A9 (geometry frozen)", True)):
-            cfg = Stage3Config(image_size=size, backend=args.backend, freeze_opacity=freeze, freeze_scales=freeze)
+            cfg = Stage3Config(backend=args.backend, freeze_opacity=freeze, freeze_scales=freeze)
             phases = phase_times(asset, targets, cfg, args.repeats)
             print(f"  {label:<28} " + " ".join(f"{1e3 * phases[p]:9.1f}" for p in PHASES)
                   + f" {1e3 * sum(phases.values()):9.1f}")
-        cfg = Stage3Config(image_size=size, backend=args.backend, iterations=args.iterations, log_every=10 ** 9)
+        cfg = Stage3Config(backend=args.backend, iterations=args.iterations, log_every=10 ** 9)
         _, stats = distill(asset, targets, cfg)
         print(f"  distill(), default config: {1 / stats['seconds_per_iteration']:.2f} it/s over "
               f"{args.iterations} iterations (init {stats['seconds_init']:.2f} s); 500 iterations ~ "

@@ -1,7 +1,9 @@
 """GS-PI on one scene: 2DGS asset -> Stage I points -> Stage II PBR -> Stage III PBR-GS asset.
 
-    asset --Stage I--> points (+ lattice renders) --Stage II--> per-point PBR
-          --scatter--> staged per-view targets --Stage III--> PBR-GS asset --render--> test-view maps
+    asset --Stage I--> points + lattice renders (with their cameras)
+          --Stage II (points, renders)--> per-point PBR
+          --scatter into the renders' views--> staged targets --Stage III--> PBR-GS asset
+          --render--> test-view maps
 
 Each stage is one call into its package; this module only wires them, times them
 (``StageClock``) and leaves the intermediate files in ``work_dir`` for inspection:
@@ -81,8 +83,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     data_cfg = stage2.model_cfg["stage2"]["data"]
     with clock.stage("stage2"):
         pbr, s2 = predict_generated_points(
-            stage2.model, points, local_mode=data_cfg["local_condition"], rgb_linear=renders.rgb,
-            depth=renders.depth, K=renders.K, w2c=renders.w2c, encoder=stage2.encoder,
+            stage2.model, points, renders, local_mode=data_cfg["local_condition"], encoder=stage2.encoder,
             cfg=InferenceConfig.from_mapping(cfg["stage2"]["inference"]),
             tol_pixels=float(data_cfg.get("visibility_tol_pixels", 2.0)))
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
@@ -97,14 +98,9 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         with clock.stage("points_eval"):
             points_scores = score_generated_points(points, pbr, scene.root)
 
-    s3dict = dict(cfg["stage3"])
-    if s3dict.get("image_size", s1cfg.image_size) != s1cfg.image_size:
-        log.info("stage3.image_size=%s follows stage1.image_size=%d (the targets are Stage I's views)",
-                 s3dict["image_size"], s1cfg.image_size)
-    s3cfg = Stage3Config.from_dict({**s3dict, "image_size": s1cfg.image_size})
+    s3cfg = Stage3Config.from_dict(dict(cfg["stage3"]))
     with clock.stage("stage3"):
-        targets = stage_targets(points, pbr, image_size=s1cfg.image_size,
-                                silhouette=renders.alpha >= s1cfg.alpha_threshold)
+        targets = stage_targets(points, pbr, renders, alpha_threshold=s1cfg.alpha_threshold)
         pbr_asset, s3 = distill(asset, targets, s3cfg, progress=progress)
         write_ply(work_dir / "pbr_gs.ply", pbr_asset)
     write_json_atomic(work_dir / "stage3.json", _jsonable(s3))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,3 +101,25 @@ def test_held_out_directions_stay_off_the_lattice():
     assert (d[:, 2] > 0).all()
     closest = np.degrees(np.arccos(np.clip((d @ lattice.T).max(axis=1), -1, 1)))
     assert closest.min() >= 6.0
+
+
+def test_every_lattice_default_is_the_canonical_one():
+    """CANONICAL_LATTICE is the one definition; the configs and dataclasses that repeat it agree."""
+    from omegaconf import OmegaConf
+
+    from gspi.data.generate import BenchmarkConfig
+    from gspi.data.lattice import CANONICAL_LATTICE, NUM_LATTICE_VIEWS
+    from gspi.stage1.config import Stage1Config
+
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    assert dict(OmegaConf.load(conf / "gspi_data.yaml").lattice) == dict(CANONICAL_LATTICE)
+    for name in ("default", "tiny", "paper"):
+        stage1 = OmegaConf.load(conf / "stage1" / f"{name}.yaml")
+        for key, value in CANONICAL_LATTICE.items():
+            assert stage1.get(key, value) == value, (name, key)
+    assert Stage1Config().lattice == dict(CANONICAL_LATTICE)
+    assert BenchmarkConfig().lattice == dict(CANONICAL_LATTICE)
+    assert NUM_LATTICE_VIEWS == CANONICAL_LATTICE["num_views"] == 32
+    K, w2c = lattice_cameras(width=16, height=16)
+    K2, w2c2 = lattice_cameras(width=16, height=16, **CANONICAL_LATTICE)
+    assert np.array_equal(K, K2) and np.array_equal(w2c, w2c2)

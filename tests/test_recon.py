@@ -15,7 +15,8 @@ from gspi.data.lattice import lattice_cameras
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import read_ply, write_ply
 from gspi.gaussians.rasterize import rasterize_2dgs
-from gspi.recon import ReconInputError, load_scene_views, render_lattice_views
+from gspi.gaussians.lattice_render import render_lattice_views
+from gspi.recon import ReconInputError, load_scene_views
 from gspi.recon.init import in_hull, init_gaussians
 from gspi.recon.render import render_views
 from gspi.recon.strategy import (BuiltinDefaultStrategy, from_params, gsplat_strategy_available, make_strategy,

@@ -12,7 +12,8 @@ from omegaconf import OmegaConf
 
 from gspi.cli.train import CONF_DIR, rewrite_data_alias, run
 from gspi.stage2.checkpoint import CheckpointError, export_ema_only, load_stage2_checkpoint
-from gspi.stage2.train import LOSS_KEY, TrainState, predict_point_pbr, rcw_config, train
+from gspi.stage2.sampler import predict_point_pbr
+from gspi.stage2.train import LOSS_KEY, TrainState, rcw_config, train
 from gspi.stage2.train_log import JsonlMetrics
 from tests.test_stage2_data import make_lattice_dataset
 

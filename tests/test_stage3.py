@@ -17,7 +17,7 @@ from gspi.gaussians.cameras import intrinsics_from_fov, look_at
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import PBR_COMMENTS, read_ply, write_ply
 from gspi.gaussians.sh import rgb_to_sh
-from gspi.recon.lattice_render import lattice_camera_tensors
+from gspi.gaussians.lattice_render import LatticeRenders, lattice_camera_tensors
 from gspi.stage1.point_cloud import PointCloud
 from gspi.stage3.config import Stage3Config
 from gspi.stage3.distill import distill, harmonized_albedo_targets
@@ -57,7 +57,7 @@ def noise_maps(views: int, size: int) -> np.ndarray:
 
 
 def config(**overrides) -> Stage3Config:
-    return Stage3Config.from_dict({"image_size": SIZE, "log_every": 1, **overrides})
+    return Stage3Config.from_dict({"log_every": 1, **overrides})
 
 
 # ---- config -------------------------------------------------------------------------------
@@ -90,7 +90,7 @@ class TestConfig:
         merged = OmegaConf.merge(OmegaConf.load(CONF / "stage3" / "default.yaml"),
                                  {k: v for k, v in tiny.items() if k != "defaults"})
         cfg = Stage3Config.from_dict(OmegaConf.to_container(merged))
-        assert cfg.image_size <= 64 and cfg.iterations < 100 and cfg.weights == WEIGHTS
+        assert cfg.iterations < 100 and cfg.weights == WEIGHTS
 
     @pytest.mark.parametrize("name, distill_on, opacity, scales", [
         ("a6_no_distillation", False, False, False), ("a7_freeze_opacity", True, True, False),
@@ -108,6 +108,15 @@ class TestConfig:
 
 # ---- staged targets -------------------------------------------------------------------------
 
+def renders_of(size: int, views: int, alpha=None, lattice=None) -> LatticeRenders:
+    """Stage I renders record of a small lattice (maps zero unless ``alpha`` is given)."""
+    w2c, K = lattice_camera_tensors(size, lattice={"num_views": views, **(lattice or {})}, dtype=torch.float64)
+    zeros = np.zeros((views, size, size), np.float32)
+    return LatticeRenders(rgb=np.zeros((views, size, size, 3), np.float32),
+                          alpha=zeros if alpha is None else np.asarray(alpha, np.float32), depth=zeros,
+                          K=K.numpy(), w2c=w2c.numpy())
+
+
 class TestStageTargets:
     def cloud(self):
         # view 0: pixels (1, 1) twice (averaged) and (2, 3); view 1: (0, 0)
@@ -117,7 +126,7 @@ class TestStageTargets:
     def test_scatter_averages_and_leaves_the_rest_invalid(self):
         pbr = np.float32([[0.2, 0.2, 0.2, 0.1, 0.0], [0.4, 0.6, 0.8, 0.3, 1.0],
                           [1.0, 0.0, 0.5, 0.9, 0.5], [0.7, 0.7, 0.7, 0.7, 0.7]])
-        t = stage_targets(self.cloud(), pbr, image_size=4, num_views=2)
+        t = stage_targets(self.cloud(), pbr, renders_of(4, 2))
         assert t.valid.sum() == 3 and t.valid[0, 1, 1] and t.valid[0, 2, 3] and t.valid[1, 0, 0]
         np.testing.assert_allclose(t.albedo[0, 1, 1], [0.3, 0.4, 0.5], atol=1e-7)
         np.testing.assert_allclose(t.roughness[0, 1, 1], [0.2], atol=1e-7)
@@ -126,12 +135,20 @@ class TestStageTargets:
         np.testing.assert_array_equal(t.K, K.numpy())
         np.testing.assert_array_equal(t.w2c, w2c.numpy())
 
+    def test_targets_take_the_cameras_of_the_renders_they_come_from(self):
+        """A non-canonical Stage I lattice: the targets' cameras are the renders', not the default's."""
+        odd = renders_of(4, 2, lattice={"radius": 2.5, "fov_deg": 60.0})
+        t = stage_targets(self.cloud(), np.full((4, 5), 0.5), odd)
+        np.testing.assert_array_equal(t.K, odd.K.astype(np.float32))
+        np.testing.assert_array_equal(t.w2c, odd.w2c.astype(np.float32))
+        assert not np.allclose(t.K, renders_of(4, 2).K)
+
     def test_silhouette_fill_takes_the_nearest_valid_pixel(self):
         pbr = np.float32([[0.2] * 5, [0.2] * 5, [0.9] * 5, [0.7] * 5])
         sil = np.zeros((2, 4, 4), bool)
         sil[0, :, 2:] = True   # columns 2..3 of view 0 (holding the valid pixel (2, 3)) ...
         sil[0, 1, 1] = True    # ... and the valid pixel (1, 1)
-        t = stage_targets(self.cloud(), pbr, image_size=4, num_views=2, silhouette=sil)
+        t = stage_targets(self.cloud(), pbr, renders_of(4, 2, alpha=sil), alpha_threshold=0.5)
         np.testing.assert_array_equal(t.valid[0], sil[0])
         # (3, 3) and (3, 2) are nearest to (2, 3) -> 0.9; (0, 2) is nearest to (1, 1) (dist sqrt 2
         # vs (2, 3) at sqrt 5) -> 0.2
@@ -142,13 +159,16 @@ class TestStageTargets:
     def test_bad_input_is_rejected(self):
         cloud = self.cloud()
         with pytest.raises(ValueError, match=r"pbr must be \[P, 5\]"):
-            stage_targets(cloud, np.zeros((4, 3)), image_size=4, num_views=2)
-        with pytest.raises(ValueError, match="must lie in a 3x3 image"):
-            stage_targets(cloud, np.zeros((4, 5)), image_size=3, num_views=2)
-        with pytest.raises(ValueError, match="point views"):
-            stage_targets(cloud, np.zeros((4, 5)), image_size=4, num_views=1)
+            stage_targets(cloud, np.zeros((4, 3)), renders_of(4, 2))
+        with pytest.raises(ValueError, match="outside 2 views of 3x3 px"):
+            stage_targets(cloud, np.zeros((4, 5)), renders_of(3, 2))
+        with pytest.raises(ValueError, match="outside 1 views of 4x4 px"):
+            stage_targets(cloud, np.zeros((4, 5)), renders_of(4, 1))
         with pytest.raises(ValueError, match="NaN"):
-            stage_targets(cloud, np.full((4, 5), np.nan), image_size=4, num_views=2)
+            stage_targets(cloud, np.full((4, 5), np.nan), renders_of(4, 2))
+        sized = PointCloud(xyz=cloud.xyz, view=cloud.view, pixel=cloud.pixel, rgb=cloud.rgb, image_size=(4, 4))
+        with pytest.raises(ValueError, match=r"indexes \(4, 4\) lattice views, but the renders are 8x8"):
+            stage_targets(sized, np.zeros((4, 5)), renders_of(8, 2))
 
 
 # ---- initialisation -----------------------------------------------------------------------------
@@ -436,9 +456,11 @@ class TestDistill:
         losses = [loss for _, loss in stats["losses"]]
         assert losses[-1] < losses[0]
 
-    def test_target_size_must_match_the_config(self, sphere):
-        with pytest.raises(ValueError, match="stage3.image_size is 48"):
-            distill(sphere, lattice_targets(noise_maps), config(image_size=48))
+    def test_removed_size_keys_are_rejected(self):
+        """stage3.image_size / num_views are gone: the targets carry Stage I's size and views."""
+        for key in ("image_size", "num_views"):
+            with pytest.raises(ValueError, match=key):
+                Stage3Config.from_dict({key: 64})
 
 
 # ---- PLY and exports ---------------------------------------------------------------------------
@@ -487,3 +509,46 @@ def test_scene_predictions_are_scored_by_the_evaluator(tmp_path, lpips_net):
         expected = masked_psnr(torch.from_numpy(maps["roughness"][i]), gt, mask)
         row = next(r for r in result.rows if r["view"] == v.id and r["channel"] == "roughness")
         assert row["psnr"] == pytest.approx(expected, abs=0.01)  # 16-bit PNG quantisation only
+
+
+# ---- Stage I -> III on a non-canonical lattice ---------------------------------------------------
+
+def smooth_albedo(xyz: np.ndarray) -> np.ndarray:
+    """The stand-in Stage II prediction: an sRGB albedo that varies smoothly with position."""
+    return 0.5 + 0.45 * xyz / 0.8
+
+
+def stage1_to_3_error(asset, lattice: dict, *, cameras_from_default: bool = False) -> float:
+    """Mean |distilled - true| albedo of the upper-hemisphere surfels, Stage I -> III end to end.
+
+    The per-point "Stage II" prediction is a smooth function of position, so targets staged
+    against wrong cameras put values on the wrong surfels (the bug this guards: Stage III
+    rebuilding the cameras of its targets from the default lattice)."""
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage1.extract import extract_point_cloud
+
+    off = {"enabled": False}
+    cfg = Stage1Config.from_dict({"image_size": 20, **lattice, "outliers": off, "mask_consistency": off,
+                                  "depth_consensus": off})
+    points, renders, _ = extract_point_cloud(asset, cfg)
+    pbr = np.concatenate([smooth_albedo(points.xyz.astype(np.float64)), np.full((len(points), 2), 0.5)], axis=1)
+    if cameras_from_default:
+        default = renders_of(20, 32)
+        renders = LatticeRenders(rgb=renders.rgb, alpha=renders.alpha, depth=renders.depth, K=default.K,
+                                 w2c=default.w2c)
+    targets = stage_targets(points, pbr, renders, alpha_threshold=cfg.alpha_threshold)
+    no_sh = {"sh_harmonize": 0.0, "harmonize_targets": False}   # distil the raw targets
+    out, _ = distill(asset, targets, config(iterations=20, views_per_iteration=4, init=no_sh))
+    seen = asset.means[:, 2] > 0.2
+    truth = smooth_albedo(asset.means[seen].double().numpy())
+    albedo_srgb = linear_to_srgb(torch.sigmoid(out.albedo_logits[seen])).double().numpy()  # logits: linear
+    return float(np.abs(albedo_srgb - truth).mean())
+
+
+def test_non_canonical_lattice_distils_as_well_as_the_canonical_one():
+    asset = surfel_sphere(800)
+    canonical = stage1_to_3_error(asset, {})
+    odd = stage1_to_3_error(asset, {"radius": 2.2, "fov_deg": 50.0, "min_elevation_deg": 15.0})
+    mismatched = stage1_to_3_error(asset, {"radius": 2.2, "fov_deg": 50.0, "min_elevation_deg": 15.0}, cameras_from_default=True)
+    assert odd <= 1.25 * canonical + 0.005, (odd, canonical)
+    assert mismatched > 2 * odd, (mismatched, odd)   # the check has teeth

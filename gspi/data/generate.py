@@ -27,6 +27,7 @@ import torch
 from eval.layout import read_scene, write_json_atomic
 from gspi.data.contact_sheet import write_contact_sheet
 from gspi.data.environments import make_environment
+from gspi.data.lattice import CANONICAL_LATTICE
 from gspi.data.point_clouds import write_scene_point_cloud
 from gspi.data.render_scene import generate_scene, load_environment
 from gspi.data.scene_recipe import assign_splits, sample_scene_recipe
@@ -57,8 +58,7 @@ class BenchmarkConfig:
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
     training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
-    lattice: dict = field(default_factory=lambda: {"num_views": 32, "radius": 3.0,
-                                                   "fov_deg": 45.0, "min_elevation_deg": 0.0})
+    lattice: dict = field(default_factory=lambda: dict(CANONICAL_LATTICE))
 
     @property
     def num_scenes(self) -> int:

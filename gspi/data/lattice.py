@@ -18,11 +18,18 @@ intrinsics only on (fov, image size). Camera convention: OpenCV (x right, y down
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 
 import numpy as np
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))  # 2.399963... rad
 WORLD_UP = np.array([0.0, 0.0, 1.0])
+# THE canonical lattice (keyword arguments of `lattice_cameras` less the image size). Every
+# default elsewhere (gspi-data's `lattice:`, Stage I's config, the renderer) reads it from here;
+# tests/test_lattice.py checks that the YAML files agree.
+CANONICAL_LATTICE = MappingProxyType({"num_views": 32, "radius": 3.0, "fov_deg": 45.0,
+                                      "min_elevation_deg": 0.0})
+NUM_LATTICE_VIEWS = CANONICAL_LATTICE["num_views"]  # Stage II's one-hot width
 
 
 def fibonacci_hemisphere_lattice(num_views: int = 32, *, min_elevation_deg: float = 0.0
@@ -97,8 +104,10 @@ def cameras_from_directions(directions: np.ndarray, *, radius: float, fov_deg: f
     return np.repeat(K[None], len(w2c), axis=0), w2c
 
 
-def lattice_cameras(*, num_views: int = 32, radius: float = 3.0, fov_deg: float = 45.0,
-                    width: int = 256, height: int = 256, min_elevation_deg: float = 0.0
+def lattice_cameras(*, num_views: int = CANONICAL_LATTICE["num_views"],
+                    radius: float = CANONICAL_LATTICE["radius"],
+                    fov_deg: float = CANONICAL_LATTICE["fov_deg"], width: int = 256, height: int = 256,
+                    min_elevation_deg: float = CANONICAL_LATTICE["min_elevation_deg"]
                     ) -> tuple[np.ndarray, np.ndarray]:
     """The canonical cameras: identical for every scene (Stage II's one-hot index k <-> camera k).
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping, Optional
 
-from gspi.stage1.point_cloud import NUM_LATTICE_VIEWS
+from gspi.data.lattice import CANONICAL_LATTICE
 from gspi.strict_config import dataclass_from_dict
 
 
@@ -49,10 +49,12 @@ class Stage1Config:
 
     name: str = "default"          # the conf/stage1 option it came from (recorded in stage1.json)
     image_size: int = 128          # lattice render size in px, square (paper: 512)
-    num_views: int = NUM_LATTICE_VIEWS
-    radius: float = 3.0            # lattice camera distance (gspi/data/lattice.py)
-    fov_deg: float = 45.0
-    min_elevation_deg: float = 0.0
+    # the lattice (defaults: gspi.data.lattice.CANONICAL_LATTICE); its renders carry these cameras
+    # on to Stages II and III, so a non-canonical lattice stays consistent end to end
+    num_views: int = CANONICAL_LATTICE["num_views"]
+    radius: float = CANONICAL_LATTICE["radius"]
+    fov_deg: float = CANONICAL_LATTICE["fov_deg"]
+    min_elevation_deg: float = CANONICAL_LATTICE["min_elevation_deg"]
     alpha_threshold: float = 0.5   # foreground = rendered opacity >= this
     outliers: OutlierConfig = field(default_factory=OutlierConfig)
     mask_consistency: MaskConsistencyConfig = field(default_factory=MaskConsistencyConfig)

@@ -2,8 +2,9 @@
 
     points, renders, stats = extract_point_cloud(gaussians, Stage1Config(image_size=128))
 
-The 32 lattice views are rendered by ``gspi.recon.lattice_render.render_lattice_views`` (the
-same renderer and cameras as Stage 0 and the dataset's ``train`` split). Foreground pixels
+The 32 lattice views are rendered by ``gspi.gaussians.lattice_render.render_lattice`` (the
+same renderer and cameras as Stage 0 and the dataset's ``train`` split); the renders travel
+on to Stages II and III with their cameras (:class:`LatticeRenders`). Foreground pixels
 (rendered alpha >= ``alpha_threshold``) of each view are unprojected with the rendered MEDIAN
 depth (2DGS's surface depth) into world points; each keeps its view, pixel and rendered RGB.
 Then the filters of ``gspi.stage1.filters``, each switchable, with a per-step report
@@ -12,7 +13,6 @@ Then the filters of ``gspi.stage1.filters``, each switchable, with a per-step re
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Callable, Optional
 
 import numpy as np
@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from gspi.gaussians.cameras import unproject
 from gspi.gaussians.model import Gaussians2D
-from gspi.recon.lattice_render import lattice_camera_tensors, render_lattice_views
+from gspi.gaussians.lattice_render import LatticeRenders, render_lattice as render_lattice_maps
 from gspi.stage1 import filters
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.point_cloud import PointCloud
@@ -31,29 +31,9 @@ __all__ = ["Stage1Config", "LatticeRenders", "render_lattice", "unproject_render
            "maybe_subsample", "extract_point_cloud"]
 
 
-@dataclass
-class LatticeRenders:
-    """Stage I's numpy view of ``render_lattice_views``' output (float32 maps, float64 cameras)."""
-
-    rgb: np.ndarray     # [V, H, W, 3] linear
-    alpha: np.ndarray   # [V, H, W]
-    depth: np.ndarray   # [V, H, W] median depth (camera z), 0 where nothing is composited
-    K: np.ndarray       # [V, 3, 3]
-    w2c: np.ndarray     # [V, 4, 4] OpenCV world -> camera
-
-    @property
-    def image_size(self) -> tuple[int, int]:
-        return self.alpha.shape[1], self.alpha.shape[2]
-
-
 def render_lattice(gaussians: Gaussians2D, cfg: Stage1Config) -> LatticeRenders:
-    """RGB, alpha and median depth of the canonical lattice views (no gradients)."""
-    with torch.no_grad():
-        out = render_lattice_views(gaussians, image_size=cfg.image_size, lattice=cfg.lattice)
-    w2c, K = lattice_camera_tensors(cfg.image_size, lattice=cfg.lattice, dtype=torch.float64)
-    as_np = lambda t: t.detach().float().cpu().numpy()  # noqa: E731
-    return LatticeRenders(rgb=as_np(out.rgb), alpha=as_np(out.alpha[..., 0]),
-                          depth=as_np(out.depth_median[..., 0]), K=K.numpy(), w2c=w2c.numpy())
+    """RGB, alpha and median depth of Stage I's lattice (``cfg.lattice``, ``cfg.image_size``)."""
+    return render_lattice_maps(gaussians, image_size=cfg.image_size, lattice=cfg.lattice)
 
 
 def unproject_renders(renders: LatticeRenders, alpha_threshold: float) -> PointCloud:

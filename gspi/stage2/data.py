@@ -36,10 +36,10 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from gspi.stage2.inputs import Stage2Inputs
+from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_to_model, to_unit_sphere, view_onehot
 
 LOCAL_CONDITIONS = {"top_rgb_onehot": 35, "top_rgb": 3, "multiview": 128}  # name -> width
-NUM_LATTICE_VIEWS = 32
 
 
 def local_condition_dim(name: str) -> int:

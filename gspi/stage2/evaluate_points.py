@@ -30,7 +30,8 @@ import torch
 
 from gspi.stage2.data import PointDataConfig, ScenePoints, whole_scene_inputs
 from gspi.stage2.normalize import pbr_from_model
-from gspi.stage2.score_generated import scatter_pixel_values
+from gspi.data.gt_maps import read_gt_view_maps
+from gspi.stage1.point_cloud import scatter_pixel_values
 
 log = logging.getLogger(__name__)
 CHANNELS = {"albedo": slice(0, 3), "roughness": slice(3, 4), "metallic": slice(4, 5)}
@@ -43,19 +44,6 @@ def scatter_to_views(values: np.ndarray, scene: ScenePoints) -> tuple[np.ndarray
     cams = scene.cameras
     return scatter_pixel_values(scene.view, scene.pixel, values, height=cams.height, width=cams.width,
                                 num_views=len(cams.K))
-
-
-def gt_view_maps(scene: ScenePoints) -> np.ndarray:
-    """[V, H, W, 5] GT maps of the lattice views: albedo (sRGB-encoded), roughness, metallic."""
-    from eval.layout import read_scene, read_view_file
-
-    layout = read_scene(scene.root)
-    out = []
-    for view in layout.split_views("train"):
-        vdir = layout.view_dir("train", view.id)
-        out.append(np.concatenate([read_view_file(vdir, "albedo.png"), read_view_file(vdir, "roughness.png"),
-                                   read_view_file(vdir, "metallic.png")], axis=-1))
-    return np.stack(out)
 
 
 def score_maps(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray, lpips_net) -> dict[str, dict[str, float]]:
@@ -98,7 +86,7 @@ def evaluate_scenes(scenes: list[ScenePoints], predict: Callable[[ScenePoints], 
     per_scene: dict[str, dict] = {"stage2": {}, "no_decomposition": {}}
     timings = {}
     for scene in scenes:
-        gt = gt_view_maps(scene)
+        gt = read_gt_view_maps(scene.root)[0]
         t0 = time.perf_counter()
         pred = predict(scene)
         timings[scene.name] = round(time.perf_counter() - t0, 2)
@@ -140,7 +128,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
     from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.train import load_split, predict_point_pbr
+    from gspi.stage2.sampler import predict_point_pbr
+    from gspi.stage2.train import load_split
 
     run_cfg = {**cfg, "data_dir": str(data_dir)}
     stage2 = cfg["stage2"]

@@ -20,14 +20,15 @@ from typing import Optional
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 from torch import Tensor
 
 from eval.colorspace import linear_to_srgb
-from gspi.stage1.point_cloud import NUM_LATTICE_VIEWS, PointCloud
+from gspi.data.lattice import NUM_LATTICE_VIEWS
+from gspi.gaussians.lattice_render import LatticeRenders
+from gspi.stage1.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.data import LatticeCameras, local_condition_dim, multiview_condition_from_views, srgb_top_rgb
 from gspi.stage2.model import RCWDenoiser
-from gspi.stage2.train import predict_point_pbr
+from gspi.stage2.sampler import predict_point_pbr
 
 
 @dataclass(frozen=True)
@@ -66,9 +67,10 @@ def prior_features(encoder, rgb_linear: np.ndarray) -> Optional[Tensor]:
         return encoder.encode(lattice_srgb(rgb_linear)).float()
 
 
-def point_conditions(points: PointCloud, mode: str, *, rgb_linear: np.ndarray, depth: np.ndarray,
-                     K: np.ndarray, w2c: np.ndarray, tol_pixels: float = 2.0) -> np.ndarray:
-    """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training)."""
+def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
+                     tol_pixels: float = 2.0) -> np.ndarray:
+    """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training); A5's
+    multi-view colours come from Stage I's ``renders`` (their maps and cameras)."""
     local_condition_dim(mode)
     top = srgb_top_rgb(points.rgb)
     if mode == "top_rgb":
@@ -76,10 +78,11 @@ def point_conditions(points: PointCloud, mode: str, *, rgb_linear: np.ndarray, d
     if mode == "top_rgb_onehot":
         onehot = np.eye(NUM_LATTICE_VIEWS, dtype=np.float32)[points.view]
         return np.concatenate([top, onehot], axis=1)
-    height, width = depth.shape[1:3]
-    cams = LatticeCameras(K=np.asarray(K, np.float64), w2c=np.asarray(w2c, np.float64), width=width, height=height)
-    images = srgb_top_rgb(rgb_linear)
-    return multiview_condition_from_views(images, depth, cams, points.xyz.astype(np.float64), tol_pixels=tol_pixels)
+    height, width = renders.image_size
+    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
+                          width=width, height=height)
+    return multiview_condition_from_views(srgb_top_rgb(renders.rgb), renders.depth, cams,
+                                          points.xyz.astype(np.float64), tol_pixels=tol_pixels)
 
 
 def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> Optional[np.ndarray]:
@@ -91,27 +94,22 @@ def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> 
     return np.sort(np.random.default_rng(seed).choice(num_points, size=max_points, replace=False))
 
 
-def nearest_fill(xyz_sub: np.ndarray, values_sub: np.ndarray, xyz_all: np.ndarray) -> np.ndarray:
-    """Each point of ``xyz_all`` takes the value of its nearest point of ``xyz_sub`` (1-NN, 3D)."""
-    _, idx = cKDTree(xyz_sub).query(xyz_all, k=1)
-    return values_sub[idx]
-
-
-def predict_generated_points(model: RCWDenoiser, points: PointCloud, *, local_mode: str,
-                             rgb_linear: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-                             encoder, cfg: InferenceConfig, tol_pixels: float = 2.0) -> tuple[np.ndarray, dict]:
-    """Stage II on a Stage I cloud: [P, 5] (albedo sRGB RGB, roughness, metallic) in [0, 1] + stats."""
+def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: LatticeRenders, *,
+                             local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0
+                             ) -> tuple[np.ndarray, dict]:
+    """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
+    metallic) in [0, 1] + stats."""
     t0 = time.perf_counter()
     if model.config.local_cond_dim != local_condition_dim(local_mode):
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
                          f"stage2.data.local_condition={local_mode!r} gives {local_condition_dim(local_mode)}")
-    feats = prior_features(encoder, rgb_linear)
+    feats = prior_features(encoder, renders.rgb)
     if (feats is None) != (model.config.global_token_dim == 0):
         raise ValueError(f"prior encoder {getattr(encoder, 'name', encoder)!r} does not match the model "
                          f"(global_token_dim={model.config.global_token_dim})")
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
-    cond = point_conditions(pts, local_mode, rgb_linear=rgb_linear, depth=depth, K=K, w2c=w2c, tol_pixels=tol_pixels)
+    cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels)
     t_cond = time.perf_counter() - t0
     samples = [predict_point_pbr(model, pts.xyz, cond, feats, num_steps=cfg.num_steps, seed=cfg.seed + k,
                                  write_chunk=cfg.write_chunk, guidance_scale=cfg.guidance_scale).numpy()

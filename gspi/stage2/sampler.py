@@ -17,11 +17,13 @@ from __future__ import annotations
 
 from typing import Optional, Protocol
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from gspi.stage2.inputs import Stage2Inputs
-from gspi.stage2.model import DenoiserOutput
+from gspi.stage2.model import DenoiserOutput, RCWDenoiser
+from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_from_model, to_unit_sphere
 from gspi.stage2.schedule import cosine_alphas_cumprod, ddim_timesteps
 
 FEATURE_DIM = 5
@@ -132,3 +134,41 @@ def ddim_sample(
         f_t, _ = ddim_step(f_t, eps_hat, float(alphas_cumprod[t]), ab_prev, eta=eta, clip_sample=clip_sample,
                            use_clipped_model_output=use_clipped_model_output, generator=generator)
     return f_t
+
+
+@torch.no_grad()
+def predict_point_pbr(
+    model: RCWDenoiser,
+    xyz: Tensor | np.ndarray,  # [N, 3] world coordinates of the whole cloud
+    local_cond: Tensor | np.ndarray,  # [N, C] per-point condition (same layout as in training)
+    global_feats: Optional[Tensor],  # [32, D, 5, 5] lattice prior features, or None (A1)
+    *,
+    num_steps: int = 50,
+    seed: int = 0,
+    frame: Optional[SphereFrame] = None,
+    write_chunk: Optional[int] = 32768,
+    guidance_scale: float = 1.0,
+    num_train_timesteps: int = 1000,
+) -> Tensor:
+    """DDIM-samples PBR features for the ENTIRE cloud at once (paper: N_test = N, no view-dropout).
+
+    Use the EMA weights (``load_stage2_checkpoint`` returns them). ``write_chunk`` bounds the
+    memory of the point-side attention/MLP; the Read attention is O(N) memory (SDPA).
+
+    Args:
+        frame: unit-sphere frame; None fits it on ``xyz`` (what Stage I inference has).
+    Returns:
+        [N, 5] float32 in [0, 1]: albedo (sRGB-encoded) RGB, roughness, metallic.
+    """
+    xyz = torch.as_tensor(np.asarray(xyz), dtype=torch.float64)
+    frame = fit_unit_sphere(xyz) if frame is None else frame
+    xyz_unit = to_unit_sphere(xyz, frame).float()[None]
+    tokens = None
+    if global_feats is not None and global_feats.shape[1] > 0:
+        tokens = global_feats.float().flatten(2).transpose(1, 2)[None]  # [1, 32, 25, D]
+    inputs = Stage2Inputs(xyz=xyz_unit, local_cond=torch.as_tensor(np.asarray(local_cond)).float()[None],
+                          global_tokens=tokens)
+    generator = torch.Generator().manual_seed(int(seed))
+    f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
+                    write_chunk=write_chunk, alphas_cumprod=cosine_alphas_cumprod(num_train_timesteps))
+    return pbr_from_model(f[0])

@@ -27,51 +27,14 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Union
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from gspi.stage1.point_cloud import NUM_LATTICE_VIEWS, PointCloud
+from gspi.data.gt_maps import read_gt_view_maps
+from gspi.data.lattice import NUM_LATTICE_VIEWS
+from gspi.stage1.point_cloud import PointCloud, nearest_fill, scatter_pixel_values
 
 PBR_CHANNELS = 5  # albedo (sRGB-encoded, as stored) 3, roughness 1, metallic 1
-
-
-def scatter_pixel_values(view: np.ndarray, pixel: np.ndarray, values: np.ndarray, *, height: int,
-                         width: int, num_views: int = NUM_LATTICE_VIEWS) -> tuple[np.ndarray, np.ndarray]:
-    """Per-point values -> per-view maps through each point's (view, row, col).
-
-    Args:
-        view: [P] int source view in 0..num_views-1; pixel: [P, 2] int (row, col);
-        values: [P, C] float.
-    Returns:
-        maps [V, H, W, C] float32 (0 where no point landed; the MEAN where several points share a
-        pixel: Stage I gives one point per pixel, so normally a plain copy) and
-        hit_mask [V, H, W] bool (pixels that received at least one point).
-    Raises:
-        ValueError: shapes disagree or a view / pixel index is out of range.
-    """
-    view, pixel = np.asarray(view, dtype=np.int64), np.asarray(pixel, dtype=np.int64)
-    values = np.asarray(values)
-    if values.ndim != 2 or len(values) != len(view) or pixel.shape != (len(view), 2):
-        raise ValueError(f"scatter: need values [P, C], view [P], pixel [P, 2]; got values "
-                         f"{values.shape}, view {view.shape}, pixel {pixel.shape}")
-    bad = (view < 0) | (view >= num_views) | (pixel[:, 0] < 0) | (pixel[:, 0] >= height) | \
-          (pixel[:, 1] < 0) | (pixel[:, 1] >= width)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise ValueError(f"scatter: {int(bad.sum())} point(s) outside {num_views} views of {height}x{width} px "
-                         f"(first: view {view[i]}, pixel {tuple(pixel[i])}); were they extracted at this size?")
-    flat = (view * height + pixel[:, 0]) * width + pixel[:, 1]
-    size = num_views * height * width
-    counts = np.bincount(flat, minlength=size)
-    hit = counts > 0
-    maps = np.zeros((size, values.shape[1]), dtype=np.float64)
-    for c in range(values.shape[1]):  # bincount sums duplicates (np.add.at is ~10x slower)
-        maps[:, c] = np.bincount(flat, weights=values[:, c], minlength=size)
-    maps[hit] /= counts[hit, None]
-    return (maps.astype(np.float32).reshape(num_views, height, width, -1),
-            hit.reshape(num_views, height, width))
 
 
 def scatter_point_values(points: PointCloud, values: np.ndarray, *, height: int, width: int,
@@ -83,47 +46,6 @@ def scatter_point_values(points: PointCloud, values: np.ndarray, *, height: int,
     """
     return scatter_pixel_values(points.view, points.pixel, values, height=height, width=width,
                                 num_views=num_views)
-
-
-def nearest_fill(points_sub: Union[PointCloud, np.ndarray], values_sub: np.ndarray,
-                 points_all: Union[PointCloud, np.ndarray]) -> np.ndarray:
-    """Values of a subsample propagated to the whole cloud: each point takes the value of its
-    nearest subsample point in 3D (scipy cKDTree; ties go to the lower index).
-
-    Args:
-        points_sub: S points (PointCloud or xyz [S, 3]); values_sub: [S, C];
-        points_all: P points (PointCloud or xyz [P, 3]).
-    Returns:
-        [P, C] values (exact copies for points that are in the subsample).
-    """
-    xyz_sub = np.asarray(getattr(points_sub, "xyz", points_sub), dtype=np.float64)
-    xyz_all = np.asarray(getattr(points_all, "xyz", points_all), dtype=np.float64)
-    values_sub = np.asarray(values_sub)
-    if len(xyz_sub) == 0 or len(values_sub) != len(xyz_sub):
-        raise ValueError(f"nearest_fill: need a non-empty subsample with one value row per point; got "
-                         f"{len(xyz_sub)} points and values {values_sub.shape}")
-    _, idx = cKDTree(xyz_sub).query(xyz_all, k=1)
-    return values_sub[idx]
-
-
-def read_gt_lattice_maps(scene_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """GT maps of the scene's lattice views (``train`` split, lattice order).
-
-    Returns:
-        maps [V, H, W, 5] float32 (albedo sRGB-encoded as stored, roughness, metallic) and
-        mask [V, H, W] bool (``mask.png`` foreground).
-    """
-    from eval.layout import read_view_file
-    from gspi.stage2.data import read_lattice_cameras
-
-    scene, _ = read_lattice_cameras(scene_dir)
-    maps, masks = [], []
-    for view in scene.split_views("train"):
-        vdir = scene.view_dir("train", view.id)
-        maps.append(np.concatenate([read_view_file(vdir, f) for f in ("albedo.png", "roughness.png",
-                                                                       "metallic.png")], axis=-1))
-        masks.append(read_view_file(vdir, "mask.png")[..., 0] > 0.5)
-    return np.stack(maps), np.stack(masks)
 
 
 def check_lattice_size(points: PointCloud, scene_dir: Path) -> tuple[int, int]:
@@ -164,7 +86,7 @@ def score_generated_points(points: PointCloud, pbr: np.ndarray, scene_dir: Path,
     if pbr.shape != (len(points), PBR_CHANNELS):
         raise ValueError(f"{scene_dir}: pbr must be [P, {PBR_CHANNELS}] = [{len(points)}, {PBR_CHANNELS}], "
                          f"got {pbr.shape}")
-    gt, gt_mask = read_gt_lattice_maps(scene_dir)
+    gt, gt_mask = read_gt_view_maps(scene_dir)
     pred, hit = scatter_point_values(points, pbr, height=height, width=width, num_views=len(gt))
     mask = gt_mask & hit
     if not mask.any():

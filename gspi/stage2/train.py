@@ -2,7 +2,7 @@
 cosine schedule and Min-SNR-gamma weighting (``gspi.stage2.loss.denoising_loss``) on local
 512-point subsets of perturbed GT point clouds (``gspi.stage2.data``), AdamW with linear
 warm-up and cosine decay, gradient clipping, an EMA of the weights, periodic checkpoints
-that a rerun resumes from exactly, and inference (:func:`predict_point_pbr`) on a whole cloud.
+that a rerun resumes from exactly (whole-cloud inference: ``gspi.stage2.sampler.predict_point_pbr``).
 
 ``cfg`` is the resolved ``gspi-train`` config as a plain dict (``conf/gspi_train.yaml``):
 ``data_dir`` (dataset dir), ``out``, ``seed``, ``stage2.{model,diffusion,prior,data,train,eval}``.
@@ -29,8 +29,6 @@ from gspi.stage2.feature_cache import scene_prior_features
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.loss import denoising_loss
 from gspi.stage2.model import RCWConfig, RCWDenoiser, count_parameters
-from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_from_model, to_unit_sphere
-from gspi.stage2.sampler import ddim_sample
 from gspi.stage2.schedule import cosine_alphas_cumprod
 from gspi.stage2.train_log import JsonlMetrics, plot_loss_curve
 
@@ -212,41 +210,3 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             "final_loss": float(losses[-100:].mean()) if len(losses) else None,
             "parameters": count_parameters(state.model), "seed": int(cfg["seed"]),
             "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim}
-
-
-@torch.no_grad()
-def predict_point_pbr(
-    model: RCWDenoiser,
-    xyz: Tensor | np.ndarray,  # [N, 3] world coordinates of the whole cloud
-    local_cond: Tensor | np.ndarray,  # [N, C] per-point condition (same layout as in training)
-    global_feats: Optional[Tensor],  # [32, D, 5, 5] lattice prior features, or None (A1)
-    *,
-    num_steps: int = 50,
-    seed: int = 0,
-    frame: Optional[SphereFrame] = None,
-    write_chunk: Optional[int] = 32768,
-    guidance_scale: float = 1.0,
-    num_train_timesteps: int = 1000,
-) -> Tensor:
-    """DDIM-samples PBR features for the ENTIRE cloud at once (paper: N_test = N, no view-dropout).
-
-    Use the EMA weights (``load_stage2_checkpoint`` returns them). ``write_chunk`` bounds the
-    memory of the point-side attention/MLP; the Read attention is O(N) memory (SDPA).
-
-    Args:
-        frame: unit-sphere frame; None fits it on ``xyz`` (what Stage I inference has).
-    Returns:
-        [N, 5] float32 in [0, 1]: albedo (sRGB-encoded) RGB, roughness, metallic.
-    """
-    xyz = torch.as_tensor(np.asarray(xyz), dtype=torch.float64)
-    frame = fit_unit_sphere(xyz) if frame is None else frame
-    xyz_unit = to_unit_sphere(xyz, frame).float()[None]
-    tokens = None
-    if global_feats is not None and global_feats.shape[1] > 0:
-        tokens = global_feats.float().flatten(2).transpose(1, 2)[None]  # [1, 32, 25, D]
-    inputs = Stage2Inputs(xyz=xyz_unit, local_cond=torch.as_tensor(np.asarray(local_cond)).float()[None],
-                          global_tokens=tokens)
-    generator = torch.Generator().manual_seed(int(seed))
-    f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
-                    write_chunk=write_chunk, alphas_cumprod=cosine_alphas_cumprod(num_train_timesteps))
-    return pbr_from_model(f[0])

@@ -50,8 +50,6 @@ class LrConfig:
 @dataclass
 class Stage3Config:
     name: str = "default"
-    image_size: int = 128             # lattice render size of the staged targets (paper: 512)
-    num_views: int = 32               # V canonical lattice views
     iterations: int = 500
     distill: bool = True              # False = A6: initialisation only
     freeze_opacity: bool = False      # A7

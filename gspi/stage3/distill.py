@@ -53,12 +53,6 @@ def view_schedule(num_views: int, iterations: int, per_iteration: int, seed: int
     return [order[i * per_iteration:(i + 1) * per_iteration] for i in range(iterations)]
 
 
-def _check_sizes(targets: StagedTargets, cfg: Stage3Config) -> None:
-    if (targets.height, targets.width) != (cfg.image_size, cfg.image_size):
-        raise ValueError(f"staged targets are {targets.height}x{targets.width} but stage3.image_size is "
-                         f"{cfg.image_size}: stage the targets at the configured size")
-
-
 def harmonized_albedo_targets(asset: Gaussians2D, albedo_srgb: torch.Tensor, w2c, K, width: int, height: int,
                               gain, cfg: Stage3Config) -> torch.Tensor:
     """Staged albedo targets with the same SH-DC harmonisation as the initialisation.
@@ -90,10 +84,9 @@ def distill(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config, *,
         "trainable" (group names), "num_gaussians").
 
     Raises:
-        ValueError: if the targets' size differs from ``cfg.image_size`` or the mask is empty.
+        ValueError: if the mask is empty.
         RuntimeError: if means or rotations changed (a bug: they are never optimised).
     """
-    _check_sizes(targets, cfg)
     t0 = time.perf_counter()
     t = targets.tensors(asset.device)
     K, w2c = t["K"].to(asset.means), t["w2c"].to(asset.means)

@@ -1,7 +1,8 @@
 """The staged per-view PBR targets of Stage III (paper: A~_v, R~_v, M~_v).
 
 Stage II predicts (albedo, roughness, metallic) per point; every Stage I point keeps its source
-lattice view v* and pixel (row, col), so the predictions scatter back into V per-view maps.
+lattice view v* and pixel (row, col), so the predictions scatter back into V per-view maps, with
+the cameras of Stage I's renders (``LatticeRenders``: any lattice Stage I was configured with).
 Pixels that received no point (background, or foreground removed by Stage I's filters) are
 INVALID, unless a silhouette is given: then invalid pixels inside it are FILLED with the value
 of the nearest valid pixel of the same view (``scipy.ndimage.distance_transform_edt`` indices)
@@ -20,9 +21,10 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from eval.layout import Scene, read_view_file
-from gspi.recon.lattice_render import lattice_camera_tensors
-from gspi.stage1.point_cloud import PointCloud
+from eval.layout import Scene
+from gspi.data.gt_maps import read_gt_view_maps
+from gspi.gaussians.lattice_render import LatticeRenders
+from gspi.stage1.point_cloud import PointCloud, scatter_pixel_values
 
 
 @dataclass
@@ -80,7 +82,7 @@ class StagedTargets:
         return StagedTargets(**{f.name: getattr(self, f.name)[views] for f in fields(self)})
 
 
-def _fill_nearest(values: np.ndarray, valid: np.ndarray, region: np.ndarray) -> np.ndarray:
+def fill_nearest(values: np.ndarray, valid: np.ndarray, region: np.ndarray) -> np.ndarray:
     """[H, W, C] values with pixels of ``region & ~valid`` set from the nearest valid pixel."""
     if not valid.any():
         return values
@@ -89,22 +91,21 @@ def _fill_nearest(values: np.ndarray, valid: np.ndarray, region: np.ndarray) -> 
     return np.where((region & ~valid)[..., None], filled, values)
 
 
-def stage_targets(points: PointCloud, pbr: np.ndarray, *, image_size: int, num_views: int = 32,
-                  silhouette: Optional[np.ndarray] = None) -> StagedTargets:
-    """Scatters per-point Stage II predictions back into the lattice views.
+def stage_targets(points: PointCloud, pbr: np.ndarray, renders: LatticeRenders, *,
+                  alpha_threshold: Optional[float] = None) -> StagedTargets:
+    """Scatters per-point Stage II predictions back into Stage I's lattice views.
 
     Args:
         points: the Stage I point cloud (``view`` [P] lattice index, ``pixel`` [P, 2] (row, col)).
         pbr: [P, 5] per-point (albedo sRGB RGB, roughness, metallic); clipped to [0, 1].
-        image_size: lattice render size S used by Stage I (targets are S x S).
-        num_views: V lattice views.
-        silhouette: optional [V, S, S] bool foreground of the lattice renders (e.g. Stage I's
-            rendered alpha >= 0.5); invalid pixels inside it are filled from the nearest valid
-            pixel of the same view. None: pixels without a point stay invalid.
+        renders: Stage I's lattice renders: their cameras become the targets' cameras and their
+            size the targets' size (whatever lattice Stage I was configured with).
+        alpha_threshold: with a value, the silhouette ``renders.alpha >= alpha_threshold`` is
+            filled: invalid pixels inside it take the nearest valid pixel of the same view.
+            None: pixels without a point stay invalid.
 
     Returns:
-        :class:`StagedTargets` with the canonical lattice cameras at ``image_size``. Pixels hit
-        by several points hold their mean.
+        :class:`StagedTargets`. Pixels hit by several points hold their mean.
 
     Raises:
         ValueError: on a shape mismatch, NaN/Inf, or a view / pixel index out of range.
@@ -114,34 +115,19 @@ def stage_targets(points: PointCloud, pbr: np.ndarray, *, image_size: int, num_v
         raise ValueError(f"pbr must be [P, 5] for P = {len(points)} points, got {pbr.shape}")
     if not np.isfinite(pbr).all():
         raise ValueError(f"pbr holds {int((~np.isfinite(pbr)).sum())} NaN/Inf values")
+    height, width = renders.image_size
     known_size = getattr(points, "image_size", None)
-    if known_size is not None and tuple(known_size) != (image_size, image_size):
-        raise ValueError(f"the point cloud indexes {tuple(known_size)} lattice views, not "
-                         f"{image_size}x{image_size}: stage the targets at Stage I's image size")
-    view, rows, cols = (np.asarray(points.view, dtype=np.int64), np.asarray(points.pixel[:, 0], np.int64),
-                        np.asarray(points.pixel[:, 1], np.int64))
-    if len(points) and (view.min() < 0 or view.max() >= num_views):
-        raise ValueError(f"point views must be in 0..{num_views - 1}, got {view.min()}..{view.max()}")
-    if len(points) and (min(rows.min(), cols.min()) < 0 or max(rows.max(), cols.max()) >= image_size):
-        raise ValueError(f"point pixels must lie in a {image_size}x{image_size} image")
-    flat = (view * image_size + rows) * image_size + cols
-    size = num_views * image_size * image_size
-    count = np.bincount(flat, minlength=size)
-    sums = np.stack([np.bincount(flat, weights=pbr[:, c].clip(0, 1), minlength=size) for c in range(5)], -1)
-    valid = count > 0
-    maps = np.where(valid[:, None], sums / np.maximum(count, 1)[:, None], 0.0)
-    maps = maps.reshape(num_views, image_size, image_size, 5)
-    valid = valid.reshape(num_views, image_size, image_size)
-    if silhouette is not None:
-        silhouette = np.asarray(silhouette, dtype=bool)
-        if silhouette.shape != valid.shape:
-            raise ValueError(f"silhouette must be {valid.shape}, got {silhouette.shape}")
-        maps = np.stack([_fill_nearest(maps[v], valid[v], silhouette[v]) for v in range(num_views)])
-        valid = valid | (silhouette & valid.reshape(num_views, -1).any(1)[:, None, None])
-    w2c, K = lattice_camera_tensors(image_size, lattice={"num_views": num_views})
-    maps = maps.astype(np.float32)
+    if known_size is not None and tuple(known_size) != (height, width):
+        raise ValueError(f"the point cloud indexes {tuple(known_size)} lattice views, but the renders "
+                         f"are {height}x{width}: stage the targets with Stage I's own renders")
+    maps, valid = scatter_pixel_values(points.view, points.pixel, pbr.clip(0, 1), height=height,
+                                       width=width, num_views=renders.num_views)
+    if alpha_threshold is not None:
+        silhouette = renders.alpha >= alpha_threshold
+        maps = np.stack([fill_nearest(maps[v], valid[v], silhouette[v]) for v in range(len(maps))])
+        valid = valid | (silhouette & valid.reshape(len(valid), -1).any(1)[:, None, None])
     return StagedTargets(albedo=maps[..., :3], roughness=maps[..., 3:4], metallic=maps[..., 4:5],
-                         valid=valid, K=K.numpy(), w2c=w2c.numpy())
+                         valid=valid, K=renders.K.astype(np.float32), w2c=renders.w2c.astype(np.float32))
 
 
 def scene_targets(scene: Scene, split: str = "train") -> StagedTargets:
@@ -152,13 +138,8 @@ def scene_targets(scene: Scene, split: str = "train") -> StagedTargets:
             32 lattice views of generated scenes.
         split: which views to read.
     """
-    maps = {"albedo": [], "roughness": [], "metallic": [], "valid": []}
+    maps, valid = read_gt_view_maps(scene, split)
     views = scene.split_views(split)
-    for v in views:
-        vdir = scene.view_dir(split, v.id)
-        for name in ("albedo", "roughness", "metallic"):
-            maps[name].append(read_view_file(vdir, f"{name}.png"))
-        maps["valid"].append(read_view_file(vdir, "mask.png")[..., 0] > 0.5)
-    return StagedTargets(**{k: np.stack(vals) for k, vals in maps.items()},
-                         K=np.stack([v.K for v in views]).astype(np.float32),
+    return StagedTargets(albedo=maps[..., :3], roughness=maps[..., 3:4], metallic=maps[..., 4:5],
+                         valid=valid, K=np.stack([v.K for v in views]).astype(np.float32),
                          w2c=np.stack([v.w2c for v in views]).astype(np.float32))

@@ -1,38 +1,76 @@
-"""Render the 32 canonical lattice views of any 2DGS asset in one call.
+"""Render the canonical lattice views of any 2DGS asset in one call, and the record they travel in.
 
 The paper's reference views "are deterministically rasterized on a fibonacci hemisphere
 lattice from the reconstructed Gaussian asset": view k of every scene is the camera k of
 ``gspi.data.lattice.lattice_cameras`` (the same cameras as a generated scene's ``train``
-split). This lives next to the reconstruction because it is the same renderer applied to
-the same cameras, and it depends only on ``gspi.gaussians`` and ``gspi.data.lattice``.
+split). Stage 0 (its lattice renders), Stage I (the renders it unprojects) and Stage III (the
+cameras of its targets) all use this module; it depends only on ``gspi.gaussians`` and
+``gspi.data.lattice``.
+
+:class:`LatticeRenders` is what Stage I hands to Stages II and III: the maps *with the cameras
+that made them*, so no later stage rebuilds a camera from a default.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Optional
 
+import numpy as np
 import torch
 from torch import Tensor
 
-from gspi.data.lattice import lattice_cameras
+from gspi.data.lattice import CANONICAL_LATTICE, lattice_cameras
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.rasterize import RenderOutput, render_gaussians
 
-# conf/gspi_data.yaml `lattice:` (the canonical lattice; only the image size varies)
-DEFAULT_LATTICE = {"num_views": 32, "radius": 3.0, "fov_deg": 45.0, "min_elevation_deg": 0.0}
+
+@dataclass
+class LatticeRenders:
+    """Lattice renders as numpy arrays (float32 maps) with their float64 cameras.
+
+    Attributes:
+        rgb: [V, H, W, 3] linear radiance.
+        alpha: [V, H, W] rendered opacity.
+        depth: [V, H, W] median depth (camera z), 0 where nothing is composited.
+        K: [V, 3, 3] pixel intrinsics (pixel centres at +0.5).
+        w2c: [V, 4, 4] OpenCV world -> camera.
+    """
+
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+    K: np.ndarray
+    w2c: np.ndarray
+
+    def __post_init__(self) -> None:
+        v, h, w = self.alpha.shape
+        for name, shape in (("rgb", (v, h, w, 3)), ("depth", (v, h, w)), ("K", (v, 3, 3)),
+                            ("w2c", (v, 4, 4))):
+            if tuple(getattr(self, name).shape) != shape:
+                raise ValueError(f"LatticeRenders.{name} must have shape {shape}, got "
+                                 f"{tuple(getattr(self, name).shape)}")
+
+    @property
+    def num_views(self) -> int:
+        return self.alpha.shape[0]
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(height, width)."""
+        return self.alpha.shape[1], self.alpha.shape[2]
 
 
 def lattice_camera_tensors(image_size: int | tuple[int, int], *, lattice: Optional[dict] = None,
                            dtype=torch.float32, device=None) -> tuple[Tensor, Tensor]:
-    """(viewmats [V, 4, 4], Ks [V, 3, 3]) of the canonical lattice at ``image_size``.
+    """(viewmats [V, 4, 4], Ks [V, 3, 3]) of the lattice at ``image_size``.
 
     Args:
         image_size: S (square) or (height, width).
-        lattice: overrides of :data:`DEFAULT_LATTICE` (keys of ``lattice_cameras``).
+        lattice: overrides of ``gspi.data.lattice.CANONICAL_LATTICE`` (keys of ``lattice_cameras``).
     """
     h, w = (image_size, image_size) if isinstance(image_size, int) else image_size
-    params = {**DEFAULT_LATTICE, **(lattice or {})}
-    K, w2c = lattice_cameras(width=w, height=h, **params)
+    K, w2c = lattice_cameras(width=w, height=h, **{**CANONICAL_LATTICE, **(lattice or {})})
     return (torch.as_tensor(w2c, dtype=dtype, device=device), torch.as_tensor(K, dtype=dtype, device=device))
 
 
@@ -40,12 +78,12 @@ def render_lattice_views(gaussians: Gaussians2D, *, image_size: int | tuple[int,
                          lattice: Optional[dict] = None, background: Optional[Tensor] = None,
                          with_pbr: bool = False, backend: str = "auto", batch: int = 8,
                          **kwargs) -> RenderOutput:
-    """Renders ``gaussians`` into every canonical lattice camera (lattice order).
+    """Renders ``gaussians`` into every lattice camera (lattice order).
 
     Args:
         gaussians: any 2DGS asset (e.g. ``read_ply(".../point_cloud.ply")``).
         image_size: S or (H, W).
-        lattice: overrides of :data:`DEFAULT_LATTICE`.
+        lattice: overrides of ``CANONICAL_LATTICE``.
         background: [3] colour composited behind ``rgb`` (default black, the layout's).
         with_pbr: also composite the PBR channels into ``features``.
         backend: rasterizer backend ("auto": gsplat on CUDA, else the torch renderer).
@@ -53,7 +91,7 @@ def render_lattice_views(gaussians: Gaussians2D, *, image_size: int | tuple[int,
         **kwargs: forwarded to ``rasterize_2dgs`` (e.g. ``depth_point``).
 
     Returns:
-        :class:`RenderOutput` with C = 32 views; ``meta["viewmats"]`` and ``meta["Ks"]`` hold
+        :class:`RenderOutput` with C = V views; ``meta["viewmats"]`` and ``meta["Ks"]`` hold
         the cameras (``meta["radii"]`` etc. concatenated over views).
     """
     viewmats, Ks = lattice_camera_tensors(image_size, lattice=lattice, dtype=gaussians.means.dtype,
@@ -72,3 +110,14 @@ def render_lattice_views(gaussians: Gaussians2D, *, image_size: int | tuple[int,
     return RenderOutput(rgb=cat("rgb"), features=cat("features"), alpha=cat("alpha"),
                         depth_expected=cat("depth_expected"), depth_median=cat("depth_median"),
                         normals=cat("normals"), depth_point=parts[0].depth_point, meta=meta)
+
+
+def render_lattice(gaussians: Gaussians2D, *, image_size: int | tuple[int, int],
+                   lattice: Optional[dict] = None) -> LatticeRenders:
+    """RGB, alpha and median depth of the lattice views (no gradients) with their cameras."""
+    with torch.no_grad():
+        out = render_lattice_views(gaussians, image_size=image_size, lattice=lattice)
+    w2c, K = lattice_camera_tensors(image_size, lattice=lattice, dtype=torch.float64)
+    as_np = lambda t: t.detach().float().cpu().numpy()  # noqa: E731
+    return LatticeRenders(rgb=as_np(out.rgb), alpha=as_np(out.alpha[..., 0]),
+                          depth=as_np(out.depth_median[..., 0]), K=K.numpy(), w2c=w2c.numpy())
