@@ -81,9 +81,10 @@ def _tensor(arr: np.ndarray) -> torch.Tensor:
 
 def _load_gt_view(scene: Scene, view) -> dict:
     vdir = scene.view_dir(view.split, view.id)
-    out = {name: _tensor(read_view_file(vdir, f"{name}.png")) for name in MATERIAL_CHANNELS}
-    out["normal"] = _tensor(read_view_file(vdir, "normal.exr"))
-    out["mask"] = _tensor(read_view_file(vdir, "mask.png"))[..., 0] > 0.5
+    size = (scene.height, scene.width)
+    out = {name: _tensor(read_view_file(vdir, f"{name}.png", size)) for name in MATERIAL_CHANNELS}
+    out["normal"] = _tensor(read_view_file(vdir, "normal.exr", size))
+    out["mask"] = _tensor(read_view_file(vdir, "mask.png", size))[..., 0] > 0.5
     if not out["mask"].any():
         raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
     for name, t in out.items():
@@ -98,8 +99,8 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
     out = {}
     for name in MATERIAL_CHANNELS:
         path = pred_dir / material_file(name)
-        if path.exists():
-            arr = read_view_file(pred_dir, material_file(name))
+        if path.exists() or path.is_symlink():  # a broken or looping link is an error, not "absent"
+            arr = read_view_file(pred_dir, material_file(name), shape)
             if arr.shape[:2] != shape:
                 raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
             out[name] = _tensor(arr)
@@ -199,6 +200,25 @@ def _mean_runtime(metas: list[dict], key: str) -> float | None:
     return float(np.mean(vals)) / 60.0 if vals else None
 
 
+def no_images_message(pred_root: Path, names: list[str], gt_scenes: dict[str, Path], protocol) -> str:
+    """Why nothing was scored: the files looked for, and what the first scene holds instead."""
+    name = names[0]
+    scene = read_scene(gt_scenes[name])
+    pred_scene = pred_root if pred_root.name == name and (pred_root / "scene.json").is_file() else pred_root / name
+    views = [v.id for v in scene.split_views(protocol.split)]
+    split_dir = pred_scene / protocol.split
+    found = sorted(p.name for p in pred_scene.iterdir()) if pred_scene.is_dir() else []
+    found_views = sorted(p.name for p in split_dir.iterdir()) if split_dir.is_dir() else []
+    files = [material_file(c) for c in MATERIAL_CHANNELS if c in protocol.channels or
+             (c == "albedo" and "relight" in protocol.channels)]
+    return (f"{pred_root}: 0 images scored in {len(names)} scene(s). Looked for "
+            f"{pred_scene}/{protocol.split}/<view>/{{{','.join(files) or 'nothing: eval.channels'}}} with "
+            f"views {views[:4]}{' ...' if len(views) > 4 else ''} (scene.json of {name}); found in "
+            f"{pred_scene.name}/: {found[:6]}, in {protocol.split}/: {found_views[:6]}. Material maps "
+            "are 16-bit PNGs named as in docs/FORMAT.md (not EXR), view folders are named by the "
+            "view ids of scene.json")
+
+
 def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
              method: str | None = None, progress: bool = False) -> EvalResult:
     """Evaluate every scene present in `pred_root` (docs/PROTOCOL.md)."""
@@ -220,6 +240,8 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         rows += scene_rows
         missing += scene_missing
         metas.append(read_meta(pred_scene))
+    if not rows:
+        raise LayoutError(no_images_message(Path(pred_root), names, gt_scenes, protocol))
     methods = sorted({m["method"] for m in metas if "method" in m})
     missing_scenes = [n for n in expected_scenes(Path(gt_root), names, gt_scenes) if n not in names]
     if missing_scenes:  # a method that skips a hard scene must not look better unnoticed

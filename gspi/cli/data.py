@@ -79,7 +79,9 @@ def alias_preset(argv: list[str]) -> list[str]:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0], *alias_preset(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(alias_preset(sys.argv[1:]), ("out", "import.src", "export.src"))]
     _hydra_main()
 
 

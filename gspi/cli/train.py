@@ -68,7 +68,9 @@ def _hydra_main(cfg: DictConfig) -> float | None:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0], *rewrite_data_alias(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_data_alias(sys.argv[1:]), ("data_dir", "out"))]
     _hydra_main()
 
 
