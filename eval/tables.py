@@ -17,7 +17,6 @@ Numbers are never typed by hand: every cell comes from a summary.json.
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
-from gspi.run.assets import scene_asset
+from gspi.run.assets import check_prediction_covers_scene, scene_asset
 from gspi.run.methods import Method
 from gspi.run.record import config_hash, invalidate_result, is_complete, read_result, write_result
 from gspi.run.stages import StageClock
@@ -89,6 +89,9 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
                                             device=cfg.get("device", "cpu"))
     stats = method.predict(scene, pred_scene, asset=asset, clock=clock, work_dir=work, split=split,
                            progress=progress)
+    coverage = check_prediction_covers_scene(scene, pred_scene, split)  # black maps fail the scene
+    if isinstance(stats, dict):
+        stats["foreground_coverage"] = round(coverage, 4)
     material_s = clock.seconds(*method.material_stages)
     recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
     end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
