@@ -20,7 +20,7 @@ import multiprocessing
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import ClassVar, Optional
 
 import torch
 
@@ -57,6 +57,13 @@ class BenchmarkConfig:
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
     lattice: dict = field(default_factory=lambda: {"num_views": 32, "radius": 3.0,
                                                    "fov_deg": 45.0, "min_elevation_deg": 0.0})
+
+    # Allowed values, checked by gspi.strict_config when gspi-data starts (inclusive; None = open).
+    RANGES: ClassVar[dict] = {
+        "num_train_scenes": (0, None), "num_val_scenes": (0, None), "num_test_scenes": (0, None),
+        "image_size": (8, 8192), "supersample": (1, 16), "env_height": (4, 8192),
+        "num_test_views": (1, None), "num_val_views": (0, None), "num_relight_envs": (0, 6),
+        "white_radiance": (1e-6, None), "threads": (1, 1024), "workers": (1, 1024)}
 
     @property
     def num_scenes(self) -> int:
@@ -145,6 +152,9 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
     start = time.perf_counter()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # splits.json is the dataset's record, written last: remove an earlier one first, so a killed
+    # regeneration never leaves old splits beside new scenes (docs/RELIABILITY.md)
+    (out_dir / "splits.json").unlink(missing_ok=True)
     recipes = scene_recipes(seed, cfg)
     splits = assign_splits([r["name"] for r in recipes], seed, num_train=cfg.num_train_scenes,
                            num_val=cfg.num_val_scenes, num_test=cfg.num_test_scenes,
