@@ -107,11 +107,16 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
     return out
 
 
-def _score(pred, gt, mask, protocol, net) -> dict:
-    return {"psnr": masked_psnr(pred, gt, mask),
-            "ssim": masked_ssim(pred, gt, mask, background=protocol.background),
-            "lpips": masked_lpips(pred, gt, mask, net=net, mode=protocol.lpips.mode,
-                                  background=protocol.background)}
+def _score(pred, gt, mask, protocol, net, where: Path) -> dict:
+    """The three metrics; a refusal of the metrics (e.g. a mask too close to the border for the
+    SSIM window) is re-raised naming ``where`` (the ground-truth view folder)."""
+    try:
+        return {"psnr": masked_psnr(pred, gt, mask),
+                "ssim": masked_ssim(pred, gt, mask, background=protocol.background),
+                "lpips": masked_lpips(pred, gt, mask, net=net, mode=protocol.lpips.mode,
+                                      background=protocol.background)}
+    except ValueError as exc:
+        raise LayoutError(f"{where / 'mask.png'}: {exc}") from exc
 
 
 class EnvironmentCache:
@@ -160,7 +165,7 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
             if c in protocol.channels and c in p:
                 pred = p["albedo_aligned"] if c == "albedo" else p[c]
                 rows.append({"scene": scene.name, "view": v.id, "channel": c, "env": "",
-                             **_score(pred, g[c], g["mask"], protocol, net)})
+                             **_score(pred, g[c], g["mask"], protocol, net, scene.view_dir(v.split, v.id))})
         if "relight" in protocol.channels and "albedo" in p and \
                 all(c in p for c in modelled):
             rows += _relight_rows(scene, v, g, p, protocol, net, envs)
@@ -180,7 +185,7 @@ def _relight_rows(scene, view, g, p, protocol, net, envs) -> list[dict]:
         out = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
         rows.append({"scene": scene.name, "view": view.id, "channel": "relight", "env": env_name,
                      **_score(display_relit(out, cfg), display_relit(ref, cfg), g["mask"],
-                              protocol, net)})
+                              protocol, net, scene.view_dir(view.split, view.id))})
     return rows
 
 
