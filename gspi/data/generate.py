@@ -62,7 +62,7 @@ class BenchmarkConfig:
     RANGES: ClassVar[dict] = {
         "num_train_scenes": (0, None), "num_val_scenes": (0, None), "num_test_scenes": (0, None),
         "image_size": (8, 8192), "supersample": (1, 16), "env_height": (4, 8192),
-        "num_test_views": (1, None), "num_val_views": (0, None), "num_relight_envs": (0, 6),
+        "num_test_views": (0, None), "num_val_views": (0, None), "num_relight_envs": (0, 6),
         "white_radiance": (1e-6, None), "threads": (1, 1024), "workers": (1, 1024)}
 
     @property

@@ -36,10 +36,14 @@ def test_gspi_run_killed_rerun_of_another_config_leaves_no_stale_record(micro_da
     record_a = read_result(out)
     assert record_a["status"] == "complete"
 
+    # a file only A's prediction has: B (a method writing fewer files) must not inherit it
+    stray = next((out / "predictions").iterdir()) / "test" / "t00" / "stale_from_config_a.png"
+    stray.write_bytes(b"A")
     monkeypatch.setattr(runner, "points_summary", _kill)  # after eval/ is written, before result.json
     with pytest.raises(KeyboardInterrupt):
         run_cli(main, config_a + ["seed=1"])
     monkeypatch.undo()
+    assert not stray.exists()
     assert (out / "eval" / "summary.json").is_file()  # B's scores ...
     assert not (out / "result.json").exists()          # ... and no record claiming them (or A)
     meta = json.loads((out / "eval" / "eval_meta.json").read_text())
@@ -61,22 +65,6 @@ def test_gspi_run_killed_rerun_of_another_config_leaves_no_stale_record(micro_da
     assert meta["config_hash"] == record_a["config_hash"]
     for scene_meta in (out / "predictions").glob("*/meta.json"):
         assert json.loads(scene_meta.read_text())["config_hash"] == record_a["config_hash"]
-
-
-def test_gspi_run_other_config_drops_stale_prediction_files(micro_dataset, tmp_path):
-    """A prediction of another config is removed before the job writes, so a method writing
-    fewer channels cannot inherit the old ones (a record describes exactly the files beside it)."""
-    from gspi.run.runner import run_job
-    from tests.run_helpers import run_config
-
-    out = tmp_path / "run"
-    assert run_job(run_config(micro_dataset, out, ["method=no_decomposition", "figures=false"]))["status"] == "complete"
-    scene = next((out / "predictions").iterdir())
-    stray = scene / "test" / "t00" / "stale_from_old_config.png"
-    stray.parent.mkdir(parents=True, exist_ok=True)
-    stray.write_bytes(b"old")
-    result = run_job(run_config(micro_dataset, out, ["method=no_decomposition", "figures=false", "seed=3"]))
-    assert result["status"] == "complete" and not stray.exists()
 
 
 # --- gspi-eval ----------------------------------------------------------------------------
