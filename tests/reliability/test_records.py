@@ -21,6 +21,33 @@ def _kill(*_args, **_kwargs):
 
 # --- gspi-run -----------------------------------------------------------------------------
 
+def test_gspi_run_removes_the_old_record_before_it_writes(micro_dataset, tmp_path, monkeypatch):
+    """The protocol without a real run (fast): a job of config B in a folder holding A's
+    complete record and scores, killed as soon as it starts its method, leaves neither A's
+    record nor A's scores; A's rerun is then not "complete, skipped"."""
+    from eval.atomic import write_json_atomic
+    from gspi.run.methods import Method
+    from gspi.run.record import config_hash, is_complete, write_result
+    from gspi.run.runner import run_job
+    from tests.run_helpers import run_config
+
+    out = tmp_path / "job"
+    config_a = run_config(micro_dataset, out, ["method=no_decomposition", "figures=false"])
+    hash_a = config_hash(config_a)
+    write_json_atomic(out / "eval" / "summary.json", {"albedo": {"psnr": 30.0, "ssim": 0.9, "lpips": 0.1}})
+    (out / "predictions" / "scene_of_a").mkdir(parents=True)
+    write_json_atomic(out / "predictions" / "scene_of_a" / "meta.json", {"method": "m", "config_hash": hash_a})
+    write_result(out, status="complete", cfg_hash=hash_a, method="no_decomposition", ablation="full", table=None,
+                 seed=0, data=str(micro_dataset), scenes=["scene_of_a"], material_eval="eval")
+    assert is_complete(out, hash_a)
+    monkeypatch.setattr(Method, "prepare", _kill)
+    with pytest.raises(KeyboardInterrupt):
+        run_job(run_config(micro_dataset, out, ["method=no_decomposition", "figures=false", "seed=1"]))
+    assert not (out / "result.json").exists() and not (out / "eval" / "summary.json").exists()
+    assert not (out / "predictions" / "scene_of_a").exists() and not is_complete(out, hash_a)
+
+
+@pytest.mark.slow
 def test_gspi_run_killed_rerun_of_another_config_leaves_no_stale_record(micro_dataset, tmp_path, monkeypatch):
     """The issue's case: config B into A's folder, killed after eval/ is written. Before the
     fix A's result.json stayed beside B's scores: gspi-table showed them and a rerun of A said
