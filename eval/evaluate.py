@@ -15,8 +15,8 @@ import numpy as np
 import torch
 
 from eval.imageio import read_exr
-from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_meta,
-                         read_scene, read_splits, read_view_file)
+from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, no_images_message,
+                         read_meta, read_scene, read_splits, read_view_file)
 from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
 from eval.views import relight_view, view_directions
@@ -205,25 +205,6 @@ def _mean_runtime(metas: list[dict], key: str) -> float | None:
     return float(np.mean(vals)) / 60.0 if vals else None
 
 
-def no_images_message(pred_root: Path, names: list[str], gt_scenes: dict[str, Path], protocol) -> str:
-    """Why nothing was scored: the files looked for, and what the first scene holds instead."""
-    name = names[0]
-    scene = read_scene(gt_scenes[name])
-    pred_scene = pred_root if pred_root.name == name and (pred_root / "scene.json").is_file() else pred_root / name
-    views = [v.id for v in scene.split_views(protocol.split)]
-    split_dir = pred_scene / protocol.split
-    found = sorted(p.name for p in pred_scene.iterdir()) if pred_scene.is_dir() else []
-    found_views = sorted(p.name for p in split_dir.iterdir()) if split_dir.is_dir() else []
-    files = [material_file(c) for c in MATERIAL_CHANNELS if c in protocol.channels or
-             (c == "albedo" and "relight" in protocol.channels)]
-    return (f"{pred_root}: 0 images scored in {len(names)} scene(s). Looked for "
-            f"{pred_scene}/{protocol.split}/<view>/{{{','.join(files) or 'nothing: eval.channels'}}} with "
-            f"views {views[:4]}{' ...' if len(views) > 4 else ''} (scene.json of {name}); found in "
-            f"{pred_scene.name}/: {found[:6]}, in {protocol.split}/: {found_views[:6]}. Material maps "
-            "are 16-bit PNGs named as in docs/FORMAT.md (not EXR), view folders are named by the "
-            "view ids of scene.json")
-
-
 def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
              method: str | None = None, progress: bool = False) -> EvalResult:
     """Evaluate every scene present in `pred_root` (docs/PROTOCOL.md)."""
@@ -245,8 +226,9 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         rows += scene_rows
         missing += scene_missing
         metas.append(read_meta(pred_scene))
-    if not rows:
-        raise LayoutError(no_images_message(Path(pred_root), names, gt_scenes, protocol))
+    if not rows:  # "images: 0" with exit 0 read as "not modelled" (docs/RELIABILITY.md)
+        raise LayoutError(no_images_message(Path(pred_root), read_scene(gt_scenes[names[0]]),
+                                            protocol.split, list(protocol.channels)))
     methods = sorted({m["method"] for m in metas if "method" in m})
     missing_scenes = [n for n in expected_scenes(Path(gt_root), names, gt_scenes) if n not in names]
     if missing_scenes:  # a method that skips a hard scene must not look better unnoticed

@@ -38,7 +38,7 @@ class LayoutError(ValueError):
     """A scene, dataset or prediction folder does not follow docs/FORMAT.md."""
 
 
-NAME_RULE = ("one path component: not empty, no '/', '\\', NUL or control characters, "
+NAME_RULE = ("a string that is one path component: not empty, no '/', '\\', NUL or control characters, "
              "not starting with '.', at most 255 bytes")
 
 
@@ -222,6 +222,24 @@ def read_view_file(view_dir: Path, name: str, shape: tuple[int, int] | None = No
     if arr.shape[-1] != channels:
         raise LayoutError(f"{path}: expected {channels} channel(s), found {arr.shape[-1]}")
     return arr
+
+
+def no_images_message(pred_root: Path, scene: Scene, split: str, channels: list[str]) -> str:
+    """Why a prediction folder gave nothing to score: the files looked for (in ``scene``, the
+    first scene present) and what the folder holds instead (a `Test/` split, `000` instead of
+    `t00`, EXR maps)."""
+    pred_scene = pred_root if pred_root.name == scene.name and (pred_root / "scene.json").is_file() \
+        else pred_root / scene.name
+    views = [v.id for v in scene.split_views(split)]
+    found = sorted(p.name for p in pred_scene.iterdir()) if pred_scene.is_dir() else []
+    split_dir = pred_scene / split
+    found_views = sorted(p.name for p in split_dir.iterdir()) if split_dir.is_dir() else []
+    files = [material_file(c) for c in MATERIAL_CHANNELS if c in channels or (c == "albedo" and "relight" in channels)]
+    return (f"{pred_root}: 0 images scored. Looked for {pred_scene}/{split}/<view>/"
+            f"{{{','.join(files) or 'nothing: eval.channels'}}} with views {views[:4]}"
+            f"{' ...' if len(views) > 4 else ''} (scene.json of {scene.name}); found in {pred_scene.name}/: "
+            f"{found[:6]}, in {split}/: {found_views[:6]}. Material maps are 16-bit PNGs named as in "
+            "docs/FORMAT.md (not EXR); view folders are named by the view ids of scene.json")
 
 
 def material_file(channel: str) -> str:
