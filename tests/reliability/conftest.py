@@ -30,5 +30,3 @@ def workspace(tmp_path, tiny_gt) -> Path:
     make_prediction(tmp_path / "gt", tmp_path / "pred", method="perturbed")
     return tmp_path
 
-
-EVAL_FAST = ["progress=false", "eval.channels=[roughness,metallic]"]

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.reliability.conftest import EVAL_FAST
-from tests.reliability.helpers import assert_fails_naming, run_cli
+from tests.reliability.helpers import EVAL_FAST, assert_fails_naming, run_cli
 from tests.run_helpers import MICRO_DATA, TINY_RUN
 
 # override -> what the message must name (the key, and the allowed range or type)

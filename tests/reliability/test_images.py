@@ -10,8 +10,7 @@ import zlib
 import numpy as np
 import pytest
 
-from tests.reliability.conftest import EVAL_FAST
-from tests.reliability.helpers import assert_fails_naming, run_cli
+from tests.reliability.helpers import EVAL_FAST, assert_fails_naming, run_cli
 
 
 def _png_chunk(kind: bytes, data: bytes) -> bytes:

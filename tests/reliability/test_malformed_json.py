@@ -7,8 +7,7 @@ import json
 
 import pytest
 
-from tests.reliability.conftest import EVAL_FAST
-from tests.reliability.helpers import assert_fails_naming, run_cli
+from tests.reliability.helpers import EVAL_FAST, assert_fails_naming, run_cli
 
 DEEP = "[" * 100_000 + "]" * 100_000
 

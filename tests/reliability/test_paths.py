@@ -7,8 +7,7 @@ import shutil
 
 import pytest
 
-from tests.reliability.conftest import EVAL_FAST
-from tests.reliability.helpers import run_cli
+from tests.reliability.helpers import EVAL_FAST, run_cli
 
 AWKWARD = ["method=gspi", "it's", "a,b", "ünï cödé", "x=1,y='2'"]
 

@@ -10,8 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.reliability.conftest import EVAL_FAST
-from tests.reliability.helpers import assert_written_only_under, run_cli, snapshot
+from tests.reliability.helpers import EVAL_FAST, assert_written_only_under, run_cli, snapshot
 from tests.run_helpers import TINY_RUN
 
 

@@ -9,8 +9,7 @@ import shutil
 
 import pytest
 
-from tests.reliability.conftest import EVAL_FAST
-from tests.reliability.helpers import assert_fails_naming, assert_written_only_under, run_cli, snapshot
+from tests.reliability.helpers import EVAL_FAST, assert_fails_naming, assert_written_only_under, run_cli, snapshot
 
 
 def _rename_views(pred, fmt):
