@@ -82,13 +82,20 @@ def alias_system(argv: list[str]) -> list[str]:
     return [new + a[len(old):] if a.startswith(old) else a for a in argv]
 
 
+PATH_KEYS = ("src", "scene", "out")  # quoted for Hydra's grammar (eval/argv.py)
+
+
 def export_main() -> None:
-    sys.argv = [sys.argv[0], *alias_system(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(alias_system(sys.argv[1:]), PATH_KEYS)]
     _export()
 
 
 def import_main() -> None:
-    sys.argv = [sys.argv[0], *alias_system(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(alias_system(sys.argv[1:]), PATH_KEYS)]
     _import()
 
 

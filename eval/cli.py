@@ -5,6 +5,10 @@
     gspi-eval gt=... pred=... out=... eval.albedo_alignment=per_channel eval.lpips.mode=composite
     gspi-eval gt=... pred=... out=... eval=stanford_orb_like          # another protocol file
 
+Paths may hold any character: `pred=runs/method=gspi/predictions` (a sweep's job folder),
+spaces, quotes, commas or non-ASCII are quoted for Hydra's grammar (eval/argv.py); in a
+key other than gt/pred/out, quote by hand: 'key="a=b"'. Zero scored images is an error.
+
 Writes <out>/per_view.csv, <out>/summary.json, <out>/eval_meta.json and <out>/.hydra/.
 """
 from __future__ import annotations
@@ -18,7 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from eval.config import CONF_DIR, register_configs, validate_protocol
 from eval.evaluate import evaluate
-from eval.report import format_summary, write_result
+from eval.report import clear_result, format_summary, write_result
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +30,7 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Evaluate `cfg.pred` against `cfg.gt` under protocol `cfg.eval`; returns the summary."""
     validate_protocol(cfg.eval)
+    clear_result(Path(cfg.out))  # an old summary.json must not outlive this run's .hydra/
     result = evaluate(Path(cfg.gt), Path(cfg.pred), cfg.eval, method=cfg.get("method_name"),
                       progress=bool(cfg.get("progress", True)))
     write_result(Path(cfg.out), result, OmegaConf.to_container(cfg.eval, resolve=True))
@@ -54,8 +59,13 @@ def _hydra_main(cfg: DictConfig) -> None:
     run(cfg)
 
 
+PATH_KEYS = ("gt", "pred", "out")  # quoted for Hydra when they hold = , ' spaces or non-ASCII (eval/argv.py)
+
+
 def main() -> None:
-    sys.argv = [sys.argv[0], *rewrite_method_alias(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_method_alias(sys.argv[1:]), PATH_KEYS)]
     _hydra_main()
 
 

@@ -62,6 +62,16 @@ def validate_protocol(cfg) -> None:
     bad = [c for c in cfg.channels if c not in CHANNELS]
     if bad:
         raise ValueError(f"eval.channels has unknown {bad}; allowed: {CHANNELS}")
+    if not cfg.channels:  # would score nothing and exit 0 with an empty summary
+        raise ValueError(f"eval.channels=[]: must name at least one of {CHANNELS}")
+    # the composite value outside the mask enters SSIM and LPIPS: a display value in [0, 1]
+    background = cfg.background
+    if isinstance(background, bool) or not isinstance(background, (int, float)) or not 0.0 <= background <= 1.0:
+        raise ValueError(f"eval.background={background!r}: must be a number in [0, 1]")
+    if isinstance(cfg.version, bool) or not isinstance(cfg.version, int) or cfg.version < 1:
+        raise ValueError(f"eval.version={cfg.version!r}: must be an integer >= 1")
+    if not isinstance(cfg.split, str) or not cfg.split:
+        raise ValueError(f"eval.split={cfg.split!r}: must be a split name (train, val or test)")
     if cfg.lpips.net != "alex" or str(cfg.lpips.version) != "0.1":
         raise ValueError("eval.lpips: only net=alex, version=0.1 is available offline")
 

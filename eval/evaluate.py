@@ -15,8 +15,8 @@ import numpy as np
 import torch
 
 from eval.imageio import read_exr
-from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_meta,
-                         read_scene, read_splits, read_view_file)
+from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, no_images_message,
+                         read_meta, read_scene, read_splits, read_view_file)
 from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
 from eval.views import relight_view, view_directions
@@ -81,9 +81,10 @@ def _tensor(arr: np.ndarray) -> torch.Tensor:
 
 def _load_gt_view(scene: Scene, view) -> dict:
     vdir = scene.view_dir(view.split, view.id)
-    out = {name: _tensor(read_view_file(vdir, f"{name}.png")) for name in MATERIAL_CHANNELS}
-    out["normal"] = _tensor(read_view_file(vdir, "normal.exr"))
-    out["mask"] = _tensor(read_view_file(vdir, "mask.png"))[..., 0] > 0.5
+    size = (scene.height, scene.width)
+    out = {name: _tensor(read_view_file(vdir, f"{name}.png", size)) for name in MATERIAL_CHANNELS}
+    out["normal"] = _tensor(read_view_file(vdir, "normal.exr", size))
+    out["mask"] = _tensor(read_view_file(vdir, "mask.png", size))[..., 0] > 0.5
     if not out["mask"].any():
         raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
     for name, t in out.items():
@@ -98,19 +99,24 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
     out = {}
     for name in MATERIAL_CHANNELS:
         path = pred_dir / material_file(name)
-        if path.exists():
-            arr = read_view_file(pred_dir, material_file(name))
+        if path.exists() or path.is_symlink():  # a broken or looping link is an error, not "absent"
+            arr = read_view_file(pred_dir, material_file(name), shape)
             if arr.shape[:2] != shape:
                 raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
             out[name] = _tensor(arr)
     return out
 
 
-def _score(pred, gt, mask, protocol, net) -> dict:
-    return {"psnr": masked_psnr(pred, gt, mask),
-            "ssim": masked_ssim(pred, gt, mask, background=protocol.background),
-            "lpips": masked_lpips(pred, gt, mask, net=net, mode=protocol.lpips.mode,
-                                  background=protocol.background)}
+def _score(pred, gt, mask, protocol, net, where: Path) -> dict:
+    """The three metrics; a refusal of the metrics (e.g. a mask too close to the border for the
+    SSIM window) is re-raised naming ``where`` (the ground-truth view folder)."""
+    try:
+        return {"psnr": masked_psnr(pred, gt, mask),
+                "ssim": masked_ssim(pred, gt, mask, background=protocol.background),
+                "lpips": masked_lpips(pred, gt, mask, net=net, mode=protocol.lpips.mode,
+                                      background=protocol.background)}
+    except ValueError as exc:
+        raise LayoutError(f"{where / 'mask.png'}: {exc}") from exc
 
 
 class EnvironmentCache:
@@ -159,7 +165,7 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
             if c in protocol.channels and c in p:
                 pred = p["albedo_aligned"] if c == "albedo" else p[c]
                 rows.append({"scene": scene.name, "view": v.id, "channel": c, "env": "",
-                             **_score(pred, g[c], g["mask"], protocol, net)})
+                             **_score(pred, g[c], g["mask"], protocol, net, scene.view_dir(v.split, v.id))})
         if "relight" in protocol.channels and "albedo" in p and \
                 all(c in p for c in modelled):
             rows += _relight_rows(scene, v, g, p, protocol, net, envs)
@@ -179,7 +185,7 @@ def _relight_rows(scene, view, g, p, protocol, net, envs) -> list[dict]:
         out = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
         rows.append({"scene": scene.name, "view": view.id, "channel": "relight", "env": env_name,
                      **_score(display_relit(out, cfg), display_relit(ref, cfg), g["mask"],
-                              protocol, net)})
+                              protocol, net, scene.view_dir(view.split, view.id))})
     return rows
 
 
@@ -220,6 +226,9 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         rows += scene_rows
         missing += scene_missing
         metas.append(read_meta(pred_scene))
+    if not rows:  # "images: 0" with exit 0 read as "not modelled" (docs/RELIABILITY.md)
+        raise LayoutError(no_images_message(Path(pred_root), read_scene(gt_scenes[names[0]]),
+                                            protocol.split, list(protocol.channels)))
     methods = sorted({m["method"] for m in metas if "method" in m})
     missing_scenes = [n for n in expected_scenes(Path(gt_root), names, gt_scenes) if n not in names]
     if missing_scenes:  # a method that skips a hard scene must not look better unnoticed

@@ -17,6 +17,30 @@ class ImageFormatError(ValueError):
     """A file of the canonical layout is missing, unreadable or holds invalid values."""
 
 
+# Largest image any reader decodes (a 16k x 16k frame); larger headers are refused before a
+# pixel is decoded: a 280 KB PNG can declare 12000 x 12000 pixels (2 GB once decoded).
+MAX_PIXELS = 16384 * 16384
+
+
+def check_header_size(path: Path, width: int, height: int, shape: tuple[int, int] | None) -> None:
+    """Refuses a header size other than ``shape`` (H, W) or above MAX_PIXELS, before decoding."""
+    if shape is not None and (int(height), int(width)) != tuple(shape):
+        raise ImageFormatError(f"{path}: size {height}x{width} (from the header) != expected "
+                               f"{shape[0]}x{shape[1]}")
+    if width * height > MAX_PIXELS:
+        raise ImageFormatError(f"{path}: header declares {height}x{width} pixels, more than the "
+                               f"{MAX_PIXELS} allowed")
+
+
+def _existing_file(path: Path) -> None:
+    """Absent, a broken or looping symlink, or a folder: an error naming the file and which."""
+    if path.is_file():
+        return
+    if path.is_symlink():
+        raise ImageFormatError(f"{path}: unreadable symlink (broken or a loop)")
+    raise ImageFormatError(f"{path}: " + ("a folder, not a file" if path.is_dir() else "file not found"))
+
+
 def _check_finite(arr: np.ndarray, path: Path) -> np.ndarray:
     bad = ~np.isfinite(arr)
     if bad.any():
@@ -24,14 +48,20 @@ def _check_finite(arr: np.ndarray, path: Path) -> np.ndarray:
     return arr
 
 
-def read_exr(path: str | Path) -> np.ndarray:
+def read_exr(path: str | Path, *, shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read an EXR image as float32 HxWxC (C = 1 for a single channel, else 3 for R,G,B).
 
     Channel names accepted: R,G,B (RGB), Y or a single channel (grey). Values must be finite.
+    ``shape`` (H, W), when given, is checked against the header before the pixels are read.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ImageFormatError(f"{path}: file not found")
+    _existing_file(path)
+    try:
+        with OpenEXR.File(str(path), header_only=True) as f:
+            (x0, y0), (x1, y1) = f.header()["dataWindow"]
+    except Exception as exc:  # OpenEXR raises plain exceptions for corrupt files
+        raise ImageFormatError(f"{path}: not a readable EXR file ({exc})") from exc
+    check_header_size(path, int(x1) - int(x0) + 1, int(y1) - int(y0) + 1, shape)
     try:
         with OpenEXR.File(str(path)) as f:
             channels = f.channels()
@@ -75,18 +105,26 @@ def write_exr(path: str | Path, image: np.ndarray) -> None:
         f.write(str(path))
 
 
-def read_png(path: str | Path, *, channels: int | None = None) -> np.ndarray:
+def read_png(path: str | Path, *, channels: int | None = None,
+             shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read an 8- or 16-bit PNG as float32 HxWxC in [0, 1] (value / 255 or / 65535).
 
     Args:
         channels: 1 (grey) or 3 (RGB) to require; an alpha channel is dropped; a mismatch
             is an error naming the file (a grey map read as albedo would hide a wrong file).
+        shape: (H, W) to require; checked against the header before any pixel is decoded
+            (as is MAX_PIXELS), so an oversized file costs no memory.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ImageFormatError(f"{path}: file not found")
+    _existing_file(path)
     try:
-        width, height, rows, info = png.Reader(filename=str(path)).asDirect()
+        reader = png.Reader(filename=str(path))
+        reader.preamble()
+    except Exception as exc:  # pypng raises its own FormatError / ChunkError subclasses
+        raise ImageFormatError(f"{path}: not a readable PNG file ({exc})") from exc
+    check_header_size(path, reader.width, reader.height, shape)
+    try:
+        width, height, rows, info = reader.asDirect()
         planes, bitdepth = info["planes"], info["bitdepth"]
         arr = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows])
     except Exception as exc:  # pypng raises its own FormatError / ChunkError subclasses

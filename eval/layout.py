@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.atomic import write_json_atomic  # noqa: F401  (re-exported: its callers import it from here)
 from eval.imageio import ImageFormatError, read_exr, read_png, write_exr, write_png
 
 FORMAT_VERSION = 1
@@ -37,6 +38,28 @@ class LayoutError(ValueError):
     """A scene, dataset or prediction folder does not follow docs/FORMAT.md."""
 
 
+NAME_RULE = ("a string that is one path component: not empty, no '/', '\\', NUL or control characters, "
+             "not starting with '.', at most 255 bytes")
+
+
+def check_name(name, where: str) -> str:
+    """``name`` if it is safe as ONE folder or file name (scene names, view ids, split names).
+
+    Every name a data file gives (scene.json ``name``, view ``id``, splits.json entries, an
+    import's scene name) becomes a path component of some output; this is the one check that
+    keeps every writer inside its folder (``../../x`` would not be).
+
+    Raises:
+        LayoutError: naming ``where`` (the file and key) and the rule.
+    """
+    ok = isinstance(name, str) and name not in ("", ".", "..") and not name.startswith(".") \
+        and not any(c in name for c in "/\\") and all(ord(c) >= 32 and ord(c) != 127 for c in name) \
+        and len(name.encode("utf-8", "surrogatepass")) <= 255
+    if not ok:
+        raise LayoutError(f"{where}: {name!r} is not allowed as a name ({NAME_RULE})")
+    return name
+
+
 @dataclass(frozen=True)
 class View:
     """One camera of a scene: `K` pixel intrinsics (pixel centres at +0.5), `w2c` OpenCV."""
@@ -45,6 +68,10 @@ class View:
     split: str
     K: np.ndarray    # [3, 3]
     w2c: np.ndarray  # [4, 4]
+
+    def __post_init__(self) -> None:
+        check_name(self.id, f"view id (split {self.split!r})")
+        check_name(self.split, "split name")
 
     @property
     def camera_center(self) -> np.ndarray:  # [3] world
@@ -64,6 +91,9 @@ class Scene:
     capture_env: str
     relight_envs: list[str]
     extra: dict = field(default_factory=dict)  # free-form metadata (generator settings, source)
+
+    def __post_init__(self) -> None:
+        check_name(self.name, f"{Path(self.root) / 'scene.json'}: name")
 
     def view_dir(self, split: str, view_id: str) -> Path:
         return self.root / split / view_id
@@ -85,13 +115,22 @@ def _matrix(value, shape: tuple[int, int], where: str) -> np.ndarray:
     return arr
 
 
+def read_json_object(path: str | Path) -> dict:
+    """A JSON file that must hold an object; LayoutError naming the file otherwise (missing,
+    truncated, not an object, nested too deep to parse)."""
+    return _load_json(Path(path))
+
+
 def _load_json(path: Path) -> dict:
     if not path.is_file():
         raise LayoutError(f"{path}: file not found")
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise LayoutError(f"{path}: invalid JSON ({exc})") from exc
+        data = json.loads(path.read_text())
+    except (ValueError, RecursionError) as exc:  # RecursionError: absurdly nested JSON
+        raise LayoutError(f"{path}: invalid JSON ({str(exc)[:200] or type(exc).__name__})") from exc
+    if not isinstance(data, dict):
+        raise LayoutError(f"{path}: expected a JSON object, found {type(data).__name__}")
+    return data
 
 
 def read_scene(scene_dir: str | Path) -> Scene:
@@ -104,15 +143,30 @@ def read_scene(scene_dir: str | Path) -> Scene:
             raise LayoutError(f"{path}: missing key {key!r}")
     if data.get("camera_convention", CAMERA_CONVENTION) != CAMERA_CONVENTION:
         raise LayoutError(f"{path}: camera_convention must be {CAMERA_CONVENTION!r}")
+    check_name(data["name"], f"{path}: name")
+    if not isinstance(data["views"], dict):
+        raise LayoutError(f"{path}: views must be an object {{split: [views]}}, got {type(data['views']).__name__}")
+    for key in ("width", "height"):
+        if isinstance(data[key], bool) or not isinstance(data[key], int) or not 1 <= data[key] <= 16384:
+            raise LayoutError(f"{path}: {key} must be an integer in [1, 16384], got {data[key]!r}")
+    if not isinstance(data["relight_envs"], list):
+        raise LayoutError(f"{path}: relight_envs must be a list of environment names")
+    for i, env in enumerate([data["capture_env"], *data["relight_envs"]]):
+        check_name(env, f"{path}: " + ("capture_env" if i == 0 else f"relight_envs[{i - 1}]"))
     views: dict[str, list[View]] = {}
     for split, entries in data["views"].items():
+        check_name(split, f"{path}: views.{split}")
+        if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+            raise LayoutError(f"{path}: views.{split} must be a list of objects {{id, K, w2c}}")
         seen = set()
         views[split] = []
         for i, entry in enumerate(entries):
             where = f"{path}: views.{split}[{i}]"
             if "id" not in entry:
                 raise LayoutError(f"{where}: missing 'id'")
-            vid = str(entry["id"])
+            if not isinstance(entry["id"], (str, int)) or isinstance(entry["id"], bool):
+                raise LayoutError(f"{where}.id: expected a string, got {entry['id']!r}")
+            vid = check_name(str(entry["id"]), f"{where}.id")
             if vid in seen:
                 raise LayoutError(f"{where}: duplicate view id {vid!r}")
             seen.add(vid)
@@ -142,15 +196,6 @@ def write_scene_json(scene: Scene) -> Path:
     return path
 
 
-def write_json_atomic(path: Path, data) -> None:
-    """Write JSON through a temporary file and a rename, so readers never see half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
-    tmp.replace(path)
-
-
 def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
     """`<dataset>/splits.json` = {"train": [scene names], "val": [...], "test": [...]}."""
     path = Path(dataset_dir) / "splits.json"
@@ -159,23 +204,42 @@ def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
     for split, names in data.items():
         if not isinstance(names, list):
             raise LayoutError(f"{path}: split {split!r} must be a list of scene names")
-        out[split] = [str(n) for n in names]
+        out[split] = [check_name(n, f"{path}: {split}[{i}]") for i, n in enumerate(names)]
     return out
 
 
-def read_view_file(view_dir: Path, name: str) -> np.ndarray:
-    """Read one per-view file of the layout as float32 HxWxC (see VIEW_FILES)."""
+def read_view_file(view_dir: Path, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Read one per-view file of the layout as float32 HxWxC (see VIEW_FILES); ``shape`` (H, W),
+    when given, is checked from the file's header before its pixels are decoded."""
     if name not in VIEW_FILES:
         raise ValueError(f"unknown per-view file {name!r}; allowed: {', '.join(VIEW_FILES)}")
     kind, channels = VIEW_FILES[name]
     path = Path(view_dir) / name
     try:
-        arr = read_exr(path) if kind == "exr" else read_png(path, channels=channels)
+        arr = read_exr(path, shape=shape) if kind == "exr" else read_png(path, channels=channels, shape=shape)
     except ImageFormatError as exc:
         raise LayoutError(str(exc)) from exc
     if arr.shape[-1] != channels:
         raise LayoutError(f"{path}: expected {channels} channel(s), found {arr.shape[-1]}")
     return arr
+
+
+def no_images_message(pred_root: Path, scene: Scene, split: str, channels: list[str]) -> str:
+    """Why a prediction folder gave nothing to score: the files looked for (in ``scene``, the
+    first scene present) and what the folder holds instead (a `Test/` split, `000` instead of
+    `t00`, EXR maps)."""
+    pred_scene = pred_root if pred_root.name == scene.name and (pred_root / "scene.json").is_file() \
+        else pred_root / scene.name
+    views = [v.id for v in scene.split_views(split)]
+    found = sorted(p.name for p in pred_scene.iterdir()) if pred_scene.is_dir() else []
+    split_dir = pred_scene / split
+    found_views = sorted(p.name for p in split_dir.iterdir()) if split_dir.is_dir() else []
+    files = [material_file(c) for c in MATERIAL_CHANNELS if c in channels or (c == "albedo" and "relight" in channels)]
+    return (f"{pred_root}: 0 images scored. Looked for {pred_scene}/{split}/<view>/"
+            f"{{{','.join(files) or 'nothing: eval.channels'}}} with views {views[:4]}"
+            f"{' ...' if len(views) > 4 else ''} (scene.json of {scene.name}); found in {pred_scene.name}/: "
+            f"{found[:6]}, in {split}/: {found_views[:6]}. Material maps are 16-bit PNGs named as in "
+            "docs/FORMAT.md (not EXR); view folders are named by the view ids of scene.json")
 
 
 def material_file(channel: str) -> str:
@@ -218,6 +282,14 @@ def read_meta(pred_scene_dir: Path) -> dict:
         return {}
     data = _load_json(path)
     runtime = data.get("runtime_s", {})
+    if runtime is None:
+        runtime = data["runtime_s"] = {}
+    if not isinstance(runtime, dict):
+        raise LayoutError(f"{path}: runtime_s must be an object {{material, end_to_end}}, got {runtime!r}")
+    if "method" in data and not isinstance(data["method"], str):
+        raise LayoutError(f"{path}: method must be a string, got {data['method']!r}")
+    if "config_hash" in data and not isinstance(data["config_hash"], str):
+        raise LayoutError(f"{path}: config_hash must be a string, got {data['config_hash']!r}")
     for key, value in runtime.items():
         if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise LayoutError(f"{path}: runtime_s.{key} must be a finite number or null")

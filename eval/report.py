@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.atomic import write_text_atomic
 from eval.evaluate import EvalResult
 
 PACKAGES = ("torch", "numpy", "scikit-image", "kornia", "OpenEXR", "hydra-core")
@@ -32,10 +33,20 @@ def environment_info() -> dict:
             "machine": platform.machine(), "git_commit": commit}
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+RESULT_FILES = ("summary.json", "per_view.csv", "eval_meta.json")
+
+
+def clear_result(out_dir: str | Path) -> list[Path]:
+    """Removes an earlier evaluation's files from ``out_dir`` BEFORE a new one starts, so a
+    killed or failed evaluation never leaves an old summary.json beside a new .hydra/; returns
+    the removed paths (the record protocol, docs/RELIABILITY.md)."""
+    removed = []
+    for name in ("summary.json", *RESULT_FILES[1:]):  # summary.json first: it is the record
+        path = Path(out_dir) / name
+        if path.is_file():
+            path.unlink()
+            removed.append(path)
+    return removed
 
 
 def write_result(out_dir: str | Path, result: EvalResult, protocol_dict: dict | None = None) -> None:
@@ -48,10 +59,11 @@ def write_result(out_dir: str | Path, result: EvalResult, protocol_dict: dict | 
     out.mkdir(parents=True, exist_ok=True)
     frame = pd.DataFrame(result.rows, columns=["scene", "view", "channel", "env", "psnr", "ssim",
                                                "lpips"])
-    _write_text_atomic(out / "per_view.csv", frame.to_csv(index=False))
-    _write_text_atomic(out / "summary.json", json.dumps(result.summary, indent=2) + "\n")
+    write_text_atomic(out / "per_view.csv", frame.to_csv(index=False))
     info = dict(result.info, protocol_config=protocol_dict, environment=environment_info())
-    _write_text_atomic(out / "eval_meta.json", json.dumps(info, indent=2) + "\n")
+    write_text_atomic(out / "eval_meta.json", json.dumps(info, indent=2) + "\n")
+    # summary.json LAST: its presence means the other two files are of the same evaluation
+    write_text_atomic(out / "summary.json", json.dumps(result.summary, indent=2) + "\n")
 
 
 def format_summary(result: EvalResult) -> str:

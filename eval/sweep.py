@@ -22,18 +22,13 @@ from pathlib import Path
 
 import pandas as pd
 
-RECORD_NAME = "result.json"
-RECORD_FORMAT = "gspi-run"
-RECORD_VERSION = 1
-STATUSES = ("complete", "failed")
-TABLES = ("table1", "table2", "table3")
+from eval.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
+
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 METRICS = ("psnr", "ssim", "lpips")
 COLUMNS = ["method", "ablation", "table", "seed", "scene", "measure", "channel", "metric",
            "value", "config_hash", "protocol", "data", "run"]
 PREDICTION_DIRS = ("predictions", "pred")  # gspi-run writes predictions/; STYLE.md says pred/
-REQUIRED_KEYS = ("format", "format_version", "status", "method", "ablation", "seed",
-                 "config_hash")
 
 
 class SweepError(ValueError):
@@ -96,8 +91,8 @@ def _read_json(path: Path, what: str) -> dict:
         raise SweepError(f"{path}: {what} not found")
     try:
         data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise SweepError(f"{path}: invalid JSON ({exc})") from exc
+    except (ValueError, RecursionError) as exc:  # RecursionError: absurdly nested JSON
+        raise SweepError(f"{path}: invalid JSON ({str(exc)[:200] or type(exc).__name__})") from exc
     if not isinstance(data, dict):
         raise SweepError(f"{path}: expected a JSON object, found {type(data).__name__}")
     return data
@@ -118,20 +113,11 @@ def _subfolder(path: Path, data: dict, key: str) -> Path | None:
 def read_record(path: str | Path) -> RunRecord:
     """Parse and validate one `result.json` (docs/TABLES.md, "Run record")."""
     path = Path(path)
-    data = _read_json(path, "run record")
-    missing = [k for k in REQUIRED_KEYS if k not in data]
-    if missing:
-        raise SweepError(f"{path}: missing key(s) {missing}")
-    if data["format"] != RECORD_FORMAT or data["format_version"] != RECORD_VERSION:
-        raise SweepError(f"{path}: unknown record format {data['format']!r} version "
-                         f"{data['format_version']!r} (this reader knows {RECORD_FORMAT!r} "
-                         f"version {RECORD_VERSION})")
-    if data["status"] not in STATUSES:
-        raise SweepError(f"{path}: status must be one of {STATUSES}, got {data['status']!r}")
-    if data.get("table") is not None and data["table"] not in TABLES:
-        raise SweepError(f"{path}: table must be one of {TABLES} or null, got {data['table']!r}")
-    if not isinstance(data["seed"], int) or isinstance(data["seed"], bool):
-        raise SweepError(f"{path}: seed must be an integer, got {data['seed']!r}")
+    try:  # the one schema (eval/run_record.py), shared with the writer
+        data = load_record_json(path)
+        check_record(data, path)
+    except RecordError as exc:
+        raise SweepError(str(exc)) from exc
     method, ablation = str(data["method"]), str(data["ablation"] or "full")
     complete = data["status"] == "complete"
     material = _subfolder(path, data, "material_eval") if complete else None

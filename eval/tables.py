@@ -17,7 +17,6 @@ Numbers are never typed by hand: every cell comes from a summary.json.
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
@@ -49,9 +48,22 @@ def find_runs(paths: list[str | Path]) -> list[Path]:
 
 def load_run(run_dir: Path) -> dict:
     """One flat record: method, protocol, metric columns (display units), runtimes."""
-    summary = json.loads((run_dir / "summary.json").read_text())
-    meta_path = run_dir / "eval_meta.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    from eval.layout import LayoutError, read_json_object
+
+    summary_path, meta_path = run_dir / "summary.json", run_dir / "eval_meta.json"
+    summary = read_json_object(summary_path)
+    meta = read_json_object(meta_path) if meta_path.is_file() else {}
+    if not summary:
+        raise LayoutError(f"{summary_path}: no channel scored (an evaluation of 0 images); "
+                          "re-run gspi-eval, which now refuses such a prediction folder")
+    for ch, scores in summary.items():  # a NaN or a string must not print as "--" (not modelled)
+        if not isinstance(scores, dict):
+            raise LayoutError(f"{summary_path}: {ch} must be an object {{psnr, ssim, lpips}}, got {scores!r}")
+        for metric, value in scores.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
+                raise LayoutError(f"{summary_path}: {ch}.{metric} must be a number, got {value!r}")
+    if not isinstance(meta.get("protocol", {}), dict):
+        raise LayoutError(f"{meta_path}: protocol must be an object {{name, version}}")
     rec = {"method": meta.get("method", run_dir.name), "run": str(run_dir),
            "protocol": f"{meta.get('protocol', {}).get('name')}"
                        f" v{meta.get('protocol', {}).get('version')}"}
@@ -216,9 +228,11 @@ def run(cfg):
 def positional_to_overrides(argv: list[str]) -> list[str]:
     """Let `gspi-table DIR DIR` mean `gspi-table runs=[DIR,DIR]` (Hydra takes key=value only)."""
     # An existing path is a folder even with "=" in it (Hydra's sweep job folders: method=gspi).
+    from eval.argv import needs_quoting, quote_path_overrides, quote_value
+
     dirs = [a for a in argv if not a.startswith("-") and ("=" not in a or Path(a).exists())]
-    rest = [a for a in argv if a not in dirs]
-    quoted = ",".join(f"'{d}'" if "=" in d or "," in d else d for d in dirs)
+    rest = quote_path_overrides([a for a in argv if a not in dirs], ("out",))
+    quoted = ",".join(quote_value(d) if needs_quoting(d) else d for d in dirs)  # any folder name: = , ' spaces, non-ASCII
     return rest + ([f"runs=[{quoted}]"] if dirs else [])
 
 

@@ -8,12 +8,11 @@ every failed, unfinished, duplicate or superseded job.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import pandas as pd
 
+from eval.atomic import write_text_atomic  # noqa: F401  (re-exported for eval.tables)
 from eval.sweep import Sweep
 from eval.tables_sweep import Column, SweepTable
 
@@ -23,21 +22,6 @@ METRIC_LABELS = {"psnr": "PSNR↑", "ssim": "SSIM(%)↑", "lpips": "LPIPS(%)↓"
 MARKS = {"md": ("**{}**", "<u>{}</u>"),
          "tex": (r"\cellcolor{{BaselineBestCell}}\textbf{{{}}}",
                  r"\cellcolor{{BaselineSecondCell}}{}")}
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write through a unique temporary file in the same folder and `os.replace`, so a killed
-    writer leaves the old file or none, never half a file (and two writers cannot collide)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _num(value: float, digits: int) -> str:

@@ -33,10 +33,12 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 def benchmark_config(cfg: DictConfig):
     """conf `data` group + `lattice` + `threads` -> gspi.data.generate.BenchmarkConfig."""
     from gspi.data.generate import BenchmarkConfig
+    from gspi.strict_config import dataclass_from_dict
 
     data = OmegaConf.to_container(cfg.data, resolve=True)
-    return BenchmarkConfig(**data, threads=int(cfg.threads),
-                           lattice=OmegaConf.to_container(cfg.lattice, resolve=True))
+    # every value checked (names, types, ranges) before anything is written
+    return dataclass_from_dict(BenchmarkConfig, {**data, "threads": cfg.threads,
+                                                 "lattice": OmegaConf.to_container(cfg.lattice, resolve=True)}, "data")
 
 
 def run(cfg: DictConfig) -> dict:
@@ -58,8 +60,10 @@ def run(cfg: DictConfig) -> dict:
         result = {"mode": "export", "folder": str(folder)}
     else:
         from gspi.data.generate import generate_dataset
+        from gspi.strict_config import check_value
 
-        stats = generate_dataset(out, benchmark_config(cfg), seed=int(cfg.seed))
+        bench = benchmark_config(cfg)
+        stats = generate_dataset(out, bench, seed=check_value("seed", cfg.seed, int, lo=0))
         result = {"mode": "generate", "preset": cfg.data.name, **stats}
         log.info("generated %d scenes in %.1f s (%.0f rays/s end to end) -> %s",
                  len(stats["scenes"]), stats["seconds"], stats["rays_per_s"], out)
@@ -79,7 +83,9 @@ def alias_preset(argv: list[str]) -> list[str]:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0], *alias_preset(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(alias_preset(sys.argv[1:]), ("out", "import.src", "export.src"))]
     _hydra_main()
 
 

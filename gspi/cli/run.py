@@ -24,6 +24,8 @@ from omegaconf import DictConfig, OmegaConf
 from gspi.cli.train import rewrite_data_alias
 
 log = logging.getLogger(__name__)
+# Quoted for Hydra's grammar when they hold = , ' spaces or non-ASCII (eval/argv.py).
+PATH_KEYS = ("data_dir", "out", "assets", "cache_dir")
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
@@ -61,7 +63,9 @@ def main() -> None:
     from eval.config import register_configs
 
     register_configs()
-    sys.argv = [sys.argv[0], *rewrite_data_alias(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_data_alias(sys.argv[1:]), PATH_KEYS)]
     _hydra_main()
 
 

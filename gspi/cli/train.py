@@ -14,7 +14,6 @@ dir (`<out>/.hydra/`). Config: conf/gspi_train.yaml, conf/stage2/, conf/ablation
 """
 from __future__ import annotations
 
-import json
 import logging
 import sys
 from pathlib import Path
@@ -44,10 +43,17 @@ def run(cfg: DictConfig) -> dict:
     from gspi.stage2.evaluate_points import evaluate_checkpoint
     from gspi.stage2.train import train
 
+    from eval.atomic import write_json_atomic
+    from gspi.strict_config import check_value
+
+    check_value("threads", cfg.threads, int, lo=1, hi=1024)
+    check_value("seed", cfg.seed, int, lo=0)
     torch.set_num_threads(int(cfg.threads))
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain.pop("hydra", None)
     out = Path(cfg.out)
+    # stats.json is the run's record, written last: an earlier one must not outlive a killed rerun
+    (out / "stats.json").unlink(missing_ok=True)
     stats = train(plain, out, stop_at=plain["stage2"]["train"].get("stop_at"))
     ev = plain["stage2"]["eval"]
     if ev["enabled"]:
@@ -56,7 +62,7 @@ def run(cfg: DictConfig) -> dict:
                                      num_steps=int(ev["num_steps"]), seed=int(ev["seed"]),
                                      write_chunk=ev.get("write_chunk"))
         stats["eval_points"] = {"split": ev["split"], "mean": result["mean"]}
-    (out / "stats.json").write_text(json.dumps(stats, indent=2) + "\n")
+    write_json_atomic(out / "stats.json", stats, allow_nan=True)
     log.info("wrote %s", out / "stats.json")
     return stats
 
@@ -68,7 +74,9 @@ def _hydra_main(cfg: DictConfig) -> float | None:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0], *rewrite_data_alias(sys.argv[1:])]
+    from eval.argv import quote_path_overrides
+
+    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_data_alias(sys.argv[1:]), ("data_dir", "out"))]
     _hydra_main()
 
 

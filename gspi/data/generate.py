@@ -20,7 +20,7 @@ import multiprocessing
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import ClassVar, Optional
 
 import torch
 
@@ -59,6 +59,13 @@ class BenchmarkConfig:
     training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
     lattice: dict = field(default_factory=lambda: dict(CANONICAL_LATTICE))
+
+    # Allowed values, checked by gspi.strict_config when gspi-data starts (inclusive; None = open).
+    RANGES: ClassVar[dict] = {
+        "num_train_scenes": (0, None), "num_val_scenes": (0, None), "num_test_scenes": (0, None),
+        "image_size": (8, 8192), "supersample": (1, 16), "env_height": (4, 8192),
+        "num_test_views": (0, None), "num_val_views": (0, None), "num_relight_envs": (0, 6),
+        "white_radiance": (1e-6, None), "threads": (1, 1024), "workers": (1, 1024)}
 
     @property
     def num_scenes(self) -> int:
@@ -150,6 +157,9 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
     start = time.perf_counter()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # splits.json is the dataset's record, written last: remove an earlier one first, so a killed
+    # regeneration never leaves old splits beside new scenes (docs/RELIABILITY.md)
+    (out_dir / "splits.json").unlink(missing_ok=True)
     if cfg.training_pool:
         return generate_training_pool(out_dir, cfg, seed=seed, scratch_dir=scratch_dir)
     recipes = scene_recipes(seed, cfg)

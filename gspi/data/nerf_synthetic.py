@@ -37,7 +37,7 @@ import torch
 
 from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.imageio import read_exr, read_png
-from eval.layout import SPLITS, LayoutError, Scene, View, read_scene, read_view_file, \
+from eval.layout import SPLITS, LayoutError, Scene, View, check_name, read_scene, read_view_file, \
     write_material, write_scene_json, write_view_file
 
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])  # right-multiply a c2w: negate columns 1, 2
@@ -125,7 +125,7 @@ def import_nerf_synthetic(src: str | Path, out_dir: str | Path, *, name: str | N
         raise LayoutError(f"{src}: no transforms_{{train,val,test}}.json found")
     meta = {s: json.loads(p.read_text()) for s, p in files.items()}
     info = next((m["gspi"] for m in meta.values() if "gspi" in m), {})
-    name = name or info.get("name") or src.name
+    name = check_name(name or info.get("name") or src.name, "import.name (the imported scene's folder)")
     root = Path(out_dir) / name
     views: dict[str, list[View]] = {}
     size = None

@@ -45,6 +45,7 @@ SCALE = ("scale_0", "scale_1")
 ROT = ("rot_0", "rot_1", "rot_2", "rot_3")
 PBR = ("albedo_0", "albedo_1", "albedo_2", "roughness", "metallic")
 REQUIRED = POSITION + F_DC + ("opacity",) + SCALE + ROT
+MAX_LOG_SCALE = 20.0  # exp(20) = 4.9e8 world units; float32 exp overflows at 88.7
 PBR_COMMENTS = (
     "GS-PI PBR-GS: albedo_0..2 roughness metallic are logits; value = sigmoid(logit)",
     "GS-PI PBR-GS: albedo is linear RGB; roughness is perceptual (GGX alpha = roughness^2)",
@@ -80,7 +81,34 @@ def _load_vertices(path: PathLike) -> np.ndarray:
     data = ply["vertex"].data
     if data.dtype.names is None:
         raise PlyFormatError(path, "'vertex' element has no scalar properties")
+    _check_no_trailing_data(path, ply)
     return data
+
+
+def _check_no_trailing_data(path: PathLike, ply: PlyData) -> None:
+    """A header declaring fewer vertices than the file holds would be read silently (plyfile
+    stops at the declared count): compare the file's size with what the header declares."""
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)  # the header: plyfile has parsed it already, so it ends in here
+    end = head.find(b"end_header")
+    if end < 0 or b"\n" not in head[end:]:
+        return
+    header_bytes = head.index(b"\n", end) + 1
+    body_bytes = Path(path).stat().st_size - header_bytes
+    declared = sum(len(el.data) for el in ply.elements)
+    if ply.text:
+        body = Path(path).read_bytes()[header_bytes:]
+        rows = len([line for line in body.splitlines() if line.strip()])
+        extra = rows - declared
+        unit = "data line(s)"
+    else:
+        if any(getattr(p, "len_dtype", None) for el in ply.elements for p in el.properties):
+            return  # list properties: sizes vary per row, nothing simple to compare
+        expected = sum(len(el.data) * el.data.dtype.itemsize for el in ply.elements)
+        extra, unit = body_bytes - expected, "byte(s)"
+    if extra > 0:
+        raise PlyFormatError(path, f"{extra} {unit} after the {declared} element(s) the header declares "
+                                   "(the header's vertex count is smaller than the file's)")
 
 
 def _sh_rest_count(path: PathLike, names: set[str]) -> int:
@@ -143,10 +171,16 @@ def read_ply(path: PathLike) -> Gaussians2D:
         values = t(_column(path, data, list(PBR)))
         pbr = {"albedo_logits": values[:, :3].contiguous(), "roughness_logits": values[:, 3:4].contiguous(),
                "metallic_logits": values[:, 4:5].contiguous()}
+    log_scales = _column(path, data, list(SCALE))
+    if len(log_scales) and log_scales.max() > MAX_LOG_SCALE:
+        row = int(np.argmax(log_scales.max(axis=1)))
+        raise PlyFormatError(path, f"scale of vertex {row} is exp({log_scales[row].max():.3g}): overflows "
+                                   f"(scale_* are LOG scales; above {MAX_LOG_SCALE} the surfel is larger than "
+                                   "any scene)")
     return Gaussians2D(
         means=t(_column(path, data, list(POSITION))),
         quats=t(_column(path, data, list(ROT))),
-        log_scales=t(_column(path, data, list(SCALE))),
+        log_scales=t(log_scales),
         opacity_logits=t(_column(path, data, ["opacity"])[:, 0].copy()),
         sh_dc=t(_column(path, data, list(F_DC)))[:, None, :].contiguous(),
         sh_rest=t(rest).transpose(1, 2).contiguous(),

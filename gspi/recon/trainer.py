@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Callable, Optional
+from typing import Callable, ClassVar, Optional
 
 import torch
 from torch import Tensor
@@ -39,6 +39,8 @@ log = logging.getLogger(__name__)
 @dataclass
 class InitConfig:
     num_points: int = 4000        # surfels sampled on the visual hull
+
+    RANGES: ClassVar[dict] = {"num_points": (1, None), "opacity": (1e-6, 1.0), "scale_factor": (1e-6, None)}
     opacity: float = 0.1          # initial opacity (3DGS / gsplat)
     scale_factor: float = 1.0     # times the 3-NN distance
 
@@ -97,6 +99,11 @@ class ReconConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     display: DisplayConfig = field(default_factory=DisplayConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
+
+    # Allowed values, checked by gspi.strict_config at start-up (inclusive; None = open). At
+    # least one iteration: an untrained asset would be scored as if it were a reconstruction.
+    RANGES: ClassVar[dict] = {"iterations": (1, None), "sh_degree": (0, 3), "sh_increase_every": (1, None),
+                              "seed": (0, None), "log_every": (1, None)}
 
     @classmethod
     def from_dict(cls, data: dict) -> "ReconConfig":

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
+import numpy as np
 import torch
 
-from eval.layout import Scene, write_json_atomic
+from eval.atomic import atomic_path
+from eval.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file, write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import read_ply, write_ply
 from gspi.run.locks import file_lock
@@ -27,7 +28,77 @@ log = logging.getLogger(__name__)
 
 
 class AssetError(FileNotFoundError):
-    """The asset a run was given cannot be found or read."""
+    """The asset a run was given cannot be found or read, or does not cover its scene."""
+
+
+MIN_VISIBLE = 0.5     # fraction of surfel centres that must project into some view of the scene
+MIN_COVERAGE = 0.01   # fraction of the ground-truth foreground a prediction must not leave black
+
+
+def check_asset_covers_scene(gaussians: Gaussians2D, scene: Scene, source: str) -> dict:
+    """Refuses an asset that cannot depict ``scene``: no surfels, surfel centres outside every
+    camera of scene.json (an asset in another frame or 1e6 units away), or surfels larger than
+    the camera rig (huge scales). Such an asset would otherwise run to "complete" with black
+    maps. Returns {"visible_fraction", "median_scale", "rig_radius"} for the run's record.
+
+    Raises:
+        AssetError: naming ``source`` (the PLY or the reconstruction) and the measured values.
+    """
+    n = gaussians.num_gaussians
+    if n == 0:
+        raise AssetError(f"{source}: the 2DGS asset has no surfels (empty vertex element)")
+    means = gaussians.means.detach().double().cpu().numpy()  # [N, 3]
+    views = [v for vs in scene.views.values() for v in vs]
+    visible = np.zeros(n, dtype=bool)
+    centres = []
+    for v in views:
+        cam = means @ v.w2c[:3, :3].T + v.w2c[:3, 3]
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = (cam @ v.K.T)[:, :2] / z[:, None]
+        visible |= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < scene.width) & (uv[:, 1] >= 0) & (uv[:, 1] < scene.height)
+        centres.append(v.camera_center)
+    centres = np.asarray(centres)
+    rig_radius = float(np.median(np.linalg.norm(centres - centres.mean(0), axis=1))) or 1.0
+    median_scale = float(torch.exp(gaussians.log_scales.detach().double()).max(dim=1).values.median())
+    fraction = float(visible.mean())
+    info = {"visible_fraction": round(fraction, 4), "median_scale": median_scale, "rig_radius": rig_radius}
+    if fraction < MIN_VISIBLE:
+        centroid = means.mean(0).round(3).tolist()
+        raise AssetError(f"{source}: only {100 * fraction:.1f}% of the asset's {n} surfel centres lie in "
+                         f"any camera view of {scene.root / 'scene.json'} (need {100 * MIN_VISIBLE:.0f}%; "
+                         f"their centroid is {centroid}): the asset is not in the scene's frame")
+    if not median_scale < rig_radius:
+        raise AssetError(f"{source}: median surfel size {median_scale:.3g} is not below the camera rig "
+                         f"radius {rig_radius:.3g} of {scene.root / 'scene.json'} (scales in the wrong "
+                         "units, or log scales stored as plain values?)")
+    return info
+
+
+def check_prediction_covers_scene(scene: Scene, pred_scene: Path, split: str) -> float:
+    """The fraction of ground-truth foreground pixels (over the split's views) where the
+    prediction has any non-zero material value. Raises when it is below MIN_COVERAGE: maps that
+    are black wherever the object is are a failed run, not a score. Views or channels the
+    method did not write are left to the evaluator (missing, not black)."""
+    covered = total = 0
+    for v in scene.split_views(split):
+        pdir = pred_scene / split / v.id
+        maps = [read_view_file(pdir, material_file(c), (scene.height, scene.width))
+                for c in MATERIAL_CHANNELS if (pdir / material_file(c)).is_file()]
+        mask_path = scene.view_dir(split, v.id) / "mask.png"
+        if not maps or not mask_path.is_file():
+            continue
+        mask = read_view_file(mask_path.parent, "mask.png")[..., 0] > 0.5
+        lit = np.zeros(mask.shape, dtype=bool)
+        for m in maps:
+            lit |= (m > 0).any(axis=-1)
+        covered, total = covered + int((lit & mask).sum()), total + int(mask.sum())
+    fraction = covered / total if total else 1.0
+    if fraction < MIN_COVERAGE:
+        raise AssetError(f"{pred_scene}: the predicted maps are black on {100 * (1 - fraction):.1f}% of "
+                         f"the ground-truth foreground of the {split} views (the asset does not "
+                         "cover the scene; check its position and scale)")
+    return fraction
 
 
 def user_asset_path(assets: str | Path, scene_name: str, num_scenes: int) -> Path:
@@ -74,12 +145,11 @@ def cached_reconstruction(scene: Scene, recon_cfg: Mapping[str, Any], cache_root
         t0 = time.perf_counter()
         gaussians, stats = reconstruct(scene, recon_cfg, device=device)
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = folder / "point_cloud.ply.tmp"
-        write_ply(tmp, gaussians)
         info = {"scene": scene.name, "seconds": round(time.perf_counter() - t0, 2), "config": dict(recon_cfg),
                 **{k: v for k, v in stats.items() if isinstance(v, (int, float, str))}}
         write_json_atomic(folder / "recon.json", info)
-        os.replace(tmp, ply)
+        with atomic_path(ply) as tmp:  # the PLY last: its presence means the cache entry is whole
+            write_ply(tmp, gaussians)
         return gaussians, {**info, "cached": False, "path": str(ply)}
 
 
@@ -93,6 +163,8 @@ def scene_asset(scene: Scene, *, assets: Optional[str], num_scenes: int, recon_c
             gaussians = read_ply(path)
         except Exception as exc:
             raise AssetError(f"{path}: cannot read the 2DGS asset ({exc})") from exc
-        return gaussians, {"source": "user", "path": str(path), "seconds": None}
+        coverage = check_asset_covers_scene(gaussians, scene, str(path))
+        return gaussians, {"source": "user", "path": str(path), "seconds": None, "coverage": coverage}
     gaussians, info = cached_reconstruction(scene, recon_cfg, cache_root, device=device)
-    return gaussians, {"source": "recon", **info}
+    coverage = check_asset_covers_scene(gaussians, scene, f"reconstruction {info.get('path')}")
+    return gaussians, {"source": "recon", **info, "coverage": coverage}

@@ -1,9 +1,11 @@
-"""The run record `result.json` (docs/TABLES.md): what a finished or failed job leaves behind.
+"""The run record `result.json` of a `gspi-run` job: the config hash, and reading/writing it.
 
-It is written LAST and atomically, so its presence with ``status == "complete"`` means every
-file it names is complete. A rerun of the same config (same ``config_hash``) skips a
-complete job; anything else is redone. ``config_hash`` covers every key that changes the
-results (not ``out``, threads, logging or figures).
+The schema is defined once, in ``eval/run_record.py`` (gspi-table reads it there too). The
+protocol: :func:`invalidate_result` removes the folder's record before a job overwrites anything,
+:func:`write_result` writes the new one LAST and atomically, so a record with ``status ==
+"complete"`` means every file it names is complete and from this config. A rerun of the same
+config (same ``config_hash``) skips a complete job; anything else is redone. ``config_hash``
+covers every key that changes the results (not ``out``, threads, logging or figures).
 """
 from __future__ import annotations
 
@@ -12,11 +14,10 @@ import json
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
-from eval.layout import write_json_atomic
+from eval.atomic import write_json_atomic
+from eval.run_record import RECORD_NAME, RecordError, build_record, invalidate_record, read_record_json
 
-RESULT_FILE = "result.json"
-FORMAT = "gspi-run"
-FORMAT_VERSION = 1
+RESULT_FILE = RECORD_NAME
 # Keys that do not change any number a run produces.
 VOLATILE_KEYS = ("out", "threads", "scene_workers", "logger", "hydra", "figures", "progress", "cache_dir")
 
@@ -29,13 +30,11 @@ def config_hash(cfg: Mapping[str, Any], *, volatile: tuple[str, ...] = VOLATILE_
 
 
 def read_result(run_dir: Path) -> Optional[dict]:
-    """The run's result.json, or None if absent or unreadable (a killed or foreign folder)."""
-    path = Path(run_dir) / RESULT_FILE
+    """The run's result.json, or None if absent or not a valid record (a killed or foreign folder)."""
     try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+        return read_record_json(run_dir)
+    except RecordError:
         return None
-    return data if isinstance(data, dict) and data.get("format") == FORMAT else None
 
 
 def is_complete(run_dir: Path, cfg_hash: str) -> bool:
@@ -44,17 +43,13 @@ def is_complete(run_dir: Path, cfg_hash: str) -> bool:
     return bool(rec and rec.get("status") == "complete" and rec.get("config_hash") == cfg_hash)
 
 
-def write_result(run_dir: Path, *, status: str, cfg_hash: str, method: str, ablation: str,
-                 table: Optional[str], seed: int, data: str, scenes: list[str], error: Optional[str] = None,
-                 material_eval: Optional[str] = None, points_eval: Optional[str] = None,
-                 extra: Optional[dict] = None) -> Path:
-    """Writes ``<run_dir>/result.json`` atomically; returns its path."""
-    if status not in ("complete", "failed"):
-        raise ValueError(f"status must be 'complete' or 'failed', got {status!r}")
-    record = {"format": FORMAT, "format_version": FORMAT_VERSION, "status": status, "error": error,
-              "method": method, "ablation": ablation, "table": table, "seed": int(seed),
-              "config_hash": cfg_hash, "data": data, "scenes": list(scenes),
-              "material_eval": material_eval, "points_eval": points_eval, **(extra or {})}
+def invalidate_result(run_dir: Path) -> Optional[dict]:
+    """Removes the folder's result.json before the job writes anything; returns the old record."""
+    return invalidate_record(run_dir)
+
+
+def write_result(run_dir: Path, **fields) -> Path:
+    """Writes ``<run_dir>/result.json`` atomically (fields: eval.run_record.build_record); returns its path."""
     path = Path(run_dir) / RESULT_FILE
-    write_json_atomic(path, record)
+    write_json_atomic(path, build_record(**fields))
     return path

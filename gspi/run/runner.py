@@ -8,6 +8,12 @@
       figures/<scene>.png                                    GT vs prediction, PSNR under each
       result.json                                            written LAST (gspi/run/record.py)
 
+Record protocol (docs/RELIABILITY.md): a job that is not skipped first removes the folder's
+result.json, then every output of another config (eval/, points_eval/, figures/ and prediction
+scenes whose meta.json carries another config hash), and writes the new result.json LAST; so a
+job killed at any point leaves no record, gspi-table lists it as unfinished and a rerun of any
+config redoes it.
+
 Failure policy: an error in one scene is recorded (traceback in the log, message in
 result.json) and the other scenes go on; the job then ends "failed" and its finished scenes
 stay on disk. A rerun of the same config skips a complete job, and inside a failed one redoes
@@ -16,6 +22,7 @@ only the scenes without a finished prediction (their meta.json carries the confi
 from __future__ import annotations
 
 import logging
+import shutil
 import time
 import traceback
 from pathlib import Path
@@ -25,9 +32,9 @@ import numpy as np
 import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
-from gspi.run.assets import scene_asset
+from gspi.run.assets import check_prediction_covers_scene, scene_asset
 from gspi.run.methods import Method
-from gspi.run.record import config_hash, is_complete, read_result, write_result
+from gspi.run.record import config_hash, invalidate_result, is_complete, read_result, write_result
 from gspi.run.stages import StageClock
 from gspi.run.tracking import flatten, make_tracker
 
@@ -82,6 +89,9 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
                                             device=cfg.get("device", "cpu"))
     stats = method.predict(scene, pred_scene, asset=asset, clock=clock, work_dir=work, split=split,
                            progress=progress)
+    coverage = check_prediction_covers_scene(scene, pred_scene, split)  # black maps fail the scene
+    if isinstance(stats, dict):
+        stats["foreground_coverage"] = round(coverage, 4)
     material_s = clock.seconds(*method.material_stages)
     recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
     end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
@@ -185,8 +195,37 @@ def points_summary(out: Path, names: list[str]) -> Optional[dict]:
     return {"mean": mean, "per_scene": per_scene}
 
 
-def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, method_name: str):
-    """gspi-eval on ``out/predictions`` into ``out/eval``; returns the EvalResult."""
+# Rebuilt by every job that is not skipped: the files removed first (by name, never a whole
+# folder, so `out=.` cannot delete anything but these).
+DERIVED_FILES = {"eval": ("per_view.csv", "summary.json", "eval_meta.json"),
+                 "points_eval": ("summary.json",), "figures": ("*.png",)}
+
+
+def clear_stale_outputs(out: Path, cfg_hash: str) -> list[str]:
+    """Removes what a job of another config (or a killed one) left that this job would not
+    overwrite file by file: the derived folders, and prediction scenes of another config hash
+    (a method that predicts fewer channels must not inherit the old ones). Returns what it removed."""
+    removed = []
+    for folder, patterns in DERIVED_FILES.items():
+        for path in sorted(p for pattern in patterns for p in (out / folder).glob(pattern) if p.is_file()):
+            path.unlink()
+            removed.append(str(path.relative_to(out)))
+    pred_root = out / "predictions"
+    for scene_dir in sorted(pred_root.iterdir()) if pred_root.is_dir() else []:
+        try:
+            meta = read_meta(scene_dir) if scene_dir.is_dir() else {}
+        except ValueError:  # an unreadable meta.json: not a finished prediction of this config
+            meta = {}
+        if scene_dir.is_dir() and meta.get("config_hash") != cfg_hash:
+            shutil.rmtree(scene_dir)
+            removed.append(f"predictions/{scene_dir.name}")
+    return removed
+
+
+def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, method_name: str,
+                         cfg_hash: Optional[str] = None):
+    """gspi-eval on ``out/predictions`` into ``out/eval``; returns the EvalResult (its
+    eval_meta.json carries the job's config hash, so the scores name the config they are of)."""
     from omegaconf import OmegaConf
 
     from eval.config import validate_protocol
@@ -196,6 +235,8 @@ def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, meth
     protocol = OmegaConf.create(cfg["eval"])
     validate_protocol(protocol)
     result = evaluate(data_dir, out / "predictions", protocol, method=method_name)
+    if cfg_hash is not None:
+        result.info["config_hash"] = cfg_hash
     write_eval(out / "eval", result, dict(cfg["eval"]))
     return result
 
@@ -207,7 +248,16 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
     if is_complete(out, cfg_hash):
         log.info("%s: complete result of this config found, skipped", out)
         return read_result(out)
+    from gspi.run.config_check import check_run_config
+
+    check_run_config(cfg)  # bad types or ranges fail here, before anything is written
     out.mkdir(parents=True, exist_ok=True)
+    old = invalidate_result(out)  # from here on, no record describes this folder until ours
+    removed = clear_stale_outputs(out, cfg_hash)
+    if old is not None or removed:
+        log.info("%s: previous record (%s) removed; stale outputs removed: %s", out,
+                 None if old is None else f"{old.get('status')}, config {old.get('config_hash')}",
+                 ", ".join(removed) or "none")
     torch.set_num_threads(int(cfg.get("threads", 1)))
     cache_root = Path(cfg.get("cache_dir") or data_dir / ".cache")
     method_cfg = cfg["method"]
@@ -232,7 +282,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
         done = [n for n in names if n not in errors]
         material_eval = points_eval = None
         if done:
-            result = evaluate_predictions(cfg, data_dir, out, method.name)
+            result = evaluate_predictions(cfg, data_dir, out, method.name, cfg_hash)
             material_eval = "eval"
             tracker.log(flatten("eval", result.summary))
             tracker.summary(flatten("eval", result.summary))

@@ -8,7 +8,7 @@ not silently run the default). Filter details: ``gspi.stage1.filters``.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any, Mapping, Optional
+from typing import Any, ClassVar, Mapping, Optional
 
 from gspi.data.lattice import CANONICAL_LATTICE
 from gspi.strict_config import dataclass_from_dict
@@ -21,6 +21,8 @@ class OutlierConfig:
     enabled: bool = True
     k: int = 16               # neighbours for the mean distance
     std_ratio: float = 2.0    # keep mean_dist <= mean + std_ratio * std
+
+    RANGES: ClassVar[dict] = {"k": (1, None), "std_ratio": (0.0, None)}
 
 
 @dataclass
@@ -61,6 +63,11 @@ class Stage1Config:
     depth_consensus: DepthConsensusConfig = field(default_factory=DepthConsensusConfig)
     max_points: Optional[int] = None  # seeded uniform subsample after filtering (None: all, paper)
     seed: int = 0                  # of that subsample
+
+    # Allowed values, checked by gspi.strict_config at start-up (inclusive; None = open).
+    RANGES: ClassVar[dict] = {"image_size": (8, 8192), "num_views": (1, None), "radius": (1e-6, None),
+                              "fov_deg": (1.0, 179.0), "min_elevation_deg": (-90.0, 90.0),
+                              "alpha_threshold": (0.0, 1.0), "max_points": (1, None), "seed": (0, None)}
 
     @property
     def lattice(self) -> dict:

@@ -12,12 +12,12 @@ Both are ``torch.save`` dicts of tensors and plain Python values (loadable with
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from eval.atomic import atomic_path
 from gspi.stage2.model import RCWConfig, RCWDenoiser
 
 CHECKPOINT_FORMAT = "gspi-stage2"
@@ -35,10 +35,8 @@ def rcw_config_dict(config: RCWConfig) -> dict:
 def save_atomic(obj: dict, path: str | Path) -> Path:
     """``torch.save`` to a temporary file, then rename (a crash never leaves half a checkpoint)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
     return path
 
 

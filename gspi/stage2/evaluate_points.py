@@ -19,7 +19,6 @@ plastic) is otherwise inf and would make every mean inf.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
+from eval.atomic import write_json_atomic
 from gspi.stage2.data import PointDataConfig, ScenePoints, whole_scene_inputs
 from gspi.stage2.normalize import pbr_from_model
 from gspi.data.gt_maps import read_gt_view_maps
@@ -151,7 +151,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                   lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"])
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "scores.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_json_atomic(out_dir / "scores.json", result, allow_nan=True)
     caption = (f"Stage II on the GT point clouds of {len(scenes)} {split} scenes of {Path(data_dir).name} "
                f"({num_steps} DDIM steps, seed {seed}); per-view masked metrics averaged over the 32 lattice "
                f"views and the scenes; PSNR capped at {PSNR_CAP_DB:.0f} dB per view; LPIPS = AlexNet v0.1. "

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from eval.atomic import atomic_path
 from gspi.stage2.encoders import GRID_SIZE, PriorEncoder, encoder_hash, lattice_images_srgb
 
 log = logging.getLogger(__name__)
@@ -89,9 +89,7 @@ def scene_prior_features(scene_dir: str | Path, encoder: PriorEncoder, cache_dir
             return cached
     feats = encoder.encode(lattice_images_srgb(scene_dir)).float().contiguous()
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        torch.save({"features": feats, "encoder": _identity(encoder), "hash": encoder_hash(encoder),
-                    "inputs": fingerprint}, tmp)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            torch.save({"features": feats, "encoder": _identity(encoder), "hash": encoder_hash(encoder),
+                        "inputs": fingerprint}, tmp)
     return feats

@@ -8,6 +8,7 @@ Table 3 ablations are switches: A6 ``distill: false``, A7 ``freeze_opacity: true
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import ClassVar
 
 from gspi.strict_config import dataclass_from_dict
 
@@ -61,6 +62,11 @@ class Stage3Config:
     init: InitConfig = field(default_factory=InitConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     lr: LrConfig = field(default_factory=LrConfig)
+
+    # Allowed values, checked by gspi.strict_config at start-up (inclusive; None = open).
+    RANGES: ClassVar[dict] = {"image_size": (8, 8192), "num_views": (1, None), "iterations": (0, None),
+                              "views_per_iteration": (1, None), "seed": (0, None), "log_every": (1, None)}
+    CHOICES: ClassVar[dict] = {"backend": ("auto", "torch", "gsplat")}
 
     def __post_init__(self) -> None:
         if self.init.fallback not in FALLBACKS:

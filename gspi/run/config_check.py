@@ -1,0 +1,44 @@
+"""Start-up check of a `gspi-run` job config: every value the job will use, before it writes.
+
+The stage configs are built (and so checked: names, types, ranges) by the same
+``from_dict`` the stages call later (gspi/strict_config.py), the protocol by
+``eval.config.validate_protocol``, the job's own keys here. A bad value fails the job at
+start-up with ``<key>=<value>: must be ...``, never half-way through a scene.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from gspi.strict_config import check_value
+
+# key -> (type, lo, hi); inclusive, None = open
+JOB_KEYS = {"seed": (int, 0, None), "threads": (int, 1, 1024), "scene_workers": (int, 1, 1024)}
+
+
+def check_run_config(cfg: Mapping[str, Any]) -> None:
+    """Raises ValueError naming the first key whose value is not allowed."""
+    from omegaconf import OmegaConf
+
+    from eval.config import validate_protocol
+    from eval.layout import SPLITS
+    from gspi.recon.trainer import ReconConfig
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage3.config import Stage3Config
+
+    for key, (kind, lo, hi) in JOB_KEYS.items():
+        if key in cfg:
+            check_value(key, cfg[key], kind, lo=lo, hi=hi)
+    check_value("split", cfg.get("split"), str, choices=SPLITS)
+    for key in ("data_dir", "out"):
+        check_value(key, cfg.get(key), str)
+    if cfg.get("scenes") is not None:
+        if not isinstance(cfg["scenes"], (list, tuple)):
+            raise ValueError(f"scenes={cfg['scenes']!r}: must be a list of scene names or null")
+        from eval.layout import check_name
+        for name in cfg["scenes"]:
+            check_name(name, "scenes")
+    for key, kind in (("recon", ReconConfig), ("stage1", Stage1Config), ("stage3", Stage3Config)):
+        if cfg.get(key) is not None:
+            kind.from_dict(dict(cfg[key]))
+    if cfg.get("eval") is not None:
+        validate_protocol(OmegaConf.create(dict(cfg["eval"])))
