@@ -22,7 +22,7 @@ from eval.evaluate import EnvironmentCache
 from eval.imageio import read_exr
 from eval.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
 from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
-from eval.report.collect import Job
+from eval.report_site.collect import Job
 from eval.views import relight_view, view_directions
 
 ERROR_MAX = 0.5   # error maps: |pred - gt| (mean over colour channels) from 0 to this, clipped

@@ -1,4 +1,4 @@
-"""`build_report`: run/sweep folders -> the static site (eval.report.site) and the figures."""
+"""`build_report`: run/sweep folders -> the static site (eval.report_site.scene_page) and the figures."""
 from __future__ import annotations
 
 import datetime
@@ -9,12 +9,12 @@ from pathlib import Path
 
 from eval.imageio import read_exr
 from eval.layout import LayoutError, read_scene
-from eval.report.collect import Job, Problem, collect_jobs, read_per_view
-from eval.report.html_tables import frame_html, sweep_table_html
-from eval.report.images import envmap_preview
-from eval.report.page import page
-from eval.report.panels import relight_config, scene_panels
-from eval.report.site import (MAX_COPY_BYTES, SceneWriter, Site, build_tables, scene_sources,
+from eval.report_site.collect import Job, Problem, collect_jobs, read_per_view
+from eval.report_site.html_tables import frame_html, sweep_table_html
+from eval.report_site.images import envmap_preview
+from eval.report_site.page import page
+from eval.report_site.panels import relight_config, scene_panels
+from eval.report_site.scene_page import (MAX_COPY_BYTES, SceneWriter, Site, build_tables, scene_sources,
                               shown_jobs)
 
 log = logging.getLogger(__name__)
@@ -56,14 +56,15 @@ def problems_html(problems: list[Problem]) -> str:
 
 
 def write_scene(out: Path, scene_dir: Path, jobs: list[Job], all_jobs: list[Job], per_view: dict,
-                *, max_views, thumb, quality) -> Path:
+                *, max_views, thumb, quality) -> tuple[Path, tuple]:
+    """The scene's page; returns it and (the first view's panels, environments) for figures."""
     scene = read_scene(scene_dir)
     panels, envs = scene_panels(scene, jobs, per_view, max_views=max_views)
     protocol = next((j.protocol for j in jobs if j.protocol), {})
     cfg = relight_config(protocol)
     env_images = {e: envmap_preview(read_exr(scene.envmap_path(e)), cfg) for e in envs}
     writer = SceneWriter(out, scene, jobs, thumb=thumb, quality=quality)
-    return writer.write(panels, envs, env_images, all_jobs)
+    return writer.write(panels, envs, env_images, all_jobs), (panels[0], envs)
 
 
 def build_report(paths: list[str | Path], out: str | Path, *, data: str | None = None,
@@ -79,7 +80,7 @@ def build_report(paths: list[str | Path], out: str | Path, *, data: str | None =
     shown = shown_jobs(jobs)
     per_view = {j.label: read_per_view(j) for j in shown}
     site = Site(out=out, index=out / "index.html", problems=problems, tables=tables)
-    sources = scene_sources(jobs)
+    sources, first_views = scene_sources(jobs), {}
     for scene in sorted({s for j in jobs for s in j.scenes}):
         lacking = [j.label for j in shown if j.prediction(scene) is None]
         problems += [Problem(j.run_dir, "missing prediction", f"{j.label} has no prediction "
@@ -89,15 +90,15 @@ def build_report(paths: list[str | Path], out: str | Path, *, data: str | None =
             problems.append(Problem(Path(scene), "missing data", f"{scene}: no ground truth found"))
             continue
         try:
-            site.scene_pages[scene] = write_scene(out, sources[scene], shown, jobs, per_view,
+            site.scene_pages[scene], first_views[scene] = write_scene(out, sources[scene], shown, jobs, per_view,
                                                   max_views=max_views, thumb=thumb, quality=quality)
         except (LayoutError, OSError, ValueError) as exc:
             problems.append(Problem(sources[scene], "scene page", f"{scene}: {exc}"))
     if figures and shown:
-        from eval.report.figures import write_figures
+        from eval.report_site.figures import write_figures
 
         try:
-            site.figures = write_figures(out / "figures", jobs, tables, sources, per_view)
+            site.figures = write_figures(out / "figures", shown, tables, first_views)
         except (LayoutError, OSError, ValueError) as exc:
             problems.append(Problem(out / "figures", "figures", f"figures not written: {exc}"))
     site.index.write_text(page("gspi report", index_body(site, jobs, sweep, paths, out)))

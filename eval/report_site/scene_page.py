@@ -3,10 +3,10 @@
 Layout of `<out>/`:
     index.html                 Tables 1-3, per-scene breakdown, scenes, jobs, problems, figures
     scene_<name>.html          comparison grid per view, relighting strip, turntables, scores
-    img/<scene>/...webp        thumbnails (eval.report.images)
+    img/<scene>/...webp        thumbnails (eval.report_site.images)
     anim/<scene>/<job>.webp    gspi-relight turntables copied from <run>/relight/<scene>/
     jobs/<k>/{config.yaml,run.log}   copies, so the links work when the folder is moved
-    figures/*.{png,pdf}        the paper's figures (eval.report.figures)
+    figures/*.{png,pdf}        the paper's figures (eval.report_site.figures)
 """
 from __future__ import annotations
 
@@ -19,11 +19,11 @@ from pathlib import Path
 import pandas as pd
 
 from eval.layout import LayoutError, read_scene
-from eval.report.collect import Job, Problem, collect_jobs, read_per_view
-from eval.report.html_tables import frame_html, sweep_table_html
-from eval.report.images import colorize_error, css_gradient, save_thumbnail
-from eval.report.page import page, tile
-from eval.report.panels import ERROR_MAX, ViewPanels, scene_panels
+from eval.report_site.collect import Job, Problem, collect_jobs, read_per_view
+from eval.report_site.html_tables import frame_html, sweep_table_html
+from eval.report_site.images import colorize_error, css_gradient, save_thumbnail
+from eval.report_site.page import page, tile
+from eval.report_site.panels import ERROR_MAX, ViewPanels, scene_panels
 
 log = logging.getLogger(__name__)
 MAX_COPY_BYTES = 2_000_000   # a log longer than this is copied as its last 2 MB
