@@ -68,3 +68,18 @@ def make_sweep(root: Path, lpips_net) -> Path:
     _record(runs / "method=gs_ir", "gs_ir", status="failed", error="ValueError: boom")
     (runs / "method=irgs" / ".hydra").mkdir(parents=True)  # killed before result.json
     return runs
+
+
+_SHARED: dict = {}
+
+
+def shared_report(tmp_path_factory, lpips_net):
+    """(sweep folder, Site) built once per test session and shared by the report tests."""
+    if "site" not in _SHARED:
+        from eval.report_site.build import build_report
+
+        root = tmp_path_factory.mktemp("report_sweep")
+        sweep = make_sweep(root, lpips_net)
+        _SHARED["sweep"] = sweep
+        _SHARED["site"] = build_report([sweep], root / "report", bootstrap={"n": 200})
+    return _SHARED["sweep"], _SHARED["site"]

@@ -1,8 +1,8 @@
 """The report in a real browser: headless Chromium over the DevTools pipe (tests/cdp.py).
 
-Skipped when no Chromium is installed (`make chromium` installs Debian's package). Takes
-~5-10 s on top of building the tiny report (the sweep fixture is shared with
-test_report_site.py when both run). Screenshots go to the test's tmp folder and, when
+Skipped when no Chromium is installed (`make chromium` installs Debian's package). The
+browser part takes ~7 s on the 2-core VM, on top of building the tiny report (~20 s, shared
+with test_report_site.py: tests/report_fixtures.shared_report). Screenshots go to the test's tmp folder and, when
 GSPI_SCREENSHOTS is set, to that folder too (to look at them).
 """
 import os
@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from eval.report_site.build import build_report
 from tests.cdp import Browser, find_chromium
-from tests.report_fixtures import make_sweep
+from tests.report_fixtures import shared_report
 
 CHROMIUM = find_chromium()
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (install it with "
@@ -26,9 +25,7 @@ BROKEN = ("Array.from(document.images).filter(i => !(i.complete && i.naturalWidt
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory, lpips_net):
-    root = tmp_path_factory.mktemp("browser")
-    sweep = make_sweep(root, lpips_net)
-    return build_report([sweep], root / "report", bootstrap={"n": 200})
+    return shared_report(tmp_path_factory, lpips_net)[1]
 
 
 def _keep(path: Path) -> None:

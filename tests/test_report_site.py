@@ -9,20 +9,19 @@ from PIL import Image
 
 from eval.report_site.build import build_report
 from eval.report_site.collect import collect_jobs, resolve_data
-from tests.report_fixtures import make_sweep
+from tests.report_fixtures import shared_report
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "gspi_report.yaml"
 
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, lpips_net) -> Path:
-    return make_sweep(tmp_path_factory.mktemp("sweep"), lpips_net)
+    return shared_report(tmp_path_factory, lpips_net)[0]
 
 
 @pytest.fixture(scope="module")
-def site(sweep, tmp_path_factory):
-    return build_report([sweep], tmp_path_factory.mktemp("site") / "report",
-                        bootstrap={"n": 200})
+def site(tmp_path_factory, lpips_net):
+    return shared_report(tmp_path_factory, lpips_net)[1]
 
 
 def test_collect_lists_complete_failed_killed(sweep):
