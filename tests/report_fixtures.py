@@ -4,6 +4,7 @@ Jobs (each a gspi-run folder with result.json, predictions/, eval/, .hydra/confi
   gspi              every channel, roughness off by 0.1; a turntable for sphere_0
   no_decomposition  albedo only (no roughness, no metallic)
   joint_ir          sphere_0 only (sphere_1 missing, named in scene_errors)
+  table3_full, table3_a6_no_distill   Table 3 rows (copies of the gspi job)
   gs_ir             failed (status "failed")
   a killed job      .hydra/ without result.json
 """
@@ -30,10 +31,10 @@ def _record(job: Path, method: str, status: str = "complete", error=None, scenes
     (job / ".hydra" / "config.yaml").write_text(f"method: {method}\nseed: 0\n")
     (job / "run.log").write_text(f"[info] {method}: started\n")
     record = {"format": "gspi-run", "format_version": 1, "status": status, "error": error,
-              "method": method, "ablation": "full", "table": "table1", "seed": 0,
+              "method": method, "ablation": "full", "table": "table1", "seed": 0,  # overridable
               "config_hash": "abc", "data": "data", "scenes": list(scenes),
-              "material_eval": "eval" if status == "complete" else None, "points_eval": None,
-              **extra}
+              "material_eval": "eval" if status == "complete" else None, "points_eval": None}
+    record.update(extra)
     (job / "result.json").write_text(json.dumps(record))
 
 
@@ -65,6 +66,10 @@ def make_sweep(root: Path, lpips_net) -> Path:
         write_result(job / "eval", result, OmegaConf.to_container(protocol))
         _record(job, method, scenes=scenes, **extra)
     _turntable(runs / "method=gspi" / "relight" / "sphere_0" / "turntable.webp")
+    for ablation in ("full", "a6_no_distill"):  # Table 3 rows: the gspi job's files, relabelled
+        job = runs / f"table3_{ablation}"
+        shutil.copytree(runs / "method=gspi", job, ignore=shutil.ignore_patterns("relight"))
+        _record(job, "gspi", scenes=scenes, table="table3", ablation=ablation)
     _record(runs / "method=gs_ir", "gs_ir", status="failed", error="ValueError: boom")
     (runs / "method=irgs" / ".hydra").mkdir(parents=True)  # killed before result.json
     return runs

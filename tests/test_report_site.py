@@ -26,7 +26,8 @@ def site(tmp_path_factory, lpips_net):
 
 def test_collect_lists_complete_failed_killed(sweep):
     jobs, problems = collect_jobs([sweep])
-    assert [j.method for j in jobs] == ["joint_ir", "no_decomposition", "gspi"]  # paper order
+    assert [j.label for j in jobs] == ["Joint IR (GS-IR-style)", "No decomposition",
+                                       "A6: w/o distill", "Ours", "Ours (Full)"]  # paper order
     assert all(j.data == (sweep.parent / "data").resolve() for j in jobs)  # "data" found upward
     kinds = sorted(p.kind for p in problems)
     assert kinds == ["failed", "killed", "scene failed"]
@@ -46,6 +47,7 @@ def test_index_has_one_row_per_method_and_the_problems(site):
     assert len(rows) == 3
     assert html.count('class="best"') >= 1 and html.count('class="second"') >= 1
     assert "Protocol: gspi-decoupled v1" in html           # the footer
+    assert '<table class="metrics" id="table3">' in html    # Table 3 from its two rows
     assert "ValueError: boom" in html                      # the failed job
     assert "without result.json" in html                   # the killed job
     assert "Joint IR (GS-IR-style), sphere_1: RuntimeError: out of memory" in html
@@ -80,8 +82,8 @@ def test_thumbnails_and_error_maps(site):
 
 def test_figures_png_and_pdf(site):
     names = sorted(p.name for p in site.figures)
-    assert names == ["qualitative.pdf", "qualitative.png", "teaser_scatter.pdf",
-                     "teaser_scatter.png"]
+    assert names == ["ablation_stage3.pdf", "ablation_stage3.png", "qualitative.pdf",
+                     "qualitative.png", "teaser_scatter.pdf", "teaser_scatter.png"]
     assert all(p.stat().st_size > 1000 for p in site.figures)
 
 
