@@ -40,7 +40,7 @@ demo: install
 	# Relight each GS-PI asset (gspi-relight: turntable under the held-out "meadow"), then the
 	# static report (gspi-report, docs/REPORT.md) that embeds them.
 	for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
-	  s=$$(basename $$(dirname $$a)); \
+	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
 	  $(VENV)/bin/gspi-relight "asset='$$a'" env=meadow "out='$(DEMO)/runs/method=gspi/relight/$$s'" \
 	    frames=12 size=160 || exit 1; done
 	$(VENV)/bin/gspi-report $(DEMO)/runs out=$(DEMO)/report

@@ -1,5 +1,4 @@
 """gspi-report: the static site from a tiny real sweep, and bad input shown, never a crash."""
-import json
 import re
 from pathlib import Path
 

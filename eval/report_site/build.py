@@ -1,9 +1,10 @@
-"""`build_report`: run/sweep folders -> the static site (eval.report_site.scene_page) and the figures."""
+"""`build_report`: run/sweep folders -> the static site: index.html here, scene pages in
+scene_page.py, figures in figures.py."""
 from __future__ import annotations
 
 import datetime
-import logging
 import shutil
+from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
 
@@ -14,10 +15,62 @@ from eval.report_site.html_tables import frame_html, sweep_table_html
 from eval.report_site.images import envmap_preview
 from eval.report_site.page import page
 from eval.report_site.panels import relight_config, scene_panels
-from eval.report_site.scene_page import (MAX_COPY_BYTES, SceneWriter, Site, build_tables, scene_sources,
-                              shown_jobs)
+from eval.report_site.scene_page import SceneWriter
 
-log = logging.getLogger(__name__)
+MAX_COPY_BYTES = 2_000_000   # a log longer than this is copied as its last 2 MB
+
+
+@dataclass
+class Site:
+    """What was written; returned to the CLI and the tests."""
+
+    out: Path
+    index: Path
+    scene_pages: dict[str, Path] = field(default_factory=dict)
+    problems: list[Problem] = field(default_factory=list)
+    figures: list[Path] = field(default_factory=list)
+    tables: dict = field(default_factory=dict)
+
+    @property
+    def size_bytes(self) -> int:
+        return sum(p.stat().st_size for p in self.out.rglob("*") if p.is_file())
+
+
+def build_tables(paths: list, bootstrap: dict, problems: list[Problem]):
+    """(Sweep, {name: SweepTable}); a sweep that cannot be tabulated becomes a problem."""
+    from eval.sweep import SweepError, load_sweep
+    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+
+    try:
+        sweep = load_sweep(paths)
+        built = {n: build_sweep_table(sweep, spec, bootstrap=bootstrap)
+                 for n, spec in TABLE_SPECS.items()}
+    except (SweepError, ValueError) as exc:
+        problems.append(Problem(Path(str(paths[0])), "tables", f"tables not built: {exc}"))
+        return None, {}
+    return sweep, {n: t for n, t in built.items() if t is not None}
+
+
+def shown_jobs(jobs: list[Job]) -> list[Job]:
+    """Jobs whose images the scene pages show: one per row label (the first seed), Table 1
+    rows and any other job with predictions."""
+    seen, out = set(), []
+    for job in jobs:
+        if job.label in seen or (job.table != "table1" and job.predictions is None):
+            continue
+        seen.add(job.label)
+        out.append(job)
+    return out
+
+
+def scene_sources(jobs: list[Job]) -> dict[str, Path]:
+    """scene name -> its ground-truth folder (from the first job whose dataset has it)."""
+    out = {}
+    for job in jobs:
+        for scene in job.scenes:
+            if scene not in out and job.data is not None and (job.data / scene / "scene.json").is_file():
+                out[scene] = job.data / scene
+    return out
 
 
 def _copy_capped(src: Path, dst: Path) -> None:

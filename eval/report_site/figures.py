@@ -20,6 +20,7 @@ import numpy as np
 from eval.report_site.panels import ViewPanels
 
 CHANNEL_ROWS = ("albedo", "roughness", "metallic")
+SHORT = {"albedo": "albedo", "roughness": "rough.", "metallic": "metal."}
 
 
 def _crossed(ax, note: str = "") -> None:
@@ -70,7 +71,7 @@ def grid_figure(blocks: list[tuple[str, ViewPanels, str]], labels: list[str], ti
                 ax = fig.add_subplot(inner[1, k])
                 _show(ax, images[ch])
                 if b == len(blocks) - 1:
-                    ax.set_xlabel(ch[:5], fontsize=5)
+                    ax.set_xlabel(SHORT[ch], fontsize=5)
     fig.suptitle(title, fontsize=8)
     return fig
 

@@ -1,6 +1,6 @@
-"""Write the report site: index.html (tables, jobs, problems, figures) and one page per scene.
+"""One scene's page of the report: comparison grid per view, relighting strip, turntables.
 
-Layout of `<out>/`:
+The site's layout (eval.report_site.build writes the rest) `<out>/`:
     index.html                 Tables 1-3, per-scene breakdown, scenes, jobs, problems, figures
     scene_<name>.html          comparison grid per view, relighting strip, turntables, scores
     img/<scene>/...webp        thumbnails (eval.report_site.images)
@@ -10,39 +10,17 @@ Layout of `<out>/`:
 """
 from __future__ import annotations
 
-import logging
 import shutil
-from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
 
 import pandas as pd
 
-from eval.layout import LayoutError, read_scene
-from eval.report_site.collect import Job, Problem, collect_jobs, read_per_view
-from eval.report_site.html_tables import frame_html, sweep_table_html
+from eval.report_site.collect import Job
+from eval.report_site.html_tables import frame_html
 from eval.report_site.images import colorize_error, css_gradient, save_thumbnail
 from eval.report_site.page import page, tile
-from eval.report_site.panels import ERROR_MAX, ViewPanels, scene_panels
-
-log = logging.getLogger(__name__)
-MAX_COPY_BYTES = 2_000_000   # a log longer than this is copied as its last 2 MB
-
-
-@dataclass
-class Site:
-    """What was written; returned to the CLI and the tests."""
-
-    out: Path
-    index: Path
-    scene_pages: dict[str, Path] = field(default_factory=dict)
-    problems: list[Problem] = field(default_factory=list)
-    figures: list[Path] = field(default_factory=list)
-    tables: dict = field(default_factory=dict)
-
-    @property
-    def size_bytes(self) -> int:
-        return sum(p.stat().st_size for p in self.out.rglob("*") if p.is_file())
+from eval.report_site.panels import ERROR_MAX, ViewPanels
 
 
 def _metric_caption(metrics: dict | None) -> str:
@@ -51,33 +29,6 @@ def _metric_caption(metrics: dict | None) -> str:
     psnr = "inf" if metrics["psnr"] == float("inf") else f"{metrics['psnr']:.2f}"
     return (f"PSNR {psnr}<br>SSIM {100 * metrics['ssim']:.1f}% "
             f"LPIPS {100 * metrics['lpips']:.1f}%")
-
-
-def build_tables(paths: list, bootstrap: dict, problems: list[Problem]):
-    """(Sweep, {name: SweepTable}); a sweep that cannot be tabulated becomes a problem."""
-    from eval.sweep import SweepError, load_sweep
-    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
-
-    try:
-        sweep = load_sweep(paths)
-        built = {n: build_sweep_table(sweep, spec, bootstrap=bootstrap)
-                 for n, spec in TABLE_SPECS.items()}
-    except (SweepError, ValueError) as exc:
-        problems.append(Problem(Path(str(paths[0])), "tables", f"tables not built: {exc}"))
-        return None, {}
-    return sweep, {n: t for n, t in built.items() if t is not None}
-
-
-def shown_jobs(jobs: list[Job]) -> list[Job]:
-    """Jobs whose images the scene pages show: one per row label (the first seed), Table 1
-    rows and any other job with predictions."""
-    seen, out = set(), []
-    for job in jobs:
-        if job.label in seen or (job.table != "table1" and job.predictions is None):
-            continue
-        seen.add(job.label)
-        out.append(job)
-    return out
 
 
 class SceneWriter:
@@ -190,13 +141,3 @@ class SceneWriter:
         path = self.out / f"scene_{self.scene.name}.html"
         path.write_text(page(f"{self.scene.name} - gspi report", body))
         return path
-
-
-def scene_sources(jobs: list[Job]) -> dict[str, Path]:
-    """scene name -> its ground-truth folder (from the first job whose dataset has it)."""
-    out = {}
-    for job in jobs:
-        for scene in job.scenes:
-            if scene not in out and job.data is not None and (job.data / scene / "scene.json").is_file():
-                out[scene] = job.data / scene
-    return out
