@@ -120,3 +120,18 @@ def test_malformed_record_is_listed(sweep, tmp_path):
     (bad / "result.json").write_text("{not json")
     site = build_report([tmp_path / "runs"], tmp_path / "r")
     assert "malformed" in site.index.read_text() and "invalid JSON" in site.index.read_text()
+
+
+def test_missing_prediction_is_listed_and_tiled(sweep, tmp_path):
+    import shutil
+
+    job = tmp_path / "runs" / "method=no_decomposition"
+    shutil.copytree(sweep / "method=no_decomposition", job)
+    shutil.rmtree(job / "predictions" / "sphere_1")   # gone, and no scene_errors says why
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "keep.txt").write_text("not the report's")
+    site = build_report([tmp_path / "runs"], tmp_path / "r", data=str(sweep.parent / "data"),
+                        figures=False)
+    assert "No decomposition has no prediction for sphere_1" in site.index.read_text()
+    assert "missing: no prediction for this scene" in site.scene_pages["sphere_1"].read_text()
+    assert (tmp_path / "r" / "keep.txt").is_file()     # only the report's own files are replaced

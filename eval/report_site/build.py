@@ -120,14 +120,27 @@ def write_scene(out: Path, scene_dir: Path, jobs: list[Job], all_jobs: list[Job]
     return writer.write(panels, envs, env_images, all_jobs), (panels[0], envs)
 
 
+SITE_DIRS = ("img", "anim", "jobs", "figures")
+
+
+def clear_site(out: Path) -> None:
+    """Remove what a previous report wrote in `out` (its folders and pages), nothing else:
+    `out` may be a folder that holds other files (and Hydra's log of this run)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for name in SITE_DIRS:
+        if (out / name).is_dir():
+            shutil.rmtree(out / name)
+    for page_path in [out / "index.html", *out.glob("scene_*.html")]:
+        page_path.unlink(missing_ok=True)
+
+
 def build_report(paths: list[str | Path], out: str | Path, *, data: str | None = None,
                  max_views: int | None = None, thumb: int = 128, quality: int = 80,
                  bootstrap: dict | None = None, figures: bool = True) -> Site:
-    """Write the site for the jobs below `paths` into `out` (replaced); returns what was written."""
+    """Write the site for the jobs below `paths` into `out` (a previous site there is replaced);
+    returns what was written."""
     out = Path(out)
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    clear_site(out)
     jobs, problems = collect_jobs(paths, data=data)
     sweep, tables = build_tables(list(paths), dict(bootstrap or {}), problems)
     shown = shown_jobs(jobs)
