@@ -3,8 +3,9 @@
 * ``qualitative``: per scene a block, per method a column: the relit image (first held-out
   environment) over albedo, roughness and metallic; a crossed box where the method has no
   such image (a channel it does not model, a missing prediction).
-* ``ablation_stage2`` / ``ablation_stage3``: the same grid over the Table 2 / Table 3 variants
-  (only jobs with material predictions; Stage II variants scored on point clouds have none).
+* ``ablation_stage2`` / ``ablation_stage3``: the same grid over the Table 2 / Table 3 variants,
+  from each variant's material predictions (a gspi-run of a Stage II variant predicts through
+  Stage III too; its Table 2 score is on the point cloud, these images are the final maps).
 * ``teaser_scatter``: relight PSNR against speed = 1 / runtime (end-to-end minutes when known,
   else material minutes), one point per Table 1 row, log speed axis.
 
