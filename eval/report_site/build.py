@@ -190,7 +190,7 @@ def index_body(site: Site, jobs: list[Job], sweep, paths, out: Path) -> str:
     parts.append(f"<h2>Scenes</h2><ul>{links or '<li>none</li>'}</ul>")
     if site.figures:
         figs = "".join(f"<figure class=\"tile\"><a href=\"figures/{p.name}\"><img src=\"figures/"
-                       f"{p.name}\" style=\"width:auto;height:220px\" alt=\"{p.stem}\"></a>"
+                       f"{p.name}\" style=\"width:auto;height:auto;max-width:520px;max-height:420px\" alt=\"{p.stem}\"></a>"
                        f"<figcaption>{p.stem} (<a href=\"figures/{p.stem}.pdf\">PDF</a>)"
                        f"</figcaption></figure>" for p in site.figures if p.suffix == ".png")
         parts.append(f"<h2>Figures</h2>{figs}")
