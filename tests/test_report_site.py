@@ -135,3 +135,22 @@ def test_missing_prediction_is_listed_and_tiled(sweep, tmp_path):
     assert "No decomposition has no prediction for sphere_1" in site.index.read_text()
     assert "missing: no prediction for this scene" in site.scene_pages["sphere_1"].read_text()
     assert (tmp_path / "r" / "keep.txt").is_file()     # only the report's own files are replaced
+
+
+def test_unreadable_prediction_is_a_tile_not_a_crash(sweep, tmp_path):
+    import shutil
+
+    import numpy as np
+
+    from eval.layout import write_material
+
+    job = tmp_path / "runs" / "method=gspi"
+    shutil.copytree(sweep / "method=gspi", job)
+    write_material(job / "predictions" / "sphere_0" / "test" / "001", "roughness",
+                   np.zeros((8, 8), np.float32))                  # wrong size
+    (job / "predictions" / "sphere_1" / "test" / "000" / "albedo.png").write_bytes(b"not a png")
+    site = build_report([tmp_path / "runs"], tmp_path / "r", data=str(sweep.parent / "data"),
+                        figures=False)
+    s0 = site.scene_pages["sphere_0"].read_text()
+    assert "unreadable:" in s0 and "size (8, 8)" in s0
+    assert "unreadable:" in site.scene_pages["sphere_1"].read_text()

@@ -110,6 +110,10 @@ def load_predictions(scene: Scene, pred_dir: Path, split: str) -> dict[str, dict
         vdir = pred_dir / split / view.id
         out[view.id] = {c: read_view_file(vdir, material_file(c)) for c in MATERIAL_CHANNELS
                         if (vdir / material_file(c)).is_file()}
+        for c, arr in out[view.id].items():
+            if arr.shape[:2] != (scene.height, scene.width):
+                raise LayoutError(f"{vdir / material_file(c)}: size {arr.shape[:2]} != ground "
+                                  f"truth {(scene.height, scene.width)}")
     return out
 
 
@@ -197,8 +201,13 @@ def scene_panels(scene: Scene, jobs: list[Job], per_view: dict[str, pd.DataFrame
     all_gts = {v.id: gts.get(v.id) or renderer.gt_view(v) for v in scene.split_views(split)}
     panels = [ViewPanels(v.id, {k: (_rgb(a) if k not in ("normal", "mask", "view_dir") else a)
                                 for k, a in gts[v.id].items()}) for v in views]
+    keys = list(MATERIAL_CHANNELS) + [f"relit:{e}" for e in envs]
     for job in jobs:
-        by_view = job_panels(renderer, job, views, all_gts, per_view.get(job.label, pd.DataFrame()))
+        try:
+            by_view = job_panels(renderer, job, views, all_gts,
+                                 per_view.get(job.label, pd.DataFrame()))
+        except (LayoutError, ValueError, RuntimeError) as exc:  # one bad job, not a bad page
+            by_view = {v.id: {k: Panel(note=f"unreadable: {exc}") for k in keys} for v in views}
         for vp in panels:
             vp.jobs[job.label] = by_view[vp.view]
     return panels, envs
