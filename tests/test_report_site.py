@@ -1,5 +1,6 @@
 """gspi-report: the static site from a tiny real sweep, and bad input shown, never a crash."""
 import re
+from html import unescape
 from pathlib import Path
 
 import pytest
@@ -154,3 +155,17 @@ def test_unreadable_prediction_is_a_tile_not_a_crash(sweep, tmp_path):
     s0 = site.scene_pages["sphere_0"].read_text()
     assert "unreadable:" in s0 and "size (8, 8)" in s0
     assert "unreadable:" in site.scene_pages["sphere_1"].read_text()
+
+
+def test_dataset_not_found_is_listed(sweep, tmp_path):
+    import json
+    import shutil
+
+    job = tmp_path / "runs" / "method=gspi"
+    shutil.copytree(sweep / "method=gspi", job)
+    record = json.loads((job / "result.json").read_text())
+    (job / "result.json").write_text(json.dumps(dict(record, data="no/such/data")))
+    site = build_report([tmp_path / "runs"], tmp_path / "r", figures=False)
+    html = unescape(site.index.read_text())
+    assert "dataset 'no/such/data' not found (give data=<dir>)" in html
+    assert "sphere_0: no ground truth found" in html and site.scene_pages == {}
