@@ -167,5 +167,18 @@ def test_dataset_not_found_is_listed(sweep, tmp_path):
     (job / "result.json").write_text(json.dumps(dict(record, data="no/such/data")))
     site = build_report([tmp_path / "runs"], tmp_path / "r", figures=False)
     html = unescape(site.index.read_text())
-    assert "dataset 'no/such/data' not found (give data=<dir>)" in html
+    assert "dataset 'no/such/data' not found (give gt=<dataset dir>)" in html
     assert "sphere_0: no ground truth found" in html and site.scene_pages == {}
+
+
+def test_hydra_overrides_compose():
+    """`gt=` (not `data=`: conf/data/ is a config group) and positional folders."""
+    from hydra import compose, initialize_config_dir
+
+    from eval.config import CONF_DIR
+    from eval.tables import positional_to_overrides
+
+    overrides = positional_to_overrides(["/tmp", "out=/tmp/r", "gt=/tmp/data", "max_views=2"])
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose("gspi_report", overrides=overrides)
+    assert list(cfg.runs) == ["/tmp"] and cfg.gt == "/tmp/data" and cfg.max_views == 2

@@ -3,7 +3,7 @@
 Examples:
     gspi-report demo_out/runs out=demo_out/report
     gspi-report multirun/2025-01-01/12-00-00 out=report max_views=4
-    gspi-report runs/a runs/b out=report data=data/small figures=false
+    gspi-report runs/a runs/b out=report gt=data/small figures=false
 
 Reads only what runs leave on disk (docs/TABLES.md, docs/FORMAT.md): result.json, the
 gspi-eval folders, predictions/, the dataset's ground truth, .hydra/config.yaml, run.log and
@@ -27,7 +27,7 @@ def run(cfg):
     missing = [r for r in runs if not Path(r).exists()]
     if missing:
         raise FileNotFoundError(f"run folder(s) not found: {', '.join(missing)}")
-    site = build_report(runs, cfg.out, data=cfg.data, max_views=cfg.max_views,
+    site = build_report(runs, cfg.out, data=cfg.gt, max_views=cfg.max_views,
                         thumb=int(cfg.thumb), quality=int(cfg.quality),
                         bootstrap=OmegaConf.to_container(cfg.bootstrap, resolve=True),
                         figures=bool(cfg.figures))

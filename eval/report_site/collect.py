@@ -122,7 +122,7 @@ def collect_jobs(paths: list[str | Path], *, data: str | None = None
         job = _job(record, data)
         if job.data is None:
             problems.append(Problem(job.run_dir, "missing data",
-                                    f"dataset {record.data!r} not found (give data=<dir>)"))
+                                    f"dataset {record.data!r} not found (give gt=<dataset dir>)"))
         for scene, error in job.scene_errors.items():
             problems.append(Problem(job.run_dir, "scene failed", f"{job.label}, {scene}: {error}"))
         jobs.append(job)
