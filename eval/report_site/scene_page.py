@@ -121,6 +121,14 @@ class SceneWriter:
             return "<p>No scores.</p>"
         return frame_html(pd.DataFrame(rows).T, index_name="method (SSIM, LPIPS in %)")
 
+    def protocol_text(self) -> str:
+        """"protocol <name> v<k>, LPIPS <net> v<version>" of the first job that states it."""
+        p = next((j.protocol for j in self.jobs if j.protocol), {})
+        lpips = p.get("lpips") or {}
+        return (f"protocol {p.get('name', '?')} v{p.get('version', '?')}, LPIPS "
+                f"{lpips.get('net', '?')} v{lpips.get('version', '?')}, relit: "
+                f"{(p.get('relight') or {}).get('tonemap', '?')} tone map, GT normals")
+
     def write(self, panels: list[ViewPanels], envs: list[str], env_images: dict, all_jobs) -> Path:
         env_imgs = {e: self._img(img, f"img/{self.scene.name}/env_{e}.webp")
                     for e, img in env_images.items()}
@@ -135,7 +143,7 @@ class SceneWriter:
                 f"<p>Error maps: |prediction − GT| (mean over colour channels, display values) "
                 f"<span class=\"cbar\" style=\"background:{css_gradient()}\"></span> 0 to "
                 f"{ERROR_MAX} (clipped), colour map magma. Scores under each panel: per_view.csv "
-                f"of the job's gspi-eval.</p>{views}"
+                f"of the job's gspi-eval ({escape(self.protocol_text())}).</p>{views}"
                 f"<h2>Relit asset (gspi-relight)</h2>{self.animations(all_jobs)}"
                 f"<h2>Scores, this scene (mean over test views)</h2>{self.scene_scores()}")
         path = self.out / f"scene_{self.scene.name}.html"
