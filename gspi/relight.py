@@ -52,12 +52,12 @@ def load_environment(spec: str | Path, *, height: int = 128) -> Tensor:
 
 
 def rotate_environment(env: Tensor, degrees: float) -> Tensor:
-    """Turn a lat-long map about +Z by ``degrees`` (whole texels; positive = counter-clockwise
-    seen from above). The lat-long azimuth decreases with the column, so the map rolls by
-    +degrees/360 of its width."""
+    """Turn a lat-long map about +Z by ``degrees`` (rounded to whole texels; positive =
+    counter-clockwise seen from above: light from azimuth a comes from a + degrees). The
+    azimuth decreases with the column (docs/FORMAT.md), so texel c takes texel c + shift."""
     width = env.shape[1]
     shift = int(round(degrees / 360.0 * width)) % width
-    return torch.roll(env, shifts=shift, dims=1)
+    return torch.roll(env, shifts=-shift, dims=1)
 
 
 def orbit_cameras(azimuths_deg, elevations_deg, *, radius: float, target, width: int, height: int,

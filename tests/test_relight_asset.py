@@ -80,10 +80,18 @@ def test_plain_2dgs_asset_is_refused():
         shade_asset(surfel_sphere(100), torch.ones(8, 16, 3), w2c, K, 32, 32)
 
 
-def test_rotate_environment_rolls_columns():
-    env = torch.arange(8 * 16 * 3, dtype=torch.float32).reshape(8, 16, 3)
-    assert torch.equal(rotate_environment(env, 360.0), env)
-    assert torch.equal(rotate_environment(env, 90.0)[:, 4], env[:, 0])
+def test_rotate_environment_turns_counter_clockwise():
+    """A light at azimuth 0 (+x) comes from +90 degrees (+y) after turning by +90."""
+    from eval.envmap import latlong_directions
+
+    dirs = latlong_directions(8, 16)
+    env = torch.zeros(8, 16, 3)
+    row, col = 3, int(torch.argmax(dirs[3, :, 0]))            # the texel nearest +x
+    env[row, col] = 1.0
+    turned = rotate_environment(env, 90.0)
+    brightest = dirs.reshape(-1, 3)[int(turned[..., 0].reshape(-1).argmax())]
+    azimuth = math.degrees(math.atan2(float(brightest[1]), float(brightest[0])))
+    assert abs(azimuth - 90.0) < 360 / 16 and torch.equal(rotate_environment(env, 360.0), env)
 
 
 def test_load_environment_by_name_and_error():
