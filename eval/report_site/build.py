@@ -13,7 +13,7 @@ from eval.layout import LayoutError, read_scene
 from eval.report_site.collect import Job, Problem, collect_jobs, read_per_view
 from eval.report_site.html_tables import frame_html, sweep_table_html
 from eval.report_site.images import envmap_preview
-from eval.report_site.page import page
+from eval.report_site.page import page, url
 from eval.report_site.panels import relight_config, scene_panels
 from eval.report_site.scene_page import SceneWriter
 
@@ -90,7 +90,7 @@ def jobs_html(jobs: list[Job], out: Path) -> str:
             if src is not None:
                 rel = f"jobs/{k}/{src.name}"
                 _copy_capped(src, out / rel)
-                links.append(f"<a href=\"{rel}\">{name}</a>")
+                links.append(f"<a href=\"{url(rel)}\">{name}</a>")
         rows.append(f"<tr><td data-v=\"{escape(job.label)}\">{escape(job.label)}</td>"
                     f"<td data-v=\"{job.table}\">{job.table}</td><td data-v=\"{job.seed}\">"
                     f"{job.seed}</td><td data-v=\"{escape(str(job.run_dir))}\">"
@@ -185,7 +185,7 @@ def index_body(site: Site, jobs: list[Job], sweep, paths, out: Path) -> str:
         parts.append(f"<h4>{escape(table.spec.title.split(':')[0])}: per scene, PSNR of the Δ "
                      f"column, mean over seeds</h4>"
                      + frame_html(table.per_scene, index_name="scene", table_id=f"{name}_per_scene"))
-    links = "".join(f"<li><a href=\"{p.name}\">{escape(s)}</a></li>"
+    links = "".join(f"<li><a href=\"{url(p.name)}\">{escape(s)}</a></li>"
                     for s, p in sorted(site.scene_pages.items()))
     parts.append(f"<h2>Scenes</h2><ul>{links or '<li>none</li>'}</ul>")
     if site.figures:

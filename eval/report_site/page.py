@@ -7,6 +7,7 @@ one view of a scene at a time.
 from __future__ import annotations
 
 from html import escape
+from urllib.parse import quote
 
 CSS = """
 body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222;max-width:1600px}
@@ -68,8 +69,14 @@ def page(title: str, body: str) -> str:
             f"<body>\n{body}\n</body></html>\n")
 
 
+def url(rel_path: str) -> str:
+    """A relative file path as an attribute value: percent-encoded (scene names may hold any
+    character) and HTML-escaped."""
+    return escape(quote(rel_path))
+
+
 def tile(src: str | None, caption: str, *, note: str = "", alt: str = "") -> str:
     """An image with a caption, or a crossed "missing" box stating `note`."""
-    inner = (f"<img src=\"{escape(src)}\" alt=\"{escape(alt)}\">" if src
+    inner = (f"<img src=\"{url(src)}\" alt=\"{escape(alt)}\">" if src
              else f"<div class=\"missing\">{escape(note or 'missing')}</div>")
     return f"<figure class=\"tile\">{inner}<figcaption>{caption}</figcaption></figure>"

@@ -19,7 +19,7 @@ import pandas as pd
 from eval.report_site.collect import Job
 from eval.report_site.html_tables import frame_html
 from eval.report_site.images import colorize_error, css_gradient, save_thumbnail
-from eval.report_site.page import page, tile
+from eval.report_site.page import page, tile, url
 from eval.report_site.panels import ERROR_MAX, ViewPanels
 
 
@@ -68,7 +68,7 @@ class SceneWriter:
         return f"<table class=\"grid\"><tr><th></th>{head}</tr>{''.join(rows)}</table>"
 
     def strip(self, vp: ViewPanels, envs: list[str], env_imgs: dict[str, str]) -> str:
-        top = "".join(f"<th><figure class=\"tile env\"><img src=\"{escape(env_imgs[e])}\" "
+        top = "".join(f"<th><figure class=\"tile env\"><img src=\"{url(env_imgs[e])}\" "
                       f"alt=\"{escape(e)}\"><figcaption>{escape(e)}</figcaption></figure></th>"
                       for e in envs)
         gts = "".join(f"<td>{self._gt(vp, 'relit:' + e)}</td>" for e in envs)
@@ -96,7 +96,7 @@ class SceneWriter:
             rel = f"anim/{self.scene.name}/a{k}.webp"
             (self.out / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, self.out / rel)
-            parts.append(f"<figure class=\"tile anim\"><img src=\"{rel}\" alt=\"turntable\">"
+            parts.append(f"<figure class=\"tile anim\"><img src=\"{url(rel)}\" alt=\"turntable\">"
                          f"<figcaption>{escape(job.label)} (seed {job.seed})</figcaption></figure>")
         if not parts:
             return "<p>No turntable: run <code>gspi-relight asset=&lt;run&gt;/work/&lt;scene&gt;/pbr_gs.ply " \
