@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
 
-.PHONY: install demo test test-all bench lpips-weights clean chromium
+.PHONY: install demo test test-all bench lpips-weights clean chromium report-check
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -49,6 +49,10 @@ demo: install
 # Headless Chromium for the report's browser test (tests/test_report_browser.py; skipped without).
 chromium:
 	apt-get update && apt-get install -y chromium
+
+# The demo's report in headless Chromium: no console error, every image loads, sorting works.
+report-check: install
+	GSPI_REPORT=$(DEMO)/report $(PY) -m pytest -q tests/test_report_browser.py -k existing
 
 # Every benchmark at its CPU defaults, one torch thread each (~4 min on the 2-core VM); each
 # prints the machine it ran on. Paper sizes: see each module's docstring (--paper, --sizes 512).
