@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
 
-.PHONY: install demo test test-all bench lpips-weights clean
+.PHONY: install demo test test-all bench lpips-weights clean chromium report-check
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +37,22 @@ demo: install
 	$(VENV)/bin/gspi-data preset=small out=$(DEMO)/data seed=0 'data.only_splits=[test]'
 	$(VENV)/bin/gspi-run -m data=$(DEMO)/data out=$(DEMO)/runs +experiment=demo
 	$(VENV)/bin/gspi-table $(DEMO)/runs out=$(DEMO)/tables
+	# Relight each GS-PI asset (gspi-relight: turntable under the held-out "meadow"), then the
+	# static report (gspi-report, docs/REPORT.md) that embeds them.
+	for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
+	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
+	  $(VENV)/bin/gspi-relight "asset='$$a'" env=meadow "out='$(DEMO)/runs/method=gspi/relight/$$s'" \
+	    frames=12 size=160 || exit 1; done
+	$(VENV)/bin/gspi-report $(DEMO)/runs out=$(DEMO)/report
+	@echo "report: open $(abspath $(DEMO))/report/index.html"
+
+# Headless Chromium for the report's browser test (tests/test_report_browser.py; skipped without).
+chromium:
+	apt-get update && apt-get install -y chromium
+
+# The demo's report in headless Chromium: no console error, every image loads, sorting works.
+report-check: install
+	GSPI_REPORT=$(DEMO)/report $(PY) -m pytest -q tests/test_report_browser.py -k existing
 
 # Every benchmark at its CPU defaults, one torch thread each (~4 min on the 2-core VM); each
 # prints the machine it ran on. Paper sizes: see each module's docstring (--paper, --sizes 512).

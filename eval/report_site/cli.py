@@ -1,0 +1,56 @@
+"""gspi-report: run or sweep folders -> a static HTML report (open index.html from disk).
+
+Examples:
+    gspi-report demo_out/runs out=demo_out/report
+    gspi-report multirun/2025-01-01/12-00-00 out=report max_views=4
+    gspi-report runs/a runs/b out=report gt=data/small figures=false
+
+Reads only what runs leave on disk (docs/TABLES.md, docs/FORMAT.md): result.json, the
+gspi-eval folders, predictions/, the dataset's ground truth, .hydra/config.yaml, run.log and
+relight/<scene>/turntable.webp (gspi-relight). No server, no network. docs/REPORT.md.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def run(cfg):
+    """Build the report of `cfg.runs` into `cfg.out`; returns the Site."""
+    from omegaconf import OmegaConf
+
+    from eval.report_site.build import build_report
+
+    runs = list(cfg.runs) if cfg.runs else []
+    if not runs:
+        raise ValueError("give run or sweep folders: gspi-report DIR [DIR ...] out=<dir>")
+    missing = [r for r in runs if not Path(r).exists()]
+    if missing:
+        raise FileNotFoundError(f"run folder(s) not found: {', '.join(missing)}")
+    site = build_report(runs, cfg.out, data=cfg.gt, max_views=cfg.max_views,
+                        thumb=int(cfg.thumb), quality=int(cfg.quality),
+                        bootstrap=OmegaConf.to_container(cfg.bootstrap, resolve=True),
+                        figures=bool(cfg.figures))
+    print(f"report: {len(site.scene_pages)} scene page(s), {len(site.problems)} problem(s) "
+          f"listed, {site.size_bytes / 1e6:.1f} MB")
+    print(f"open {site.index.resolve().as_uri()}")
+    return site
+
+
+def main() -> None:
+    import hydra
+
+    from eval.config import CONF_DIR
+    from eval.tables import positional_to_overrides
+
+    sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
+
+    @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_report")
+    def _main(cfg) -> None:
+        run(cfg)
+
+    _main()
+
+
+if __name__ == "__main__":
+    main()
