@@ -1,0 +1,110 @@
+"""Stage II training throughput (points/s, steps/s) at the shipped CPU model size, per setting.
+
+One AdamW step = ``gspi.stage2.train.train_step`` (loss, backward, clipping, step, EMA) on a
+fixed synthetic batch shaped like ``sample_batch``'s (N = stage2.data.num_points points per item,
+the 35-dim local condition, 16 of 32 prior views x 25 tokens x 256 AlexNet dims), so the figure
+is the model's compute; ``--data`` also times ``sample_batch`` on a dataset's training scenes.
+
+    python -m benchmarks.bench_stage2_train                       # threads {1, 2} x batch {8, 32}
+    python -m benchmarks.bench_stage2_train --settings 1x8 2x32 --compile
+    python -m benchmarks.bench_stage2_train --data ~/.cache/gspi/stage2_pool
+
+A setting ``TxB`` = T torch threads, batch B. Medians over ``--repeats`` steps after a warm-up.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from benchmarks.common import machine, median_seconds
+from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.schedule import cosine_alphas_cumprod
+from gspi.stage2.train import TrainState, rcw_config, train_step
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+PRIOR_DIM, VIEWS_KEPT, CELLS = 256, 16, 25
+
+
+def train_config(overrides: list[str]) -> dict:
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("gspi_train", overrides=["stage2=cpu_small", "data_dir=.", "out=.",
+                                               "stage2.train.init_from=null", *overrides])
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def synthetic_batch(batch: int, num_points: int, cond_dim: int, seed: int = 0) -> tuple[torch.Tensor, Stage2Inputs]:
+    g = torch.Generator().manual_seed(seed)
+    f0 = torch.rand(batch, num_points, 5, generator=g) * 2 - 1
+    inputs = Stage2Inputs(xyz=torch.nn.functional.normalize(torch.randn(batch, num_points, 3, generator=g), dim=-1),
+                          local_cond=torch.rand(batch, num_points, cond_dim, generator=g),
+                          global_tokens=torch.randn(batch, VIEWS_KEPT, CELLS, PRIOR_DIM, generator=g),
+                          view_ids=torch.stack([torch.randperm(32, generator=g)[:VIEWS_KEPT].sort().values
+                                                for _ in range(batch)]))
+    return f0, inputs
+
+
+def time_setting(threads: int, batch: int, *, repeats: int, compile_model: bool) -> dict:
+    torch.set_num_threads(threads)
+    cfg = train_config([f"stage2.train.batch_size={batch}"])
+    state = TrainState(cfg, rcw_config(cfg["stage2"], PRIOR_DIM))
+    if compile_model:
+        state.model = torch.compile(state.model)
+    n = int(cfg["stage2"]["data"]["num_points"])
+    f0, inputs = synthetic_batch(batch, n, state.model.config.local_cond_dim if not compile_model
+                                 else state.model._orig_mod.config.local_cond_dim)
+    alphas = cosine_alphas_cumprod(int(cfg["stage2"]["diffusion"]["num_train_timesteps"]))
+    t0 = time.perf_counter()
+    train_step(state, f0, inputs, cfg, alphas)          # warm-up (and compilation)
+    first = time.perf_counter() - t0
+    sec = median_seconds(lambda: train_step(state, f0, inputs, cfg, alphas), repeats=repeats, warmup=0)
+    return {"threads": threads, "batch": batch, "compile": compile_model, "s_per_step": sec,
+            "steps_per_s": 1 / sec, "points_per_s": batch * n / sec, "first_step_s": first}
+
+
+def time_sampling(data_dir: str, batch: int, repeats: int) -> float:
+    from gspi.stage2.data import PointDataConfig, sample_batch
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.train import load_split
+
+    cfg = train_config([f"data_dir={data_dir}"])
+    scenes = load_split(cfg, "train", build_encoder(cfg["stage2"]["prior"]))
+    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    rng = np.random.default_rng(0)
+    return median_seconds(lambda: sample_batch(scenes, data_cfg, batch, rng), repeats=repeats)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--settings", nargs="+", default=["1x8", "2x8", "1x32", "2x32"],
+                        help="THREADSxBATCH settings to time")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--compile", action="store_true", help="also time torch.compile (inductor)")
+    parser.add_argument("--data", default=None, help="dataset folder: also time sample_batch")
+    args = parser.parse_args()
+    print(f"machine: {machine()}")
+    rows = []
+    for setting in args.settings:
+        threads, batch = (int(x) for x in setting.split("x"))
+        for compiled in ([False, True] if args.compile else [False]):
+            r = time_setting(threads, batch, repeats=args.repeats, compile_model=compiled)
+            rows.append(r)
+            print(f"threads {threads} batch {batch:3d} compile {compiled!s:5}: {r['s_per_step']:.3f} s/step, "
+                  f"{r['steps_per_s']:.2f} steps/s, {r['points_per_s']:,.0f} points/s "
+                  f"(first step {r['first_step_s']:.1f} s)")
+    base = rows[0]["points_per_s"]
+    for r in rows[1:]:
+        print(f"  {r['threads']}x{r['batch']}{' compiled' if r['compile'] else ''}: "
+              f"{r['points_per_s'] / base:.2f}x the points/s of {rows[0]['threads']}x{rows[0]['batch']}")
+    if args.data:
+        for batch in sorted({r["batch"] for r in rows}):
+            print(f"sample_batch (batch {batch}): {time_sampling(args.data, batch, args.repeats):.3f} s")
+
+
+if __name__ == "__main__":
+    main()
