@@ -53,15 +53,10 @@ def check_one_protocol(runs: dict[str, dict | None]) -> str:
     """Refuse runs evaluated under different protocols; return the common hash.
 
     Args:
-        runs: {run folder: resolved protocol dict, None when the run did not record it}.
+        runs: {run folder: resolved protocol dict (see `recorded_protocol`)}.
     Raises:
         ValueError naming the runs of each hash and the keys that differ.
     """
-    unknown = [r for r, p in runs.items() if p is None]
-    if unknown:
-        raise ValueError(f"run(s) without a recorded protocol (eval_meta.json protocol_config), "
-                         f"so their protocol cannot be checked: {', '.join(unknown)}; "
-                         "re-evaluate them with gspi-eval")
     groups: dict[str, list[str]] = {}
     for run, proto in runs.items():
         groups.setdefault(protocol_hash(proto), []).append(run)
@@ -73,14 +68,25 @@ def check_one_protocol(runs: dict[str, dict | None]) -> str:
             parts.append(f"protocol {h}: {', '.join(rs)} (differs from {h0} in "
                          f"{'; '.join(diff)})")
         raise ValueError("tables never mix protocols; runs were evaluated under "
-                         f"{len(groups)} different ones:\n  " + "\n  ".join(parts))
+                         f"{len(groups)} different protocols:\n  " + "\n  ".join(parts))
     return next(iter(groups)) if groups else ""
+
+
+def recorded_protocol(meta: dict) -> dict:
+    """The protocol an eval_meta.json records: its full `protocol_config`, else (folders
+    written before protocol v1 recorded it) just {"name", "version"}, which then differs
+    from any full protocol in every other key."""
+    config = meta.get("protocol_config")
+    if isinstance(config, dict) and config:
+        return config
+    p = meta.get("protocol") or {}
+    return {"name": p.get("name"), "version": p.get("version")}
 
 
 def describe_protocol(p: dict) -> str:
     """Every knob a reader needs to compare numbers, in one line."""
-    if not p:
-        return "protocol not recorded"
+    if set(p) <= {"name", "version"}:
+        return f"{p.get('name')} v{p.get('version')} (no protocol_config recorded: knobs unknown)"
     r, lp, ps, ss = p.get("relight", {}), p.get("lpips", {}), p.get("psnr", {}), p.get("ssim", {})
     floor = float(ps.get("mse_floor", math.nan))
     cap = 10 * math.log10(1 / floor) if floor > 0 else math.inf

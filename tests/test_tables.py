@@ -79,7 +79,7 @@ def test_positional_dirs_become_runs_override():
 
 
 def test_missing_folder_is_an_error(tmp_path):
-    with pytest.raises(FileNotFoundError, match="no summary.json"):
+    with pytest.raises(FileNotFoundError, match="no complete gspi-eval folder"):
         find_runs([tmp_path])
 
 
