@@ -33,7 +33,8 @@ class PsnrConfig:
 @dataclass
 class SsimConfig:
     window: int = 11             # Gaussian window side (sigma 1.5); Stanford-ORB uses 3
-    region: str = "mask"         # mask: map averaged in the mask | image: zero-padded map, whole image
+    region: str = "mask"         # mask: map averaged in the mask | image: over the whole image
+    padding: str = "valid"       # valid: where the window fits (scikit-image) | same: zero padded
 
 
 @dataclass
@@ -102,6 +103,7 @@ def validate_protocol(cfg) -> None:
     _allowed("albedo_space", cfg.albedo_space, ALBEDO_SPACES)
     _allowed("psnr.region", cfg.psnr.region, REGIONS)
     _allowed("ssim.region", cfg.ssim.region, REGIONS)
+    _allowed("ssim.padding", cfg.ssim.padding, ("valid", "same"))
     _allowed("lpips.net", cfg.lpips.net, LPIPS_NETS)
     _allowed("lpips.version", str(cfg.lpips.version), ("0.1",))
     _allowed("lpips.mode", cfg.lpips.mode, LPIPS_MODES)

@@ -246,6 +246,9 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     if net is None and "lpips" in METRICS:
         from eval.lpips_net import load_lpips
         net = load_lpips(net=protocol.lpips.net, version=str(protocol.lpips.version))
+    if getattr(net, "net_name", protocol.lpips.net) != protocol.lpips.net:
+        raise ValueError(f"the LPIPS network passed in is {net.net_name!r} but the protocol "
+                         f"asks for eval.lpips.net={protocol.lpips.net!r}")
     envs, rows, missing, metas = EnvironmentCache(), [], [], []
     iterator = names
     if progress:

@@ -13,8 +13,9 @@ Inputs: `pred`, `gt` float tensors in [0, 1] of shape [H, W, C] (C = 1 or 3); `m
   fits inside the image (`padding="valid"`, the border scikit-image crops) and averaged over
   the masked pixels there, then over channels; with an all-ones mask this is scikit-image's
   `structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-  data_range=1)`. `region="image"`: the zero-padded ("same") map of the mask-multiplied
-  images averaged over the whole image (Stanford-ORB's `kornia.losses.ssim_loss`).
+  data_range=1)`. `region="image"`: the map of the composited images averaged over the
+  whole image; with `padding="same"` and background 0 this is Stanford-ORB's
+  `1 - 2 kornia.losses.ssim_loss(window 3)` on mask-multiplied images.
 - LPIPS: AlexNet LPIPS v0.1 (eval.lpips_net) on inputs scaled to [-1, 1], grey maps
   replicated to 3 channels, both images composited on `background`; mode "masked_mean"
   averages the spatial LPIPS map inside the mask, mode "composite" takes the ordinary
@@ -128,23 +129,33 @@ def composite(image: Tensor, mask: Tensor, background: float) -> Tensor:
 
 
 def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, *, background: float = 0.0,
-                window: int = SSIM_WINDOW, region: str = "mask") -> float:
-    """Mean SSIM over masked pixels or the whole image (see the module docstring)."""
+                window: int = SSIM_WINDOW, region: str = "mask", padding: str = "valid") -> float:
+    """Mean SSIM over masked pixels or the whole image (see the module docstring).
+
+    Args:
+        region: "mask" (map averaged over masked pixels) or "image" (over every pixel).
+        padding: "valid" (map where the window fits: scikit-image, TensoIR) or "same" (zero
+            padded: kornia's default, Stanford-ORB, the 3DGS `ssim` GS-IR uses).
+    """
     pred, gt, mask = _check(pred, gt, mask)
     h, w = mask.shape
     if window < 1 or window % 2 == 0:
         raise ValueError(f"SSIM window must be an odd number of pixels, got {window}")
     if min(h, w) < window:
         raise ValueError(f"image {h}x{w} is smaller than the SSIM window {window}")
+    if padding not in ("valid", "same"):
+        raise ValueError(f"unknown SSIM padding {padding!r}; allowed: valid, same")
+    a, b = composite(pred, mask, background), composite(gt, mask, background)
+    if padding == "same":  # kornia's eps as Stanford-ORB's call (1e-5 in the background)
+        s, inner = ssim_map(a, b, window=window, padding="same", eps=1e-12), mask
+    else:
+        r = window // 2
+        s, inner = ssim_map(a, b, window=window), mask[r:h - r, r:w - r]
     if _region(region) == "image":
-        return float(ssim_map(composite(pred, mask, 0.0), composite(gt, mask, 0.0),
-                              window=window, padding="same", eps=1e-12).mean())
-    s = ssim_map(composite(pred, mask, background), composite(gt, mask, background),
-                 window=window)
-    r = window // 2
-    inner = mask[r:h - r, r:w - r]
+        return float(s.mean())
     if not inner.any():
-        raise ValueError(f"mask has no pixel at least {r} pixels away from the image border")
+        raise ValueError(f"mask has no pixel at least {window // 2} pixels away from the "
+                         "image border")
     return float(s[inner].mean())
 
 

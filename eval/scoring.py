@@ -40,7 +40,8 @@ def score_pair(pred: Tensor, gt: Tensor, mask: Tensor, protocol, net, *,
     lp_pred, lp_gt = (linear_to_srgb(pred), linear_to_srgb(gt)) if lpips_srgb else (pred, gt)
     return {"psnr": psnr, "psnr_floored": floored,
             "ssim": masked_ssim(pred, gt, mask, background=protocol.background,
-                                window=int(protocol.ssim.window), region=protocol.ssim.region),
+                                window=int(protocol.ssim.window), region=protocol.ssim.region,
+                                padding=protocol.ssim.padding),
             "lpips": masked_lpips(lp_pred, lp_gt, mask, net=net, mode=protocol.lpips.mode,
                                   background=protocol.background,
                                   normalize=bool(protocol.lpips.normalize))}

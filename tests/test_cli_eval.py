@@ -31,7 +31,7 @@ def test_gspi_eval_then_gspi_table(sphere_dataset, tmp_path):
     assert "| offset |" in table and (tmp_path / "tables" / "table1.tex").is_file()
     # the footer names every knob and the image counts
     for knob in ("gspi-decoupled v1 #", "split test", "albedo alignment none (scope scene)",
-                 "PSNR over mask, MSE floor 1.94e-11 (cap 107.1 dB)", "SSIM window 11",
+                 "PSNR over mask, MSE floor 1.94e-11 (cap 107.1 dB)", "SSIM window 11 valid over mask",
                  "LPIPS alex v0.1 masked_mean", "tone map aces+sRGB", "fills roughness 1.0",
                  "roughness 6 (0 at PSNR floor)", "metallic 6 (6 at PSNR floor"):
         assert knob in table, knob
