@@ -78,9 +78,10 @@ def score_relit(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, protocol, 
     cfg = protocol.relight
     if cfg.scale_fit == "lstsq":
         out_linear = out_linear.double() * relit_scale(out_linear, ref_linear, mask)
-    row = score_pair(display_relit(out_linear.double(), cfg),
-                     display_relit(ref_linear.double(), cfg), mask, protocol, net,
-                     lpips_srgb=bool(protocol.lpips.encode_srgb))
+        ref_linear = ref_linear.double()
+    # tone-mapped in the shader's dtype (float32) as protocol v1 did: same numbers bit for bit
+    row = score_pair(display_relit(out_linear, cfg), display_relit(ref_linear, cfg), mask,
+                     protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
     if cfg.psnr_hdr:
         row["psnr_h"] = psnr_hdr(out_linear, ref_linear, mask, cfg, protocol.psnr)
     return row
