@@ -16,10 +16,12 @@ Inputs: `pred`, `gt` float tensors in [0, 1] of shape [H, W, C] (C = 1 or 3); `m
   data_range=1)`. `region="image"`: the map of the composited images averaged over the
   whole image; with `padding="same"` and background 0 this is Stanford-ORB's
   `1 - 2 kornia.losses.ssim_loss(window 3)` on mask-multiplied images.
-- LPIPS: AlexNet LPIPS v0.1 (eval.lpips_net) on inputs scaled to [-1, 1], grey maps
-  replicated to 3 channels, both images composited on `background`; mode "masked_mean"
-  averages the spatial LPIPS map inside the mask, mode "composite" takes the ordinary
-  full-image LPIPS of the composited pair.
+- LPIPS: LPIPS v0.1 (eval.lpips_net; AlexNet or VGG16, the network passed in) on inputs
+  scaled to [-1, 1] (or fed as [0, 1] with `normalize=False`), grey maps replicated to 3
+  channels, both images composited on `background`; mode "masked_mean" averages the
+  spatial LPIPS map inside the mask, mode "composite" takes the ordinary full-image LPIPS of
+  the composited pair.
+- MAE and IoU (metallic): mean absolute error in the mask; IoU of thresholded maps.
 """
 from __future__ import annotations
 

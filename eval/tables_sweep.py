@@ -171,6 +171,19 @@ def _table_protocol(sweep, values: pd.DataFrame, spec: TableSpec) -> str:
     return _single_value(values, "protocol", spec, "protocols")
 
 
+def _table_data(values: pd.DataFrame, spec: TableSpec) -> str:
+    """The datasets of the table; a row (method, ablation) whose runs were scored on different
+    datasets is refused, naming the runs: its mean would mix them."""
+    for (method, ablation), rows in values.groupby(["method", "ablation"]):
+        found = sorted({d for d in rows["data"].unique() if d})
+        if len(found) > 1:
+            runs = [f"{run}: {data}" for run, data in
+                    sorted(set(zip(rows["run"], rows["data"])))]
+            raise ValueError(f"{spec.name}: method={method} ablation={ablation} was scored on "
+                             f"different datasets {found}:\n  " + "\n  ".join(runs))
+    return _single_value(values, "data", spec, "datasets")
+
+
 def _delta_table(units: pd.Series, rows, labels, reference, bootstrap: dict, notes: list[str]
                  ) -> pd.DataFrame:
     delta = pd.DataFrame(math.nan, index=labels, columns=["mean", "lo", "hi", "n_pairs"])
@@ -243,4 +256,4 @@ def build_sweep_table(sweep: Sweep, spec: TableSpec, *, bootstrap: dict | None =
         per_scene=per_scene_breakdown(delta_units, rows, labels), reference=reference,
         notes=notes, protocol=_table_protocol(sweep, values, spec),
         counts=describe_counts(sum_counts([sweep.counts.get(r) for r in _material_runs(values)])),
-        data=_single_value(values, "data", spec, "datasets"), bootstrap=bootstrap)
+        data=_table_data(values, spec), bootstrap=bootstrap)

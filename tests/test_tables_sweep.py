@@ -42,13 +42,14 @@ def per_scene(ablation, seed, offset, channels=MATERIAL):
 
 def write_job(root: Path, name: str, *, method="gspi", ablation="full", table="table2", seed=0,
               config_hash=None, status="complete", error=None, offset=0.0, measure="points",
-              channels=MATERIAL, runtime=(5.0, 10.0), protocol_version=1) -> Path:
+              channels=MATERIAL, runtime=(5.0, 10.0), protocol_version=1, data="data/tiny",
+              protocol_config=None) -> Path:
     """One Hydra job folder with its evaluation folder(s) and result.json (written last)."""
     job = root / name
     (job / ".hydra").mkdir(parents=True)
     record = {"format": "gspi-run", "format_version": 1, "status": status, "error": error,
               "method": method, "ablation": ablation, "table": table, "seed": seed,
-              "config_hash": config_hash or f"h-{method}-{ablation}-{seed}", "data": "data/tiny",
+              "config_hash": config_hash or f"h-{method}-{ablation}-{seed}", "data": data,
               "scenes": list(SCENES), "material_eval": None, "points_eval": None}
     if status == "complete":
         ps = per_scene(ablation, seed, offset, channels)
@@ -65,7 +66,7 @@ def write_job(root: Path, name: str, *, method="gspi", ablation="full", table="t
             (job / "eval" / "eval_meta.json").write_text(json.dumps({
                 "method": method, "protocol": {"name": "gspi-decoupled",
                                                "version": protocol_version},
-                "per_scene": ps,
+                "per_scene": ps, **({"protocol_config": protocol_config} if protocol_config else {}),
                 "runtime_min": {"material": runtime[0], "end_to_end": runtime[1]}}))
             record["material_eval"] = "eval"
     (job / "result.json").write_text(json.dumps(record))
@@ -437,3 +438,24 @@ def test_row_labels_come_from_the_paper_ids():
     rows = [("gspi", "full"), ("gspi", "a2_x"), ("gs_ir", "full"), ("gspi", "a1_y")]
     assert sorted(rows, key=lambda r: row_order(*r)) == \
         [("gs_ir", "full"), ("gspi", "a1_y"), ("gspi", "a2_x"), ("gspi", "full")]
+
+
+def test_sweep_mixing_two_conventions_is_refused_naming_runs_and_keys(tmp_path):
+    base = {"name": "gspi-decoupled", "version": 1, "relight": {"tonemap": "aces"}}
+    a = write_job(tmp_path / "sweep", "a", table="table3", measure="material", protocol_config=base)
+    b = write_job(tmp_path / "sweep", "b", table="table3", measure="material", seed=1,
+                  protocol_config=dict(base, relight={"tonemap": "clamp"}))
+    with pytest.raises(ValueError) as err:
+        build_sweep_table(load_sweep([tmp_path / "sweep"]), TABLE_SPECS["table3"])
+    text = str(err.value)
+    assert "different protocols" in text and "relight.tonemap: 'aces' != 'clamp'" in text
+    assert str(a) in text and str(b) in text
+
+
+def test_one_row_on_two_datasets_is_refused_naming_runs(tmp_path):
+    a = write_job(tmp_path / "sweep", "a", table="table3", measure="material", data="data/small")
+    b = write_job(tmp_path / "sweep", "b", table="table3", measure="material", seed=1,
+                  data="data/tiny")
+    with pytest.raises(ValueError, match="different datasets") as err:
+        build_sweep_table(load_sweep([tmp_path / "sweep"]), TABLE_SPECS["table3"])
+    assert str(a) in str(err.value) and str(b) in str(err.value)
