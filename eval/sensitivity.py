@@ -81,7 +81,8 @@ def sensitivity(scores: pd.DataFrame, reference: str) -> tuple[pd.DataFrame, pd.
     deltas = wide - wide.loc[reference]
     ranks = {}
     for (metric, channel), block in wide.T.groupby(level=["metric", "channel"], sort=False):
-        ref_order = ranking(block[reference].droplevel([0, 1]), metric)
+        ref_values = block[reference].droplevel([0, 1]).dropna()
+        ref_order = ranking(ref_values, metric) if len(ref_values) else None
         for conv in wide.index:
             col = block[conv].droplevel([0, 1]).dropna()
             if col.empty:
@@ -89,14 +90,18 @@ def sensitivity(scores: pd.DataFrame, reference: str) -> tuple[pd.DataFrame, pd.
             order = ranking(col, metric)
             ranks.setdefault(conv, {})[(metric, channel)] = \
                 "kept" if order == ref_order else " > ".join(order)
+            if ref_order is None:  # nothing to compare with: the order itself
+                ranks[conv][(metric, channel)] = "order " + " > ".join(order)
     return deltas, pd.DataFrame(ranks).T.reindex(wide.index)
 
 
 def to_markdown(scores: pd.DataFrame, deltas: pd.DataFrame, ranks: pd.DataFrame,
                 conventions: dict[str, list[str]], reference: str) -> str:
     """One table per metric: rows conventions, columns method/channel; reference row absolute."""
-    lines = [f"Reference convention: `{reference}` (absolute values); other rows: change from it. "
-             "PSNR/PSNR-H in dB, SSIM, LPIPS, MAE and IoU in %.", ""]
+    lines = [f"Reference convention: `{reference}` (absolute values); other rows: change from it "
+             "(\"=x\": absolute, where the reference has no such number). PSNR/PSNR-H in dB, "
+             "SSIM, LPIPS, MAE and IoU in %. Ranking: \"kept\", or the new order (best first) "
+             "of each channel whose order of methods differs from the reference's.", ""]
     for metric in [m for m in HIGHER_IS_BETTER if m in deltas.columns.get_level_values(0)]:
         block = deltas[metric]
         cols = list(block.columns)
@@ -104,10 +109,10 @@ def to_markdown(scores: pd.DataFrame, deltas: pd.DataFrame, ranks: pd.DataFrame,
                   "| convention | " + " | ".join(f"{m} {c}" for c, m in cols) + " | ranking |",
                   "|---|" + "---|" * (len(cols) + 1)]
         for conv in block.index:
-            ref = conv == reference
-            vals = [scores_value(scores, conv, metric, c, m) if ref else block.loc[conv, (c, m)]
-                    for c, m in cols]
-            cells = [("--" if pd.isna(v) else f"{v:.2f}" if ref else f"{v:+.2f}") for v in vals]
+            cells = [_cell(scores, conv, reference, metric, c, m, block.loc[conv, (c, m)])
+                     for c, m in cols]
+            if all(cell == "--" for cell in cells):
+                continue  # this convention has no such number
             changed = [f"{c}: {ranks.loc[conv, (metric, c)]}" for c in dict.fromkeys(c for c, _ in cols)
                        if (metric, c) in ranks.columns and isinstance(ranks.loc[conv, (metric, c)], str)
                        and ranks.loc[conv, (metric, c)] != "kept"]
@@ -117,6 +122,17 @@ def to_markdown(scores: pd.DataFrame, deltas: pd.DataFrame, ranks: pd.DataFrame,
     lines += ["Conventions (gspi-eval overrides):", ""]
     lines += [f"- `{label}`: {' '.join(ov) if ov else '(default)'}" for label, ov in conventions.items()]
     return "\n".join(lines) + "\n"
+
+
+def _cell(scores, conv, reference, metric, channel, method, delta) -> str:
+    """Absolute value on the reference row; elsewhere the change, or "=value" (absolute)
+    where the reference has no such number (e.g. PSNR-H only in the stanford_orb preset)."""
+    value = scores_value(scores, conv, metric, channel, method)
+    if pd.isna(value):
+        return "--"
+    if conv == reference:
+        return f"{value:.2f}"
+    return f"={value:.2f}" if pd.isna(delta) else f"{delta:+.2f}"
 
 
 def scores_value(scores: pd.DataFrame, conv: str, metric: str, channel: str, method: str) -> float:
