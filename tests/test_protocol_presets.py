@@ -196,3 +196,17 @@ class TestTensoirAndGsIr:
             mask = erode_mask(square(), cfg.mask_erosion_px)
             row = score_pair(const(0.4), const(0.4), mask, cfg, net)
             assert row["psnr"] == pytest.approx(CAP) and row["psnr_floored"], name
+
+
+class TestPaper:
+    def test_paper_is_masked_psnr_and_full_image_vgg_lpips_on_black(self, vgg):
+        cfg = preset("paper")
+        mask = square()
+        a, b = const(0.5), const(0.6)
+        row = score_pair(a, b, mask, cfg, vgg)
+        assert row["psnr"] == pytest.approx(20.0, abs=1e-9)   # in the mask, as the default
+        inside = mask[..., None]
+        x, y = (torch.where(inside, t, torch.zeros_like(t)).float().permute(2, 0, 1)[None] * 2 - 1
+                for t in (a, b))
+        with torch.no_grad():
+            assert row["lpips"] == pytest.approx(float(vgg(x, y)), abs=1e-7)

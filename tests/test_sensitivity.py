@@ -1,4 +1,6 @@
 """Protocol sensitivity report: deltas against the reference convention and ranking changes."""
+import math
+
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
@@ -33,9 +35,9 @@ def test_ranking_direction():
 def test_run_on_the_fixture_writes_the_report(sphere_dataset, tmp_path):
     from tests.fixtures import make_prediction
 
-    good = make_prediction(sphere_dataset, tmp_path / "good", channels=("roughness",),
-                           roughness_offset=655 / 65535)
-    bad = make_prediction(sphere_dataset, tmp_path / "bad", channels=("roughness",))
+    good = make_prediction(sphere_dataset, tmp_path / "good", channels=("roughness",))
+    bad = make_prediction(sphere_dataset, tmp_path / "bad", channels=("roughness",),
+                          roughness_offset=13108 / 65535)
     cfg = OmegaConf.create({
         "gt": str(sphere_dataset), "out": str(tmp_path / "out"),
         "methods": {"good": str(good), "bad": str(bad)},
@@ -47,6 +49,7 @@ def test_run_on_the_fixture_writes_the_report(sphere_dataset, tmp_path):
     psnr = scores[(scores["metric"] == "psnr")].set_index(["convention", "method"])["value"]
     # a constant roughness offset d: -20 log10(d) in the mask; the image region adds
     # 10 log10(1 / f) for the foreground fraction f, the same for both methods
-    assert psnr["default", "good"] == pytest.approx(-20 * __import__("math").log10(655 / 65535), abs=1e-6)
+    assert psnr["default", "good"] == pytest.approx(-20 * math.log10(6554 / 65535), abs=1e-6)
+    assert psnr["default", "bad"] == pytest.approx(-20 * math.log10(13108 / 65535), abs=1e-6)
     lift = psnr["image", "good"] - psnr["default", "good"]
     assert lift > 0 and psnr["image", "bad"] - psnr["default", "bad"] == pytest.approx(lift, abs=1e-6)
