@@ -117,11 +117,12 @@ def erode_mask(mask: Tensor, radius_px: int) -> Tensor:
 
 def ssim_map(pred: Tensor, gt: Tensor, *, window: int = SSIM_WINDOW, padding: str = "valid",
              eps: float = 0.0) -> Tensor:
-    """SSIM map of [H, W, C] images via kornia.metrics.ssim (float64): [H-w+1, W-w+1, C]
-    for padding "valid", [H, W, C] (zero padding) for "same". `eps` is added to the
-    denominator: 0 matches scikit-image (C1, C2 > 0 keep it finite); kornia's default 1e-12
-    (Stanford-ORB's) moves SSIM by 1e-5 where both windows are all zero (the background)."""
-    x, y = (t.double().permute(2, 0, 1)[None] for t in (pred, gt))
+    """SSIM map of [H, W, C] images via kornia.metrics.ssim, in the inputs' dtype and
+    differentiable (Stage III's loss uses it): [H-w+1, W-w+1, C] for padding "valid",
+    [H, W, C] (zero padding) for "same". `eps` is added to the denominator: 0 matches
+    scikit-image (C1, C2 > 0 keep it finite); kornia's default 1e-12 (Stanford-ORB's) moves
+    SSIM by 1e-5 where both windows are all zero (the background)."""
+    x, y = (t.permute(2, 0, 1)[None] for t in (pred, gt))
     return kornia.metrics.ssim(x, y, window, eps=eps, padding=padding)[0].permute(1, 2, 0)
 
 
