@@ -25,9 +25,21 @@ def protocol_dict(protocol) -> dict:
     return OmegaConf.to_container(protocol, resolve=True)
 
 
+ALIASES = {"albedo_alignment": {"per_channel": "lstsq"}}  # spellings with one meaning
+
+
+def canonical(protocol: dict) -> dict:
+    """The protocol with aliases resolved, so equal conventions hash equal."""
+    out = dict(protocol)
+    for key, names in ALIASES.items():
+        if out.get(key) in names:
+            out[key] = names[out[key]]
+    return out
+
+
 def protocol_hash(protocol: dict) -> str:
     """First 12 hex digits of the SHA-256 of the canonical JSON of the whole protocol."""
-    text = json.dumps(protocol, sort_keys=True, separators=(",", ":"), default=str)
+    text = json.dumps(canonical(protocol), sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:HASH_CHARS]
 
 
@@ -44,7 +56,7 @@ def flatten(tree: dict, prefix: str = "") -> dict:
 
 def protocol_diff(a: dict, b: dict) -> list[str]:
     """Dotted keys whose values differ, as "key: a_value != b_value" (missing: <absent>)."""
-    fa, fb = flatten(a or {}), flatten(b or {})
+    fa, fb = flatten(canonical(a or {})), flatten(canonical(b or {}))
     return [f"{k}: {fa.get(k, '<absent>')!r} != {fb.get(k, '<absent>')!r}"
             for k in sorted(set(fa) | set(fb)) if fa.get(k, "<absent>") != fb.get(k, "<absent>")]
 

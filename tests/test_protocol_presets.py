@@ -65,6 +65,12 @@ class TestPresetsCompose:
         assert a.name == b.name and protocol_hash(protocol_dict(a)) != protocol_hash(protocol_dict(b))
         assert protocol_diff(protocol_dict(a), protocol_dict(b)) == ["relight.tonemap: 'aces' != 'clamp'"]
 
+    def test_the_per_channel_alias_is_the_same_protocol_as_lstsq(self):
+        a = preset("default", "eval.albedo_alignment=per_channel")
+        b = preset("default", "eval.albedo_alignment=lstsq")
+        assert protocol_hash(protocol_dict(a)) == protocol_hash(protocol_dict(b))
+        assert protocol_diff(protocol_dict(a), protocol_dict(b)) == []
+
     @pytest.mark.parametrize("key, value, allowed", [
         ("albedo_alignment", "mean", "none, scale, lstsq, per_channel, median_ratio"),
         ("albedo_space", "xyz", "srgb, linear"),
