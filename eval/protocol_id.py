@@ -100,16 +100,17 @@ def describe_protocol(p: dict) -> str:
     if set(p) <= {"name", "version"}:
         return f"{p.get('name')} v{p.get('version')} (no protocol_config recorded: knobs unknown)"
     r, lp, ps, ss = p.get("relight", {}), p.get("lpips", {}), p.get("psnr", {}), p.get("ssim", {})
-    floor = float(ps.get("mse_floor", math.nan))
-    cap = 10 * math.log10(1 / floor) if floor > 0 else math.inf
+    floor = float(ps.get("mse_floor", 0.0))
+    floor_text = (f"MSE floor {floor:.3g} (cap {10 * math.log10(1 / floor):.1f} dB)" if floor > 0
+                  else "no MSE floor (recorded before the floor: an exact image scored +inf)")
     tone = r.get("tonemap")
     tone_text = (f"linear clipped to [0, {r.get('hdr_max')}]" if tone == "none" else
                  f"{tone}{'+sRGB' if r.get('srgb') else ''}, exposure {r.get('exposure_stops')} stops")
     return (f"{p.get('name')} v{p.get('version')} #{protocol_hash(p)}: split {p.get('split')}; "
             f"albedo alignment {p.get('albedo_alignment')} (scope {p.get('alignment_scope')}), "
             f"scored in {p.get('albedo_space', 'srgb')}; GT mask eroded "
-            f"{p.get('mask_erosion_px', 0)} px; PSNR over {ps.get('region', 'mask')}, MSE floor "
-            f"{floor:.3g} (cap {cap:.1f} dB){', grey floor' if ps.get('grey_floor') else ''}; "
+            f"{p.get('mask_erosion_px', 0)} px; PSNR over {ps.get('region', 'mask')}, {floor_text}"
+            f"{', grey floor' if ps.get('grey_floor') else ''}; "
             f"SSIM window {ss.get('window', 11)} {ss.get('padding', 'valid')} over "
             f"{ss.get('region', 'mask')}; LPIPS "
             f"{lp.get('net')} v{lp.get('version')} {lp.get('mode')}, inputs "

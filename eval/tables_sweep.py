@@ -165,7 +165,7 @@ def _table_protocol(sweep, values: pd.DataFrame, spec: TableSpec) -> str:
             check_one_protocol(runs)
         except ValueError as exc:
             raise ValueError(f"{spec.name}: {exc}") from None
-        others = values.loc[values["measure"] != "material", "protocol"]
+        others = values.loc[values["measure"] == "points", "protocol"]  # runtime rows: material's
         other = sorted({v for v in others.unique() if v})
         return "; ".join([describe_protocol(next(iter(runs.values())))] + other)
     return _single_value(values, "protocol", spec, "protocols")

@@ -136,3 +136,14 @@ def test_protocol_refusal_names_runs_and_differing_keys(tmp_path):
         build_table1([load_run(r) for r in find_runs([tmp_path])])
     assert "relight.tonemap: 'aces' != 'clamp'" in str(err.value)
     assert str(tmp_path / "a") in str(err.value) and str(tmp_path / "b") in str(err.value)
+
+
+def test_footer_of_a_protocol_recorded_before_the_floor_says_so():
+    from eval.protocol_id import describe_protocol
+
+    old = {"name": "gspi-decoupled", "version": 1, "split": "test", "albedo_alignment": "none",
+           "lpips": {"net": "alex", "version": "0.1", "mode": "masked_mean"},
+           "relight": {"tonemap": "aces", "srgb": True}}
+    text = describe_protocol(old)
+    assert "no MSE floor (recorded before the floor" in text and "LPIPS alex v0.1" in text
+    assert "knobs unknown" in describe_protocol({"name": "p", "version": 1})
