@@ -1,9 +1,10 @@
 """`gspi-eval`: score a prediction folder against a ground-truth dataset.
 
     gspi-eval gt=data/small pred=runs/x/predictions out=runs/x/eval
-    gspi-eval gt=data/small pred=data/small out=/tmp/oracle          # the oracle (PSNR inf)
-    gspi-eval gt=... pred=... out=... eval.albedo_alignment=per_channel eval.lpips.mode=composite
-    gspi-eval gt=... pred=... out=... eval=stanford_orb_like          # another protocol file
+    gspi-eval gt=data/small pred=data/small out=/tmp/oracle          # the oracle (PSNR cap 107.12)
+    gspi-eval gt=... pred=... out=... eval.albedo_alignment=lstsq eval.lpips.mode=composite
+    gspi-eval gt=... pred=... out=... eval=stanford_orb               # a preset: stanford_orb,
+                                                      # tensoir, gs_ir, paper, aligned_clamp
 
 Paths may hold any character: `pred=runs/method=gspi/predictions` (a sweep's job folder),
 spaces, quotes, commas or non-ASCII are quoted for Hydra's grammar (eval/argv.py); in a

@@ -16,21 +16,48 @@ CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
 @dataclass
 class LpipsConfig:
-    net: str = "alex"            # AlexNet LPIPS, the network the field reports
+    net: str = "alex"            # alex | vgg (PerceptualSimilarity backbones, v0.1 heads)
     version: str = "0.1"         # linear-head version of PerceptualSimilarity
     mode: str = "masked_mean"    # masked_mean | composite (see eval/metrics.py)
+    normalize: bool = True       # inputs [0,1] -> [-1,1]; false = GS-IR/IRGS scripts' [0,1] input
+    encode_srgb: bool = False    # sRGB-encode albedo/relight images before LPIPS (Stanford-ORB)
+
+
+@dataclass
+class PsnrConfig:
+    region: str = "mask"         # mask: MSE over GT-mask pixels | image: whole mask-multiplied image
+    mse_floor: float = 1.9403145770321738e-11  # (1/65535)^2/12 (16-bit quantisation): cap 107.12 dB
+    grey_floor: bool = False     # Stanford-ORB: PSNR >= that of a constant 0.5 prediction
+
+
+@dataclass
+class SsimConfig:
+    window: int = 11             # Gaussian window side (sigma 1.5); Stanford-ORB uses 3
+    region: str = "mask"         # mask: map averaged in the mask | image: over the whole image
+    padding: str = "valid"       # valid: where the window fits (scikit-image) | same: zero padded
+
+
+@dataclass
+class MetallicConfig:
+    extra_metrics: bool = True   # also MAE and metal-mask IoU on scenes whose GT has metal
+    threshold: float = 0.5       # a pixel is metal when metallic > threshold (IoU)
 
 
 @dataclass
 class RelightConfig:
     envs: list[str] | None = None       # None = the scene's held-out relight_envs
-    tonemap: str = "aces"               # clamp | aces | reinhard, applied to linear radiance
+    tonemap: str = "aces"               # aces | clamp | reinhard | none (linear, clipped to hdr_max)
     exposure_stops: float = 0.0         # 2**stops before the tone curve
     srgb: bool = True                   # sRGB-encode after the tone curve
     # A method that does not model a channel is relit with this constant (stated per table).
     fill_roughness: float = 1.0
     fill_metallic: float = 0.0
     apply_albedo_alignment: bool = True  # relight with the aligned albedo when aligning
+    scale_fit: str = "none"             # none | lstsq: per-image per-channel scale of the relit
+                                        # linear prediction (Stanford-ORB `scale_invariant`)
+    psnr_hdr: bool = False              # also PSNR-H on linear HDR (Stanford-ORB), metric psnr_h
+    hdr_max: float = 4.0                # PSNR-H: both images clipped to [0, hdr_max]
+    hdr_gt_renorm: bool = True          # PSNR-H: Stanford-ORB's brightness renormalisation of GT
 
 
 @dataclass
@@ -41,27 +68,50 @@ class ProtocolConfig:
     channels: list[str] = field(default_factory=lambda: ["albedo", "roughness", "metallic",
                                                          "relight"])
     background: float = 0.0             # composite value outside the mask for SSIM/LPIPS
-    albedo_alignment: str = "none"      # none | scale | per_channel (least squares, linear)
+    albedo_alignment: str = "none"      # none | scale | lstsq (= per_channel) | median_ratio
     alignment_scope: str = "scene"      # scene (pooled over its views) | view
+    albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear
+    mask_erosion_px: int = 0            # erode the GT mask by a (2r+1)^2 square (Stanford-ORB: 2)
     fail_on_missing_view: bool = False  # False: report missing views and score the rest
+    psnr: PsnrConfig = field(default_factory=PsnrConfig)
+    ssim: SsimConfig = field(default_factory=SsimConfig)
     lpips: LpipsConfig = field(default_factory=LpipsConfig)
+    metallic: MetallicConfig = field(default_factory=MetallicConfig)
     relight: RelightConfig = field(default_factory=RelightConfig)
 
 
-ALIGNMENTS = ("none", "scale", "per_channel")
+ALIGNMENTS = ("none", "scale", "lstsq", "per_channel", "median_ratio")  # per_channel = lstsq
 SCOPES = ("scene", "view")
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
+ALBEDO_SPACES = ("srgb", "linear")
+REGIONS = ("mask", "image")
+LPIPS_NETS = ("alex", "vgg")
+LPIPS_MODES = ("masked_mean", "composite")
+TONEMAPS = ("aces", "clamp", "reinhard", "none")
+SCALE_FITS = ("none", "lstsq")
+
+
+def _allowed(key: str, value, allowed: tuple) -> None:
+    if value not in allowed:
+        raise ValueError(f"eval.{key}={value!r}; allowed: {', '.join(map(str, allowed))}")
 
 
 def validate_protocol(cfg) -> None:
-    """Raise ValueError naming the field when a protocol value is not allowed."""
-    if cfg.albedo_alignment not in ALIGNMENTS:
-        raise ValueError(f"eval.albedo_alignment={cfg.albedo_alignment!r}; allowed: {ALIGNMENTS}")
-    if cfg.alignment_scope not in SCOPES:
-        raise ValueError(f"eval.alignment_scope={cfg.alignment_scope!r}; allowed: {SCOPES}")
+    """Raise ValueError naming the field (and the allowed values) when a value is not allowed."""
+    _allowed("albedo_alignment", cfg.albedo_alignment, ALIGNMENTS)
+    _allowed("alignment_scope", cfg.alignment_scope, SCOPES)
+    _allowed("albedo_space", cfg.albedo_space, ALBEDO_SPACES)
+    _allowed("psnr.region", cfg.psnr.region, REGIONS)
+    _allowed("ssim.region", cfg.ssim.region, REGIONS)
+    _allowed("ssim.padding", cfg.ssim.padding, ("valid", "same"))
+    _allowed("lpips.net", cfg.lpips.net, LPIPS_NETS)
+    _allowed("lpips.version", str(cfg.lpips.version), ("0.1",))
+    _allowed("lpips.mode", cfg.lpips.mode, LPIPS_MODES)
+    _allowed("relight.tonemap", cfg.relight.tonemap, TONEMAPS)
+    _allowed("relight.scale_fit", cfg.relight.scale_fit, SCALE_FITS)
     bad = [c for c in cfg.channels if c not in CHANNELS]
     if bad:
-        raise ValueError(f"eval.channels has unknown {bad}; allowed: {CHANNELS}")
+        raise ValueError(f"eval.channels has unknown {bad}; allowed: {', '.join(CHANNELS)}")
     if not cfg.channels:  # would score nothing and exit 0 with an empty summary
         raise ValueError(f"eval.channels=[]: must name at least one of {CHANNELS}")
     # the composite value outside the mask enters SSIM and LPIPS: a display value in [0, 1]
@@ -72,8 +122,15 @@ def validate_protocol(cfg) -> None:
         raise ValueError(f"eval.version={cfg.version!r}: must be an integer >= 1")
     if not isinstance(cfg.split, str) or not cfg.split:
         raise ValueError(f"eval.split={cfg.split!r}: must be a split name (train, val or test)")
-    if cfg.lpips.net != "alex" or str(cfg.lpips.version) != "0.1":
-        raise ValueError("eval.lpips: only net=alex, version=0.1 is available offline")
+    if not float(cfg.psnr.mse_floor) > 0:
+        raise ValueError(f"eval.psnr.mse_floor={cfg.psnr.mse_floor}: must be > 0 "
+                         "(a zero floor lets one exact image make a mean +inf)")
+    if int(cfg.ssim.window) < 1 or int(cfg.ssim.window) % 2 == 0:
+        raise ValueError(f"eval.ssim.window={cfg.ssim.window}: must be an odd number >= 1")
+    if int(cfg.mask_erosion_px) < 0:
+        raise ValueError(f"eval.mask_erosion_px={cfg.mask_erosion_px}: must be >= 0")
+    if not float(cfg.relight.hdr_max) > 0:
+        raise ValueError(f"eval.relight.hdr_max={cfg.relight.hdr_max}: must be > 0")
 
 
 def register_configs() -> None:

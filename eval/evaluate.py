@@ -14,15 +14,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eval.colorspace import srgb_to_linear
 from eval.imageio import read_exr
 from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, no_images_message,
                          read_meta, read_scene, read_splits, read_view_file)
-from eval.metrics import masked_lpips, masked_psnr, masked_ssim
-from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
+from eval.metrics import erode_mask
+from eval.protocol import apply_albedo_scale, fit_albedo_scale
+from eval.protocol_id import protocol_dict, protocol_hash
+from eval.scoring import has_metal, metal_scores, score_pair, score_relit
 from eval.views import relight_view, view_directions
 
 log = logging.getLogger(__name__)
 METRICS = ("psnr", "ssim", "lpips")
+EXTRA_METRICS = ("psnr_h", "mae", "iou")  # present only where the protocol computes them
 
 
 @dataclass
@@ -107,14 +111,29 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
     return out
 
 
-def _score(pred, gt, mask, protocol, net, where: Path) -> dict:
-    """The three metrics; a refusal of the metrics (e.g. a mask too close to the border for the
-    SSIM window) is re-raised naming ``where`` (the ground-truth view folder)."""
+def _score_channel(channel: str, pred, gt, mask, protocol, net) -> dict:
+    """Scores of one material map; albedo in the protocol's colour space."""
+    if channel == "albedo" and protocol.albedo_space == "linear":
+        pred, gt = srgb_to_linear(pred.double()), srgb_to_linear(gt.double())
+        return score_pair(pred, gt, mask, protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
+    return score_pair(pred, gt, mask, protocol, net)
+
+
+def _scored_mask(vdir_name: str, mask, protocol):
+    """The GT mask eroded by `mask_erosion_px`; an error naming the view if nothing is left."""
+    eroded = erode_mask(mask, int(protocol.mask_erosion_px))
+    if not eroded.any():
+        raise LayoutError(f"{vdir_name}: mask empty after eroding {protocol.mask_erosion_px} px")
+    return eroded
+
+
+def _named(where: Path, score, *args) -> dict:
+    """``score(*args)``; a refusal of the metrics (e.g. a mask too close to the border for the
+    SSIM window) is re-raised naming ``where`` (the ground-truth view folder's mask)."""
     try:
-        return {"psnr": masked_psnr(pred, gt, mask),
-                "ssim": masked_ssim(pred, gt, mask, background=protocol.background),
-                "lpips": masked_lpips(pred, gt, mask, net=net, mode=protocol.lpips.mode,
-                                      background=protocol.background)}
+        return score(*args)
+    except LayoutError:
+        raise
     except ValueError as exc:
         raise LayoutError(f"{where / 'mask.png'}: {exc}") from exc
 
@@ -137,6 +156,11 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
     """Rows for one scene and the list of missing (view, channel) entries."""
     views = scene.split_views(protocol.split)
     gt = {v.id: _load_gt_view(scene, v) for v in views}
+    for v in views:
+        gt[v.id]["mask"] = _scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol)
+    metal = protocol.metallic.extra_metrics and has_metal(
+        [g["metallic"] for g in gt.values()], [g["mask"] for g in gt.values()],
+        float(protocol.metallic.threshold))
     preds, missing = {}, []
     for v in views:
         pdir = pred_scene / protocol.split / v.id
@@ -164,8 +188,12 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
         for c in MATERIAL_CHANNELS:
             if c in protocol.channels and c in p:
                 pred = p["albedo_aligned"] if c == "albedo" else p[c]
-                rows.append({"scene": scene.name, "view": v.id, "channel": c, "env": "",
-                             **_score(pred, g[c], g["mask"], protocol, net, scene.view_dir(v.split, v.id))})
+                row = {"scene": scene.name, "view": v.id, "channel": c, "env": "",
+                       **_named(scene.view_dir(v.split, v.id), _score_channel, c, pred, g[c], g["mask"],
+                                protocol, net)}
+                if c == "metallic" and metal:
+                    row.update(metal_scores(pred, g[c], g["mask"], protocol.metallic))
+                rows.append(row)
         if "relight" in protocol.channels and "albedo" in p and \
                 all(c in p for c in modelled):
             rows += _relight_rows(scene, v, g, p, protocol, net, envs)
@@ -184,19 +212,38 @@ def _relight_rows(scene, view, g, p, protocol, net, envs) -> list[dict]:
         ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
         out = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
         rows.append({"scene": scene.name, "view": view.id, "channel": "relight", "env": env_name,
-                     **_score(display_relit(out, cfg), display_relit(ref, cfg), g["mask"],
-                              protocol, net, scene.view_dir(view.split, view.id))})
+                     **_named(scene.view_dir(view.split, view.id), score_relit, out, ref, g["mask"],
+                              protocol, net)})
     return rows
 
 
 def summarise(rows: list[dict]) -> dict:
-    """{channel: {metric: mean over images}} in the fixed channel order; absent if no row."""
+    """{channel: {metric: mean over images}} in the fixed channel order; absent if no row.
+    Extra metrics (psnr_h, mae, iou) are means over the rows that have them."""
     summary = {}
     for channel in (*MATERIAL_CHANNELS, "relight"):
         sel = [r for r in rows if r["channel"] == channel]
         if sel:
             summary[channel] = {m: float(np.mean([r[m] for r in sel])) for m in METRICS}
+            for m in EXTRA_METRICS:
+                vals = [r[m] for r in sel if r.get(m) is not None]
+                if vals:
+                    summary[channel][m] = float(np.mean(vals))
     return summary
+
+
+def image_counts(rows: list[dict]) -> dict:
+    """{channel: {images, psnr_floored, mae_iou}}: how many images each mean averages, how
+    many hit the PSNR floor, how many carry metallic MAE/IoU."""
+    counts = {}
+    for channel in (*MATERIAL_CHANNELS, "relight"):
+        sel = [r for r in rows if r["channel"] == channel]
+        if sel:
+            counts[channel] = {"images": len(sel),
+                               "psnr_floored": sum(bool(r.get("psnr_floored")) for r in sel)}
+            if any(r.get("mae") is not None for r in sel):
+                counts[channel]["mae_iou"] = sum(r.get("mae") is not None for r in sel)
+    return counts
 
 
 def _mean_runtime(metas: list[dict], key: str) -> float | None:
@@ -213,6 +260,9 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     if net is None and "lpips" in METRICS:
         from eval.lpips_net import load_lpips
         net = load_lpips(net=protocol.lpips.net, version=str(protocol.lpips.version))
+    if getattr(net, "net_name", protocol.lpips.net) != protocol.lpips.net:
+        raise ValueError(f"the LPIPS network passed in is {net.net_name!r} but the protocol "
+                         f"asks for eval.lpips.net={protocol.lpips.net!r}")
     envs, rows, missing, metas = EnvironmentCache(), [], [], []
     iterator = names
     if progress:
@@ -236,12 +286,17 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
                     "are not scored: %s", pred_root, len(missing_scenes), ", ".join(missing_scenes))
     info = {
         "method": method or (methods[0] if len(methods) == 1 else Path(pred_root).name),
-        "protocol": {"name": protocol.name, "version": int(protocol.version)},
+        "protocol": {"name": protocol.name, "version": int(protocol.version),
+                     "hash": protocol_hash(protocol_dict(protocol))},
+        "protocol_config": protocol_dict(protocol),
+        "data": str(Path(gt_root).resolve()), "counts": image_counts(rows),
         "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
         "runtime_min": {"material": _mean_runtime(metas, "material"),
                         "end_to_end": _mean_runtime(metas, "end_to_end")},
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
     }
-    if any(math.isinf(r["psnr"]) for r in rows):
-        info["note"] = "identical images score PSNR = inf (mean is inf if any image is identical)"
+    floored = sum(c["psnr_floored"] for c in info["counts"].values())
+    if floored:
+        info["note"] = (f"{floored} image(s) hit the PSNR floor (MSE <= {protocol.psnr.mse_floor:g}, "
+                        f"PSNR {10 * math.log10(1 / float(protocol.psnr.mse_floor)):.2f} dB)")
     return EvalResult(rows=rows, summary=summarise(rows), info=info)

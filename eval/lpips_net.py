@@ -1,11 +1,12 @@
-"""AlexNet LPIPS v0.1 (Zhang et al., CVPR 2018) in plain torch.
+"""AlexNet and VGG16 LPIPS v0.1 (Zhang et al., CVPR 2018) in plain torch.
 
 Why hand-written: the reference ``lpips`` package builds its backbone with
 ``torchvision.models.alexnet(pretrained=True)``, i.e. it needs torchvision (which
 does not import in this environment) and downloads the ImageNet weights at run
 time. This module re-implements the same network (richzhang/PerceptualSimilarity,
-``lpips/lpips.py`` and ``lpips/pretrained_networks.py``, net='alex',
-version='0.1') and loads weights converted once by ``python -m eval.lpips_weights``.
+``lpips/lpips.py`` and ``lpips/pretrained_networks.py``, net='alex' or 'vgg',
+version='0.1') and loads weights converted once by ``python -m eval.lpips_weights``
+(``--net vgg`` for VGG16).
 
 Parameter names follow the reference module (``net.sliceK.I.*``,
 ``linK.model.1.weight``, ``scaling_layer.*``) so its ``state_dict`` loads here
@@ -18,9 +19,10 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-ALLOWED_NETS = ("alex",)
+ALLOWED_NETS = ("alex", "vgg")
 ALLOWED_VERSIONS = ("0.1",)
-CHANNELS = (64, 192, 384, 256, 256)  # channels of relu1..relu5
+CHANNELS = (64, 192, 384, 256, 256)  # channels of relu1..relu5 (AlexNet)
+NET_CHANNELS = {"alex": CHANNELS, "vgg": (64, 128, 256, 512, 512)}  # VGG: relu1_2 .. relu5_3
 
 _MODEL_CACHE: dict[tuple[str, str], "LPIPS"] = {}
 
@@ -65,6 +67,33 @@ class AlexNetFeatures(nn.Module):
         return feats
 
 
+class VGG16Features(nn.Module):
+    """torchvision VGG16 ``features`` cut into five slices ending at relu1_2 .. relu5_3."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        plan = [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512]
+        layers, chn, idx = [], 3, 0
+        for v in plan:
+            if v == "M":
+                layers.append((idx, nn.MaxPool2d(2, 2)))
+                idx += 1
+            else:
+                layers += [(idx, nn.Conv2d(chn, v, 3, padding=1)), (idx + 1, nn.ReLU(inplace=False))]
+                chn, idx = v, idx + 2
+        ends = (4, 9, 16, 23, 30)
+        starts = (0,) + ends[:-1]
+        for k, (a, b) in enumerate(zip(starts, ends), start=1):
+            setattr(self, f"slice{k}", _slice({i: m for i, m in layers if a <= i < b}))
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        feats = []
+        for k in range(1, 6):
+            x = getattr(self, f"slice{k}")(x)
+            feats.append(x)
+        return feats
+
+
 class NetLinLayer(nn.Module):
     """Dropout (identity in eval) + 1x1 conv to one channel, no bias."""
 
@@ -82,21 +111,24 @@ def normalize_tensor(x: torch.Tensor, eps: float = 1e-10) -> torch.Tensor:
 
 
 class LPIPS(nn.Module):
-    """LPIPS distance with an AlexNet trunk and v0.1 linear heads.
+    """LPIPS distance with an AlexNet (default) or VGG16 trunk and v0.1 linear heads.
 
     Weights are random at construction; use :func:`load_lpips` for the real ones.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, net: str = "alex") -> None:
         super().__init__()
+        if net not in ALLOWED_NETS:
+            raise ValueError(f"LPIPS net {net!r} is not supported; allowed: {list(ALLOWED_NETS)}")
+        self.net_name = net
         self.scaling_layer = ScalingLayer()
-        self.net = AlexNetFeatures()
-        for k, c in enumerate(CHANNELS):
+        self.net = AlexNetFeatures() if net == "alex" else VGG16Features()
+        for k, c in enumerate(NET_CHANNELS[net]):
             self.add_module(f"lin{k}", NetLinLayer(c))  # reference names lin0..lin4
 
     @property
     def lins(self) -> list[NetLinLayer]:
-        return [getattr(self, f"lin{k}") for k in range(len(CHANNELS))]
+        return [getattr(self, f"lin{k}") for k in range(5)]
 
     def forward(self, x: torch.Tensor, y: torch.Tensor, spatial: bool = False) -> torch.Tensor:
         """Perceptual distance between two image batches.
@@ -127,7 +159,7 @@ def load_lpips(net: str = "alex", version: str = "0.1", device: str | torch.devi
     The model is cached per (weights file, device) within the process.
 
     Args:
-        net: backbone; only "alex" is supported.
+        net: backbone, "alex" or "vgg".
         version: linear-head version; only "0.1" is supported.
         device: torch device for the model.
 
@@ -141,16 +173,16 @@ def load_lpips(net: str = "alex", version: str = "0.1", device: str | torch.devi
         raise ValueError(f"LPIPS version {version!r} is not supported; allowed: {list(ALLOWED_VERSIONS)}")
     from eval import lpips_weights  # local import: nothing happens at module import
 
-    path = lpips_weights.weights_path()
+    path = lpips_weights.weights_path(net)
     key = (str(path), str(torch.device(device)))
     if key not in _MODEL_CACHE:
         if not path.is_file():
             raise FileNotFoundError(
-                f"LPIPS weights not found at {path}. Install them once with "
-                "`python -m eval.lpips_weights` (or `make install`)."
+                f"LPIPS {net} weights not found at {path}. Install them once with "
+                f"`python -m eval.lpips_weights --net {net}` (or `make install`)."
             )
         lpips_weights.verify_converted(path)
-        model = LPIPS()
+        model = LPIPS(net)
         model.load_state_dict(torch.load(path, map_location="cpu", weights_only=True), strict=True)
         model.eval().requires_grad_(False)
         _MODEL_CACHE[key] = model.to(device)

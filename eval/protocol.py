@@ -10,29 +10,43 @@ from torch import Tensor
 from eval.colorspace import linear_to_srgb, srgb_to_linear, tonemap
 
 
+ALIGNMENT_ALIASES = {"per_channel": "lstsq"}  # the spelling of protocol v1 docs, kept
+MEDIAN_EPS = 1e-6  # TensoIR's clamp of the prediction before the ratio
+
+
 def fit_albedo_scale(pred_srgb: list[Tensor], gt_srgb: list[Tensor], masks: list[Tensor],
                      mode: str) -> Tensor:
-    """Least-squares scale s minimising |s * pred - gt|^2 in LINEAR albedo over masked pixels.
+    """Scale of the LINEAR predicted albedo towards the ground truth over masked pixels.
 
     Args:
         pred_srgb, gt_srgb: lists of [H, W, 3] sRGB-encoded albedos (pooled together).
         masks: matching [H, W] bool masks.
-        mode: "none" -> ones, "scale" -> one scale for all channels, "per_channel" -> three.
+        mode: "none" -> ones; "scale" -> one least-squares scale for all channels;
+            "lstsq" (alias "per_channel") -> one least-squares scale per channel,
+            argmin |s pred - gt|^2 (NeRFactor, Stanford-ORB); "median_ratio" -> per channel the
+            median of gt / max(pred, 1e-6) (TensoIR `compute_rescale_ratio`, GS-IR, IRGS mode 2;
+            torch.median: the lower middle value for an even count, as in TensoIR).
     Returns:
         [3] scale (linear space).
     """
+    mode = ALIGNMENT_ALIASES.get(mode, mode)
     if mode == "none":
         return torch.ones(3, dtype=torch.float64)
     p = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(pred_srgb, masks)])  # [P, 3]
     g = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(gt_srgb, masks)])
+    if p.shape[0] == 0:
+        return torch.ones(3, dtype=torch.float64)
     if mode == "scale":
         den = (p * p).sum()
         s = (p * g).sum() / den if den > 0 else torch.tensor(1.0, dtype=torch.float64)
         return s.expand(3).clone()
-    if mode == "per_channel":
+    if mode == "lstsq":
         den = (p * p).sum(0)
         return torch.where(den > 0, (p * g).sum(0) / den.clamp_min(1e-30), torch.ones(3).double())
-    raise ValueError(f"unknown albedo alignment {mode!r}; allowed: none, scale, per_channel")
+    if mode == "median_ratio":
+        return (g / p.clamp_min(MEDIAN_EPS)).median(dim=0).values
+    raise ValueError(f"unknown albedo alignment {mode!r}; allowed: none, scale, lstsq, "
+                     "per_channel (= lstsq), median_ratio")
 
 
 def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor) -> Tensor:
@@ -44,6 +58,10 @@ def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor) -> Tensor:
 
 
 def display_relit(radiance_linear: Tensor, relight_cfg) -> Tensor:
-    """Linear relit radiance -> display values in [0, 1] as the protocol states."""
+    """Linear relit radiance -> the values scored: display values in [0, 1], or for tone map
+    "none" linear radiance clipped to [0, relight.hdr_max] (no sRGB)."""
+    if relight_cfg.tonemap == "none":
+        return (radiance_linear * 2.0 ** float(relight_cfg.exposure_stops)).clamp(
+            0.0, float(relight_cfg.hdr_max))
     return tonemap(radiance_linear, mode=relight_cfg.tonemap,
                    exposure_stops=float(relight_cfg.exposure_stops), srgb=bool(relight_cfg.srgb))

@@ -52,15 +52,19 @@ def clear_result(out_dir: str | Path) -> list[Path]:
 def write_result(out_dir: str | Path, result: EvalResult, protocol_dict: dict | None = None) -> None:
     """Write the three result files atomically (a killed run never leaves half a file).
 
-    summary.json holds exactly {channel: {psnr, ssim, lpips}}; a PSNR of identical images is
-    written as the JSON extension `Infinity` (Python's json reads it back as inf).
+    summary.json holds {channel: {psnr, ssim, lpips}} plus, where the protocol computes them,
+    `psnr_h` (relight) and `mae`, `iou` (metallic). per_view.csv adds `psnr_floored` (the
+    MSE hit the protocol's floor) and those extra columns.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    extra = [m for m in ("psnr_h", "mae", "iou") if any(m in r for r in result.rows)]
     frame = pd.DataFrame(result.rows, columns=["scene", "view", "channel", "env", "psnr", "ssim",
-                                               "lpips"])
+                                               "lpips", "psnr_floored", *extra])
     write_text_atomic(out / "per_view.csv", frame.to_csv(index=False))
-    info = dict(result.info, protocol_config=protocol_dict, environment=environment_info())
+    info = dict(result.info, environment=environment_info())
+    if protocol_dict is not None:
+        info["protocol_config"] = protocol_dict
     write_text_atomic(out / "eval_meta.json", json.dumps(info, indent=2) + "\n")
     # summary.json LAST: its presence means the other two files are of the same evaluation
     write_text_atomic(out / "summary.json", json.dumps(result.summary, indent=2) + "\n")
@@ -68,13 +72,17 @@ def write_result(out_dir: str | Path, result: EvalResult, protocol_dict: dict | 
 
 def format_summary(result: EvalResult) -> str:
     """Plain-text table: channels as rows, PSNR (dB), SSIM (%), LPIPS (%) as columns."""
-    lines = [f"method: {result.info.get('method')}   protocol: "
-             f"{result.info['protocol']['name']} v{result.info['protocol']['version']}   "
-             f"images: {result.info['num_images']}",
-             f"{'channel':<10} {'PSNR':>8} {'SSIM(%)':>8} {'LPIPS(%)':>9}"]
+    p = result.info["protocol"]
+    lines = [f"method: {result.info.get('method')}   protocol: {p['name']} v{p['version']} "
+             f"#{p.get('hash')}   images: {result.info['num_images']}",
+             f"{'channel':<10} {'PSNR':>8} {'SSIM(%)':>8} {'LPIPS(%)':>9} {'floored':>8}  extra"]
+    counts = result.info.get("counts", {})
     for channel, m in result.summary.items():
         psnr = "inf" if math.isinf(m["psnr"]) else f"{m['psnr']:.2f}"
-        lines.append(f"{channel:<10} {psnr:>8} {100 * m['ssim']:>8.2f} {100 * m['lpips']:>9.2f}")
+        extra = "  ".join(f"{k} {m[k]:.4g}" for k in ("psnr_h", "mae", "iou") if k in m)
+        floored = counts.get(channel, {}).get("psnr_floored", 0)
+        lines.append(f"{channel:<10} {psnr:>8} {100 * m['ssim']:>8.2f} {100 * m['lpips']:>9.2f} "
+                     f"{floored:>8}  {extra}".rstrip())
     if result.info.get("missing_scenes"):
         absent = result.info["missing_scenes"]
         lines.append(f"missing scenes: {len(absent)} of the split(s) have no prediction and are not in "

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
 
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
@@ -74,6 +75,8 @@ class Sweep:
     superseded: list[RunRecord] = field(default_factory=list)  # failed, later completed
     unfinished: list[Path] = field(default_factory=list)       # job folders without a record
     notes: list[str] = field(default_factory=list)              # duplicates, missing scenes
+    protocols: dict = field(default_factory=dict)  # run folder -> resolved material protocol
+    counts: dict = field(default_factory=dict)     # run folder -> eval_meta.json image counts
 
 
 def infer_table(method: str, ablation: str) -> str:
@@ -223,7 +226,8 @@ def record_values(record: RunRecord) -> tuple[list[dict], list[str]]:
         meta = _read_json(meta_path, "eval_meta.json of material_eval")
         _read_json(record.material_eval / "summary.json", "summary.json of material_eval")
         material = _per_scene_rows(meta.get("per_scene"), meta_path, "material")
-        protocol["material"] = _protocol_name(meta.get("protocol"), "unnamed protocol")
+        protocol["material"] = (_protocol_name(meta.get("protocol"), "unnamed protocol")
+                                + f" #{protocol_hash(recorded_protocol(meta))}")
         rows += material + _runtime_rows(record, meta, sorted({r["scene"] for r in material}))
     if record.points_eval is not None:
         summary_path = record.points_eval / "summary.json"
@@ -277,8 +281,12 @@ def load_sweep(paths: list[str | Path], *, tables: tuple[str, ...] = TABLES) -> 
     done = {r.identity for r in complete}
     failed = [r for r in parsed if r.status == "failed" and r.identity not in done]
     superseded = [r for r in parsed if r.status == "failed" and r.identity in done]
-    rows = []
+    rows, protocols, counts = [], {}, {}
     for rec in sorted(complete, key=lambda r: (r.table, r.method, r.ablation, r.seed)):
+        if rec.material_eval is not None:
+            meta = _read_json(rec.material_eval / "eval_meta.json", "eval_meta.json of material_eval")
+            protocols[str(rec.run_dir)] = recorded_protocol(meta)
+            counts[str(rec.run_dir)] = meta.get("counts") or {}
         values, lacking = record_values(rec)
         notes += lacking
         own = {"method": rec.method, "ablation": rec.ablation, "table": rec.table,
@@ -287,4 +295,4 @@ def load_sweep(paths: list[str | Path], *, tables: tuple[str, ...] = TABLES) -> 
         rows += [dict(own, **v) for v in values]
     frame = pd.DataFrame(rows, columns=COLUMNS)
     return Sweep(values=frame, records=complete, failed=failed, superseded=superseded,
-                 unfinished=unfinished, notes=notes)
+                 unfinished=unfinished, notes=notes, protocols=protocols, counts=counts)

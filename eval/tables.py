@@ -17,13 +17,18 @@ Numbers are never typed by hand: every cell comes from a summary.json.
 """
 from __future__ import annotations
 
+import logging
 import math
 import sys
 from pathlib import Path
 
 import pandas as pd
 
+from eval.protocol_id import (check_one_protocol, describe_counts, describe_protocol,
+                              recorded_protocol, sum_counts)
 from eval.tables_render import write_text_atomic
+
+log = logging.getLogger(__name__)
 
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 METRICS = (("psnr", "PSNR↑", 1.0, True), ("ssim", "SSIM(%)↑", 100.0, True),
@@ -34,16 +39,35 @@ LATEX_COLORS = (r"\definecolor{BaselineBestCell}{RGB}{255,235,238}" "\n"
 
 
 def find_runs(paths: list[str | Path]) -> list[Path]:
-    """Folders holding a summary.json, searched recursively below each given path."""
+    """Complete gspi-eval folders (summary.json and eval_meta.json), searched recursively
+    below each given path; incomplete ones are left out (see `find_incomplete`)."""
     found = []
     for p in map(Path, paths):
         if not p.exists():
             raise FileNotFoundError(f"{p}: run folder not found")
         found += sorted({s.parent for s in p.rglob("summary.json")} |
                         ({p} if (p / "summary.json").is_file() else set()))
-    if not found:
-        raise FileNotFoundError(f"no summary.json below {', '.join(map(str, paths))}")
-    return sorted(set(found))
+    complete = sorted(d for d in set(found) if (d / "eval_meta.json").is_file())
+    if not complete:
+        bad = find_incomplete(paths)
+        raise FileNotFoundError(f"no complete gspi-eval folder (summary.json + eval_meta.json) "
+                                f"below {', '.join(map(str, paths))}"
+                                + (f"; incomplete (killed?) folders: {', '.join(map(str, bad))}"
+                                   if bad else ""))
+    return complete
+
+
+def find_incomplete(paths: list[str | Path]) -> list[Path]:
+    """gspi-eval folders a killed run left: summary.json without eval_meta.json (the last file
+    written), or a Hydra output folder (.hydra/) with neither summary.json nor result.json."""
+    bad = set()
+    for p in map(Path, paths):
+        bad |= {s.parent for s in p.rglob("summary.json")
+                if not (s.parent / "eval_meta.json").is_file()}
+        bad |= {h.parent for h in p.rglob(".hydra") if h.is_dir()
+                and not (h.parent / "summary.json").is_file()
+                and not (h.parent / "result.json").is_file()}
+    return sorted(bad)
 
 
 def load_run(run_dir: Path) -> dict:
@@ -66,7 +90,9 @@ def load_run(run_dir: Path) -> dict:
         raise LayoutError(f"{meta_path}: protocol must be an object {{name, version}}")
     rec = {"method": meta.get("method", run_dir.name), "run": str(run_dir),
            "protocol": f"{meta.get('protocol', {}).get('name')}"
-                       f" v{meta.get('protocol', {}).get('version')}"}
+                       f" v{meta.get('protocol', {}).get('version')}",
+           "protocol_config": recorded_protocol(meta), "counts": meta.get("counts") or {},
+           "data": meta.get("data"), "scenes": tuple(sorted(meta.get("scenes") or []))}
     for metric, _, scale, _ in METRICS:
         for ch in CHANNELS:
             value = summary.get(ch, {}).get(metric)
@@ -77,17 +103,34 @@ def load_run(run_dir: Path) -> dict:
     return rec
 
 
+def check_compatible(records: list[dict]) -> None:
+    """Refuse to average runs of one method scored on different datasets or scene sets (the
+    error names the runs); runs without a recorded dataset/scenes are not compared."""
+    by_method: dict[str, list[dict]] = {}
+    for rec in records:
+        by_method.setdefault(rec["method"], []).append(rec)
+    for method, recs in by_method.items():
+        for key, what in (("data", "ground-truth datasets"), ("scenes", "scene sets")):
+            values = {rec.get(key) for rec in recs if rec.get(key)}
+            if len(values) > 1:
+                lines = [f"{rec['run']}: {rec.get(key)}" for rec in recs]
+                raise ValueError(f"method {method!r}: its runs were scored on different {what}, "
+                                 "so their mean would mix them:\n  " + "\n  ".join(lines))
+
+
 def build_table1(records: list[dict]) -> pd.DataFrame:
-    """Methods x columns, runs of one method averaged; refuses mixed protocol versions."""
+    """Methods x columns, runs of one method averaged; refuses mixed protocols (any key of
+    the resolved protocol) and runs of one method on different data or scene sets."""
+    check_one_protocol({rec["run"]: rec.get("protocol_config") or {"name": rec["protocol"]}
+                        for rec in records})
+    check_compatible(records)
     frame = pd.DataFrame(records)
-    protocols = sorted(frame["protocol"].unique())
-    if len(protocols) > 1:
-        raise ValueError(f"runs were evaluated under different protocols {protocols}: "
-                         "tables never mix protocol versions")
     cols = [f"{m}/{c}" for m, *_ in METRICS for c in CHANNELS] + \
         ["runtime/material", "runtime/end_to_end"]
     table = frame.groupby("method", sort=False)[cols].mean()
-    table.attrs["protocol"] = protocols[0]
+    table.attrs["protocol"] = describe_protocol(records[0].get("protocol_config") or {})
+    table.attrs["counts"] = describe_counts(sum_counts([r.get("counts") for r in records]))
+    table.attrs["incomplete"] = []
     return table
 
 
@@ -148,7 +191,17 @@ def to_markdown(table: pd.DataFrame) -> str:
     lines += ["| " + " | ".join(r) + " |" for r in _cells(table, marks, "md")]
     lines.append(f"\nProtocol: {table.attrs.get('protocol')}. Best **bold**, second <u>underlined</u>;"
                  " -- = channel not modelled.")
+    lines += [f"\n{line}" for line in footer_extra(table)]
     return "\n".join(lines) + "\n"
+
+
+def footer_extra(table: pd.DataFrame) -> list[str]:
+    """Image counts per channel and the incomplete folders left out."""
+    lines = [f"{table.attrs['counts']}."] if table.attrs.get("counts") else []
+    if table.attrs.get("incomplete"):
+        lines.append("Incomplete gspi-eval folder(s) left out (killed before eval_meta.json): "
+                     + ", ".join(map(str, table.attrs["incomplete"])))
+    return lines
 
 
 def _latex_label(label: str) -> str:
@@ -162,6 +215,7 @@ def to_latex(table: pd.DataFrame) -> str:
     body = "\n".join(" & ".join(r).replace("%", r"\%") + r" \\" for r in _cells(table, marks, "tex"))
     return (f"% {LATEX_COLORS.splitlines()[0]}\n% {LATEX_COLORS.splitlines()[1]}\n"
             f"% protocol: {table.attrs.get('protocol')}\n"
+            + "".join(f"% {line}\n" for line in footer_extra(table)) +
             r"\begin{tabular}{l cccc cccc cccc c}" "\n" r"\toprule" "\n"
             rf"\multirow{{2}}{{*}}{{Method}} & {groups} & \multirow{{2}}{{*}}{{\makecell{{Runtime\\(min)}}}} \\"
             "\n" r"\cmidrule(lr){2-5} \cmidrule(lr){6-9} \cmidrule(lr){10-13}" "\n"
@@ -179,11 +233,17 @@ def write_tables(table: pd.DataFrame, out_dir: Path, stem: str = "table1") -> di
 
 
 def is_sweep(paths: list[str | Path]) -> bool:
-    """True when the folders hold gspi-run records or Hydra job folders (even all killed)."""
+    """True when the folders hold gspi-run records, or Hydra job folders (even all killed) and
+    no complete gspi-eval folder: a killed gspi-eval folder next to complete ones does not
+    turn them into a sweep (it is listed as incomplete in the table's footer)."""
     from eval.sweep import find_records
 
     records, unfinished = find_records(paths)
-    return bool(records or unfinished)
+    if records:
+        return True
+    has_eval = any((s.parent / "eval_meta.json").is_file()
+                   for p in paths if Path(p).exists() for s in Path(p).rglob("summary.json"))
+    return bool(unfinished) and not has_eval
 
 
 def run_sweep(cfg) -> dict:
@@ -220,6 +280,9 @@ def run(cfg):
     if is_sweep(runs):
         return run_sweep(cfg)
     table = build_table1([load_run(r) for r in find_runs(runs)])
+    table.attrs["incomplete"] = find_incomplete(runs)
+    for folder in table.attrs["incomplete"]:
+        log.warning("%s: incomplete gspi-eval folder (killed?), left out of the table", folder)
     paths = write_tables(table, Path(cfg.out))
     print(paths["md"].read_text())
     return table

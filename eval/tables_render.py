@@ -90,6 +90,8 @@ def footer_lines(table: SweepTable, sweep: Sweep, style: str = "md") -> list[str
                      f"units both rows have, {int(round(100 * b['confidence']))}% percentile "
                      f"bootstrap interval ({b['n']} resamples, seed {b['seed']}).")
     lines.append(f"Protocol: {table.protocol or '--'}. Data: {table.data or '--'}.")
+    if table.counts:
+        lines.append(f"{table.counts}.")
     lines += table.notes
     mine = [r for r in sweep.failed if r.table == table.spec.name]
     lines += [f"failed job: {r.run_dir} ({r.method}, {r.ablation}, seed {r.seed}): {r.error}"

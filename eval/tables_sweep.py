@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import pandas as pd
 
+from eval.protocol_id import check_one_protocol, describe_counts, describe_protocol, sum_counts
 from eval.stats import mean_and_sem, paired_bootstrap_ci, paired_differences
 from eval.sweep import Sweep
 from eval.tables_labels import REFERENCE_ABLATION, row_label, row_order
@@ -99,6 +100,7 @@ class SweepTable:
     reference: str | None                # label of the reference row
     notes: list[str] = field(default_factory=list)
     protocol: str = ""
+    counts: str = ""                     # images per channel (and at the PSNR floor), all runs
     data: str = ""
     bootstrap: dict = field(default_factory=dict)
 
@@ -148,6 +150,38 @@ def _single_value(values: pd.DataFrame, name: str, spec: TableSpec, what: str) -
         raise ValueError(f"{spec.name}: runs were evaluated under different {what} {found}: "
                          "tables never mix protocol versions")
     return ", ".join(found)
+
+
+def _material_runs(values: pd.DataFrame) -> list[str]:
+    return sorted(values.loc[values["measure"] == "material", "run"].unique())
+
+
+def _table_protocol(sweep, values: pd.DataFrame, spec: TableSpec) -> str:
+    """Every knob of the one protocol the table's material scores share; refuses two (the
+    error names the runs and the keys that differ). Other measures: their names."""
+    runs = {r: sweep.protocols[r] for r in _material_runs(values) if r in sweep.protocols}
+    if runs:
+        try:
+            check_one_protocol(runs)
+        except ValueError as exc:
+            raise ValueError(f"{spec.name}: {exc}") from None
+        others = values.loc[values["measure"] == "points", "protocol"]  # runtime rows: material's
+        other = sorted({v for v in others.unique() if v})
+        return "; ".join([describe_protocol(next(iter(runs.values())))] + other)
+    return _single_value(values, "protocol", spec, "protocols")
+
+
+def _table_data(values: pd.DataFrame, spec: TableSpec) -> str:
+    """The datasets of the table; a row (method, ablation) whose runs were scored on different
+    datasets is refused, naming the runs: its mean would mix them."""
+    for (method, ablation), rows in values.groupby(["method", "ablation"]):
+        found = sorted({d for d in rows["data"].unique() if d})
+        if len(found) > 1:
+            runs = [f"{run}: {data}" for run, data in
+                    sorted(set(zip(rows["run"], rows["data"])))]
+            raise ValueError(f"{spec.name}: method={method} ablation={ablation} was scored on "
+                             f"different datasets {found}:\n  " + "\n  ".join(runs))
+    return _single_value(values, "data", spec, "datasets")
 
 
 def _delta_table(units: pd.Series, rows, labels, reference, bootstrap: dict, notes: list[str]
@@ -220,5 +254,6 @@ def build_sweep_table(sweep: Sweep, spec: TableSpec, *, bootstrap: dict | None =
         count=frames["count"], marks=rank_marks(frames["mean"], spec.columns),
         delta=_delta_table(delta_units, rows, labels, reference, bootstrap, notes),
         per_scene=per_scene_breakdown(delta_units, rows, labels), reference=reference,
-        notes=notes, protocol=_single_value(values, "protocol", spec, "protocols"),
-        data=_single_value(values, "data", spec, "datasets"), bootstrap=bootstrap)
+        notes=notes, protocol=_table_protocol(sweep, values, spec),
+        counts=describe_counts(sum_counts([sweep.counts.get(r) for r in _material_runs(values)])),
+        data=_table_data(values, spec), bootstrap=bootstrap)

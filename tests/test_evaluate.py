@@ -137,3 +137,63 @@ def test_scene_json_errors_name_the_file(tmp_path):
     (tmp_path / "s" / "scene.json").write_text("{oops")
     with pytest.raises(LayoutError, match="invalid JSON"):
         read_scene(tmp_path / "s")
+
+
+def test_exact_maps_hit_the_floor_and_are_counted_never_inf(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", channels=("roughness", "metallic"))
+    result = evaluate(sphere_dataset, pred, protocol(channels=["roughness", "metallic"]),
+                      net=lpips_net)
+    cap = 10 * math.log10(12 * 65535.0**2)
+    assert result.summary["metallic"]["psnr"] == pytest.approx(cap)  # copied: MSE 0
+    assert result.info["counts"]["metallic"] == {"images": 6, "psnr_floored": 6, "mae_iou": 6}
+    assert result.info["counts"]["roughness"]["psnr_floored"] == 0
+    assert "6 image(s) hit the PSNR floor" in result.info["note"]
+    assert all(math.isfinite(r["psnr"]) for r in result.rows)
+
+
+def test_metallic_mae_and_iou_on_scenes_with_metal(sphere_dataset, tmp_path, lpips_net):
+    """The fixture's metal is x > 0.3; a prediction of metallic 0 everywhere has MAE = the
+    metal fraction and IoU 0, while its PSNR/SSIM say little."""
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", channels=("metallic",))
+    for scene in ("sphere_0", "sphere_1"):
+        for view in ("000", "001", "002"):
+            d = pred / scene / "test" / view
+            write_material(d, "metallic", np.zeros_like(read_view_metallic(d)))
+    result = evaluate(sphere_dataset, pred, protocol(channels=["metallic"]), net=lpips_net)
+    gt = evaluate(sphere_dataset, sphere_dataset, protocol(channels=["metallic"]), net=lpips_net)
+    for row, ref in zip(result.rows, gt.rows):
+        assert ref["iou"] == 1.0 and ref["mae"] == 0.0
+        # a view that shows metal: IoU 0; one that shows none: both metal sets empty, IoU 1
+        assert row["iou"] == (0.0 if row["mae"] > 0 else 1.0) and row["mae"] < 1
+    assert sum(r["mae"] > 0 for r in result.rows) >= 3
+    off = evaluate(sphere_dataset, pred, protocol(channels=["metallic"],
+                                                  **{"metallic.extra_metrics": False}), net=lpips_net)
+    assert "mae" not in off.summary["metallic"]
+
+
+def read_view_metallic(view_dir):
+    from eval.layout import read_view_file
+    return read_view_file(view_dir, "metallic.png")
+
+
+def test_median_ratio_alignment_recovers_a_global_scale(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", albedo_scale=0.6)
+    aligned = evaluate(sphere_dataset, pred, protocol(channels=["albedo"],
+                                                      albedo_alignment="median_ratio"), net=lpips_net)
+    assert aligned.summary["albedo"]["psnr"] > 55  # only 16-bit quantisation remains
+
+
+def test_mask_erosion_scores_fewer_pixels(sphere_dataset, tmp_path, lpips_net):
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", channels=("roughness",))
+    offset = 6554 / 65535  # constant error: PSNR does not depend on how many pixels
+    eroded = evaluate(sphere_dataset, pred, protocol(channels=["roughness"], mask_erosion_px=2),
+                      net=lpips_net)
+    assert eroded.rows[0]["psnr"] == pytest.approx(-10 * math.log10(offset**2), abs=1e-6)
+    with pytest.raises(LayoutError, match="mask empty after eroding 1000 px"):
+        evaluate(sphere_dataset, pred, protocol(channels=["roughness"], mask_erosion_px=1000),
+                 net=lpips_net)
+
+
+def test_a_network_other_than_the_protocols_is_refused(sphere_dataset, lpips_net):
+    with pytest.raises(ValueError, match="eval.lpips.net='vgg'"):
+        evaluate(sphere_dataset, sphere_dataset, protocol(**{"lpips.net": "vgg"}), net=lpips_net)

@@ -5,7 +5,8 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from eval.metrics import masked_lpips, masked_psnr, masked_ssim
+from eval.metrics import (MSE_FLOOR_16BIT, erode_mask, grey_psnr, masked_iou, masked_lpips,
+                          masked_mae, masked_mse, masked_psnr, masked_ssim, psnr_from_mse)
 
 
 def _pair(shape=(48, 40, 3), seed=0, noise=0.1):
@@ -16,9 +17,34 @@ def _pair(shape=(48, 40, 3), seed=0, noise=0.1):
 
 
 class TestMaskedPsnr:
-    def test_identical_is_inf(self):
+    def test_identical_scores_the_16bit_cap_never_inf(self):
         x = torch.rand(8, 8, 3)
-        assert masked_psnr(x, x, torch.ones(8, 8)) == math.inf
+        # (1/65535)^2 / 12 -> 10 log10(12 * 65535^2) = 107.1213 dB
+        assert MSE_FLOOR_16BIT == pytest.approx(1 / (12 * 65535.0**2), rel=1e-15)
+        assert masked_psnr(x, x, torch.ones(8, 8)) == pytest.approx(107.12127853578, abs=1e-9)
+        assert psnr_from_mse(0.0) == masked_psnr(x, x, torch.ones(8, 8))
+
+    def test_floor_binds_only_below_it(self):
+        assert psnr_from_mse(1e-4) == pytest.approx(40.0, abs=1e-12)
+        assert psnr_from_mse(1e-12, mse_floor=1e-10) == pytest.approx(100.0, abs=1e-12)
+        with pytest.raises(ValueError, match="mse_floor"):
+            psnr_from_mse(0.0, mse_floor=0.0)
+
+    def test_region_image_divides_by_all_pixels(self):
+        # 10x10, top half masked with error 0.1: masked MSE 0.01 (20 dB); whole-image MSE of the
+        # mask-multiplied images 0.005 (23.0103 dB); errors outside the mask are zeroed.
+        gt = torch.zeros(10, 10, 1, dtype=torch.float64)
+        pred = torch.full((10, 10, 1), 0.1, dtype=torch.float64)
+        mask = torch.zeros(10, 10, dtype=torch.bool)
+        mask[:5] = True
+        assert masked_mse(pred, gt, mask, region="image") == pytest.approx(0.005)
+        assert masked_psnr(pred, gt, mask, region="image") == pytest.approx(10 * math.log10(200))
+        with pytest.raises(ValueError, match="allowed: mask, image"):
+            masked_psnr(pred, gt, mask, region="masked")
+
+    def test_grey_floor_is_psnr_of_constant_half(self):
+        gt = torch.full((4, 4, 3), 0.6, dtype=torch.float64)
+        assert grey_psnr(gt, torch.ones(4, 4)) == pytest.approx(20.0, abs=1e-9)
 
     def test_hand_computed_20db(self):
         pred = torch.full((8, 8, 1), 0.5, dtype=torch.float64)
@@ -62,13 +88,38 @@ class TestMaskedPsnr:
             masked_psnr(pred, gt, torch.ones(40, 48))
 
 
+class TestErodeMask:
+    def test_radius_two_is_a_5x5_kernel_and_the_border_does_not_erode(self):
+        mask = torch.zeros(9, 9, dtype=torch.bool)
+        mask[1:8, 1:8] = True        # 7x7 square -> a 3x3 core after a 5x5 erosion
+        eroded = erode_mask(mask, 2)
+        assert eroded.sum() == 9 and eroded[3:6, 3:6].all()
+        assert erode_mask(torch.ones(6, 6), 2).all()  # cv2.erode's default border
+        assert torch.equal(erode_mask(mask, 0), mask)
+        with pytest.raises(ValueError, match=">= 0"):
+            erode_mask(mask, -1)
+
+
+class TestMetallicExtras:
+    def test_mae_and_iou_by_hand(self):
+        gt = torch.zeros(2, 4, 1, dtype=torch.float64)
+        gt[:, :2] = 1.0                       # metal: 4 pixels
+        pred = torch.zeros(2, 4, 1, dtype=torch.float64)
+        pred[:, 1:3] = 0.8                    # predicted metal: 4 pixels, 2 shared
+        mask = torch.ones(2, 4)
+        # |err|: col0 1, col1 0.2, col2 0.8, col3 0 -> mean 0.5; IoU 2 / 6
+        assert masked_mae(pred, gt, mask) == pytest.approx(0.5)
+        assert masked_iou(pred, gt, mask) == pytest.approx(1 / 3)
+        assert masked_iou(pred * 0, gt * 0, mask) == 1.0
+
+
 class TestMaskedSsim:
     @pytest.mark.parametrize("shape", [(48, 40, 3), (33, 57, 1), (64, 64, 3)])
     def test_matches_scikit_image_with_full_mask(self, shape):
         pred, gt = _pair(shape, seed=shape[0])
         ref = structural_similarity(pred.numpy(), gt.numpy(), gaussian_weights=True, sigma=1.5,
                                     use_sample_covariance=False, data_range=1, channel_axis=-1)
-        assert masked_ssim(pred, gt, torch.ones(shape[:2])) == pytest.approx(ref, abs=1e-4)
+        assert masked_ssim(pred, gt, torch.ones(shape[:2])) == pytest.approx(ref, abs=1e-6)
 
     def test_identical_is_one(self):
         x = torch.rand(32, 32, 3)
@@ -91,6 +142,28 @@ class TestMaskedSsim:
         mask[:3] = True
         with pytest.raises(ValueError, match="border"):
             masked_ssim(pred, gt, mask)
+
+    def test_constant_images_by_hand_any_window(self):
+        # variances 0: SSIM = (2ab + C1) / (a^2 + b^2 + C1), C1 = 0.01^2
+        a = torch.full((16, 16, 1), 0.5, dtype=torch.float64)
+        b = torch.full((16, 16, 1), 0.6, dtype=torch.float64)
+        for window in (3, 11):
+            assert masked_ssim(a, b, torch.ones(16, 16), window=window) == pytest.approx(
+                0.6001 / 0.6101, abs=1e-12)
+        with pytest.raises(ValueError, match="odd"):
+            masked_ssim(a, b, torch.ones(16, 16), window=4)
+
+    def test_region_image_is_stanford_orbs_kornia_ssim_loss(self):
+        import kornia
+
+        pred, gt = _pair()
+        mask = torch.zeros(48, 40, dtype=torch.bool)
+        mask[6:40, 4:30] = True
+        m = mask[..., None].double()
+        x, y = ((t.double() * m).permute(2, 0, 1)[None] for t in (pred, gt))
+        reference = 1 - 2 * float(kornia.losses.ssim_loss(x, y, 3))  # orb/utils/test.py:ssim
+        assert masked_ssim(pred, gt, mask, window=3, region="image", padding="same") == pytest.approx(
+            reference, abs=1e-12)
 
     def test_worse_prediction_scores_lower(self):
         _, gt = _pair()

@@ -8,13 +8,14 @@ from eval.tables import build_table1, find_runs, load_run, positional_to_overrid
     run, to_latex, to_markdown
 
 
-def _write_run(root, name, summary, method, protocol=("gspi-decoupled", 1), runtime=(1.5, 3.0)):
+def _write_run(root, name, summary, method, protocol=("gspi-decoupled", 1), runtime=(1.5, 3.0),
+               **meta):
     d = root / name
     d.mkdir(parents=True)
     (d / "summary.json").write_text(json.dumps(summary))
     (d / "eval_meta.json").write_text(json.dumps({
         "method": method, "protocol": {"name": protocol[0], "version": protocol[1]},
-        "runtime_min": {"material": runtime[0], "end_to_end": runtime[1]}}))
+        "runtime_min": {"material": runtime[0], "end_to_end": runtime[1]}, **meta}))
     return d
 
 
@@ -79,7 +80,7 @@ def test_positional_dirs_become_runs_override():
 
 
 def test_missing_folder_is_an_error(tmp_path):
-    with pytest.raises(FileNotFoundError, match="no summary.json"):
+    with pytest.raises(FileNotFoundError, match="no complete gspi-eval folder"):
         find_runs([tmp_path])
 
 
@@ -92,3 +93,57 @@ def test_positional_folders_may_contain_equals_signs(tmp_path):
     args = positional_to_overrides([str(job), "out=x"])
     assert args == ["out=x", f"runs=['{job}']"]
     assert positional_to_overrides(["a", "b", "out=x"]) == ["out=x", "runs=[a,b]"]
+
+
+def test_one_killed_gspi_eval_folder_is_named_and_skipped(runs, tmp_path):
+    killed = runs / "killed"
+    (killed / ".hydra").mkdir(parents=True)          # killed before summary.json
+    half = runs / "half"
+    half.mkdir()
+    (half / "summary.json").write_text("{}")          # killed before eval_meta.json
+    table = run(OmegaConf.create({"runs": [str(runs)], "out": str(tmp_path / "t")}))
+    assert sorted(table.index) == ["A", "B", "C"]
+    md = (tmp_path / "t" / "table1.md").read_text()
+    assert "Incomplete gspi-eval folder(s) left out" in md
+    assert str(killed) in md and str(half) in md
+
+
+def test_only_killed_folders_is_an_error_naming_them(tmp_path):
+    (tmp_path / "k" / ".hydra").mkdir(parents=True)
+    (tmp_path / "h").mkdir()
+    (tmp_path / "h" / "summary.json").write_text("{}")
+    with pytest.raises(FileNotFoundError, match="incomplete .killed.. folders: .*h"):
+        find_runs([tmp_path / "h"])
+
+
+@pytest.mark.parametrize("key, a, b, what", [
+    ("data", "/d/small", "/d/tiny", "ground-truth datasets"),
+    ("scenes", ["s1", "s2"], ["s1"], "scene sets")])
+def test_runs_of_one_method_on_different_data_are_refused(tmp_path, key, a, b, what):
+    _write_run(tmp_path, "r0", _summary(20.0, 0.8, 0.05), "A", **{key: a})
+    _write_run(tmp_path, "r1", _summary(22.0, 0.6, 0.07), "A", **{key: b})
+    with pytest.raises(ValueError, match=f"method 'A': its runs were scored on different {what}"
+                                         f"(.|\n)*r0(.|\n)*r1"):
+        build_table1([load_run(r) for r in find_runs([tmp_path])])
+
+
+def test_protocol_refusal_names_runs_and_differing_keys(tmp_path):
+    base = {"name": "gspi-decoupled", "version": 1, "relight": {"tonemap": "aces"}}
+    _write_run(tmp_path, "a", _summary(20.0, 0.8, 0.05), "A", protocol_config=base)
+    _write_run(tmp_path, "b", _summary(20.0, 0.8, 0.05), "B",
+               protocol_config=dict(base, relight={"tonemap": "clamp"}))
+    with pytest.raises(ValueError) as err:
+        build_table1([load_run(r) for r in find_runs([tmp_path])])
+    assert "relight.tonemap: 'aces' != 'clamp'" in str(err.value)
+    assert str(tmp_path / "a") in str(err.value) and str(tmp_path / "b") in str(err.value)
+
+
+def test_footer_of_a_protocol_recorded_before_the_floor_says_so():
+    from eval.protocol_id import describe_protocol
+
+    old = {"name": "gspi-decoupled", "version": 1, "split": "test", "albedo_alignment": "none",
+           "lpips": {"net": "alex", "version": "0.1", "mode": "masked_mean"},
+           "relight": {"tonemap": "aces", "srgb": True}}
+    text = describe_protocol(old)
+    assert "no MSE floor (recorded before the floor" in text and "LPIPS alex v0.1" in text
+    assert "knobs unknown" in describe_protocol({"name": "p", "version": 1})

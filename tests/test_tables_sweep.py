@@ -42,13 +42,14 @@ def per_scene(ablation, seed, offset, channels=MATERIAL):
 
 def write_job(root: Path, name: str, *, method="gspi", ablation="full", table="table2", seed=0,
               config_hash=None, status="complete", error=None, offset=0.0, measure="points",
-              channels=MATERIAL, runtime=(5.0, 10.0), protocol_version=1) -> Path:
+              channels=MATERIAL, runtime=(5.0, 10.0), protocol_version=1, data="data/tiny",
+              protocol_config=None) -> Path:
     """One Hydra job folder with its evaluation folder(s) and result.json (written last)."""
     job = root / name
     (job / ".hydra").mkdir(parents=True)
     record = {"format": "gspi-run", "format_version": 1, "status": status, "error": error,
               "method": method, "ablation": ablation, "table": table, "seed": seed,
-              "config_hash": config_hash or f"h-{method}-{ablation}-{seed}", "data": "data/tiny",
+              "config_hash": config_hash or f"h-{method}-{ablation}-{seed}", "data": data,
               "scenes": list(SCENES), "material_eval": None, "points_eval": None}
     if status == "complete":
         ps = per_scene(ablation, seed, offset, channels)
@@ -65,7 +66,7 @@ def write_job(root: Path, name: str, *, method="gspi", ablation="full", table="t
             (job / "eval" / "eval_meta.json").write_text(json.dumps({
                 "method": method, "protocol": {"name": "gspi-decoupled",
                                                "version": protocol_version},
-                "per_scene": ps,
+                "per_scene": ps, **({"protocol_config": protocol_config} if protocol_config else {}),
                 "runtime_min": {"material": runtime[0], "end_to_end": runtime[1]}}))
             record["material_eval"] = "eval"
     (job / "result.json").write_text(json.dumps(record))
@@ -372,7 +373,7 @@ def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path, monkeypatch)
 
 def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net):
     """Real eval_meta.json files: cells equal the per-scene means of per_view.csv; an
-    identical channel (PSNR inf) makes the PSNR cell inf and its Δ undefined, with a note."""
+    identical channel scores the PSNR cap, so cells and Δ stay finite; the footer counts it."""
     import pandas as pd
 
     from eval.evaluate import evaluate
@@ -407,11 +408,21 @@ def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net)
         assert table.mean.loc[label, "ssim/avg"] == pytest.approx(units.mean(), rel=1e-9)
         assert table.sem.loc[label, "ssim/avg"] == pytest.approx(
             units.std(ddof=1) / np.sqrt(len(units)), rel=1e-9)
-    assert table.mean.loc["Ours (Full)", "psnr/avg"] == float("inf")  # metallic is copied
+    # metallic is copied exactly: PSNR at the documented cap (107.12 dB), never inf
+    cap = 10 * np.log10(12 * 65535.0**2)
+    psnr = pd.concat(pd.read_csv(tmp_path / "sweep" / f"full_{s}" / "eval" / "per_view.csv")
+                     for s in (0, 1))
+    assert np.allclose(psnr.loc[psnr["channel"] == "metallic", "psnr"], cap, rtol=0, atol=1e-9)
+    assert np.isfinite(table.mean.loc["Ours (Full)", "psnr/avg"])
     assert table.count.loc["Ours (Full)", "psnr/avg"] == 4  # 2 scenes x 2 seeds
     md = to_markdown(table, sweep)
-    assert "| inf |" in md or "**inf**" in md
-    assert "Δ of 'A6: w/o distill' not computed" in md and "gspi-decoupled v1" in md
+    assert "inf" not in md.replace("info", "")
+    assert not np.isnan(table.delta.loc["A6: w/o distill", "mean"])
+    assert "gspi-decoupled v1 #" in md and "LPIPS alex v0.1 masked_mean" in md
+    # 4 runs x 2 scenes x 3 test views each; metallic copied everywhere, albedo exact in the
+    # 2 "full" runs (scale 1.0), roughness always offset
+    assert "metallic 24 (24 at PSNR floor" in md and "albedo 24 (12 at PSNR floor)" in md
+    assert "roughness 24 (0 at PSNR floor)" in md
     assert list(table.per_scene.index) == ["sphere_0", "sphere_1"]
 
 
@@ -427,3 +438,24 @@ def test_row_labels_come_from_the_paper_ids():
     rows = [("gspi", "full"), ("gspi", "a2_x"), ("gs_ir", "full"), ("gspi", "a1_y")]
     assert sorted(rows, key=lambda r: row_order(*r)) == \
         [("gs_ir", "full"), ("gspi", "a1_y"), ("gspi", "a2_x"), ("gspi", "full")]
+
+
+def test_sweep_mixing_two_conventions_is_refused_naming_runs_and_keys(tmp_path):
+    base = {"name": "gspi-decoupled", "version": 1, "relight": {"tonemap": "aces"}}
+    a = write_job(tmp_path / "sweep", "a", table="table3", measure="material", protocol_config=base)
+    b = write_job(tmp_path / "sweep", "b", table="table3", measure="material", seed=1,
+                  protocol_config=dict(base, relight={"tonemap": "clamp"}))
+    with pytest.raises(ValueError) as err:
+        build_sweep_table(load_sweep([tmp_path / "sweep"]), TABLE_SPECS["table3"])
+    text = str(err.value)
+    assert "different protocols" in text and "relight.tonemap: 'aces' != 'clamp'" in text
+    assert str(a) in text and str(b) in text
+
+
+def test_one_row_on_two_datasets_is_refused_naming_runs(tmp_path):
+    a = write_job(tmp_path / "sweep", "a", table="table3", measure="material", data="data/small")
+    b = write_job(tmp_path / "sweep", "b", table="table3", measure="material", seed=1,
+                  data="data/tiny")
+    with pytest.raises(ValueError, match="different datasets") as err:
+        build_sweep_table(load_sweep([tmp_path / "sweep"]), TABLE_SPECS["table3"])
+    assert str(a) in str(err.value) and str(b) in str(err.value)

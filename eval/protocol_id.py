@@ -1,0 +1,144 @@
+"""Protocol identity: a hash of the whole resolved protocol, the keys two protocols differ in,
+and the one-line description every table footer prints (docs/PROTOCOL.md, "Identity").
+
+Two evaluations are comparable only when every field of their protocol is equal: an override
+such as `eval.relight.tonemap=clamp` keeps the protocol's name and version but changes its hash.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+
+HASH_CHARS = 12
+
+
+def protocol_dict(protocol) -> dict:
+    """The resolved protocol as plain JSON-able data (DictConfig, dataclass or dict)."""
+    if isinstance(protocol, dict):
+        return protocol
+    if dataclasses.is_dataclass(protocol):
+        return dataclasses.asdict(protocol)
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(protocol, resolve=True)
+
+
+ALIASES = {"albedo_alignment": {"per_channel": "lstsq"}}  # spellings with one meaning
+
+
+def canonical(protocol: dict) -> dict:
+    """The protocol with aliases resolved, so equal conventions hash equal."""
+    out = dict(protocol)
+    for key, names in ALIASES.items():
+        if out.get(key) in names:
+            out[key] = names[out[key]]
+    return out
+
+
+def protocol_hash(protocol: dict) -> str:
+    """First 12 hex digits of the SHA-256 of the canonical JSON of the whole protocol."""
+    text = json.dumps(canonical(protocol), sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:HASH_CHARS]
+
+
+def flatten(tree: dict, prefix: str = "") -> dict:
+    """{"a": {"b": 1}} -> {"a.b": 1}."""
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def protocol_diff(a: dict, b: dict) -> list[str]:
+    """Dotted keys whose values differ, as "key: a_value != b_value" (missing: <absent>)."""
+    fa, fb = flatten(canonical(a or {})), flatten(canonical(b or {}))
+    return [f"{k}: {fa.get(k, '<absent>')!r} != {fb.get(k, '<absent>')!r}"
+            for k in sorted(set(fa) | set(fb)) if fa.get(k, "<absent>") != fb.get(k, "<absent>")]
+
+
+def check_one_protocol(runs: dict[str, dict | None]) -> str:
+    """Refuse runs evaluated under different protocols; return the common hash.
+
+    Args:
+        runs: {run folder: resolved protocol dict (see `recorded_protocol`)}.
+    Raises:
+        ValueError naming the runs of each hash and the keys that differ.
+    """
+    groups: dict[str, list[str]] = {}
+    for run, proto in runs.items():
+        groups.setdefault(protocol_hash(proto), []).append(run)
+    if len(groups) > 1:
+        (h0, r0), *others = groups.items()
+        parts = [f"protocol {h0}: {', '.join(r0)}"]
+        for h, rs in others:
+            diff = protocol_diff(runs[r0[0]], runs[rs[0]])
+            parts.append(f"protocol {h}: {', '.join(rs)} (differs from {h0} in "
+                         f"{'; '.join(diff)})")
+        raise ValueError("tables never mix protocols; runs were evaluated under "
+                         f"{len(groups)} different protocols:\n  " + "\n  ".join(parts))
+    return next(iter(groups)) if groups else ""
+
+
+def recorded_protocol(meta: dict) -> dict:
+    """The protocol an eval_meta.json records: its full `protocol_config`, else (folders
+    written before protocol v1 recorded it) just {"name", "version"}, which then differs
+    from any full protocol in every other key."""
+    config = meta.get("protocol_config")
+    if isinstance(config, dict) and config:
+        return config
+    p = meta.get("protocol") or {}
+    return {"name": p.get("name"), "version": p.get("version")}
+
+
+def describe_protocol(p: dict) -> str:
+    """Every knob a reader needs to compare numbers, in one line."""
+    if set(p) <= {"name", "version"}:
+        return f"{p.get('name')} v{p.get('version')} (no protocol_config recorded: knobs unknown)"
+    r, lp, ps, ss = p.get("relight", {}), p.get("lpips", {}), p.get("psnr", {}), p.get("ssim", {})
+    floor = float(ps.get("mse_floor", 0.0))
+    floor_text = (f"MSE floor {floor:.3g} (cap {10 * math.log10(1 / floor):.1f} dB)" if floor > 0
+                  else "no MSE floor (recorded before the floor: an exact image scored +inf)")
+    tone = r.get("tonemap")
+    tone_text = (f"linear clipped to [0, {r.get('hdr_max')}]" if tone == "none" else
+                 f"{tone}{'+sRGB' if r.get('srgb') else ''}, exposure {r.get('exposure_stops')} stops")
+    return (f"{p.get('name')} v{p.get('version')} #{protocol_hash(p)}: split {p.get('split')}; "
+            f"albedo alignment {p.get('albedo_alignment')} (scope {p.get('alignment_scope')}), "
+            f"scored in {p.get('albedo_space', 'srgb')}; GT mask eroded "
+            f"{p.get('mask_erosion_px', 0)} px; PSNR over {ps.get('region', 'mask')}, {floor_text}"
+            f"{', grey floor' if ps.get('grey_floor') else ''}; "
+            f"SSIM window {ss.get('window', 11)} {ss.get('padding', 'valid')} over "
+            f"{ss.get('region', 'mask')}; LPIPS "
+            f"{lp.get('net')} v{lp.get('version')} {lp.get('mode')}, inputs "
+            f"{'[-1,1]' if lp.get('normalize', True) else '[0,1]'}"
+            f"{', sRGB-encoded first' if lp.get('encode_srgb') else ''}; background "
+            f"{p.get('background')}; relight tone map {tone_text}, scale fit "
+            f"{r.get('scale_fit', 'none')}{', PSNR-H' if r.get('psnr_hdr') else ''}, fills "
+            f"roughness {r.get('fill_roughness')} metallic {r.get('fill_metallic')}, envs "
+            f"{r.get('envs') or 'each scene held-out'}")
+
+
+def describe_counts(counts: dict) -> str:
+    """"albedo 24 (0 at PSNR floor), ..." from eval_meta.json counts (summed over runs)."""
+    if not counts:
+        return "Image counts not recorded"
+    parts = []
+    for channel, c in counts.items():
+        extra = f", {c['mae_iou']} with metal MAE/IoU" if c.get("mae_iou") else ""
+        parts.append(f"{channel} {c['images']} ({c['psnr_floored']} at PSNR floor{extra})")
+    return "Images scored: " + ", ".join(parts)
+
+
+def sum_counts(all_counts: list[dict]) -> dict:
+    """Add {channel: {key: n}} dicts."""
+    total: dict = {}
+    for counts in all_counts:
+        for channel, c in (counts or {}).items():
+            t = total.setdefault(channel, {})
+            for key, n in c.items():
+                t[key] = t.get(key, 0) + int(n)
+    return total

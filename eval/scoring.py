@@ -1,0 +1,98 @@
+"""One image pair -> its scores under a protocol (docs/PROTOCOL.md, "Scoring one image").
+
+`score_pair` applies the protocol's PSNR region and floors, SSIM window and region, LPIPS
+options; `score_relit` first applies the relighting steps (per-image scale fit, tone map) and
+adds Stanford-ORB's PSNR-H when asked; `metal_scores` gives the metallic MAE and metal-mask
+IoU. The mask passed in is already the scored (possibly eroded) ground-truth mask.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from eval.colorspace import linear_to_srgb
+from eval.metrics import (grey_psnr, masked_iou, masked_lpips, masked_mae, masked_mse,
+                          masked_ssim, psnr_from_mse)
+from eval.protocol import display_relit
+
+SCALE_EPS = 1e-6  # Stanford-ORB: a channel with sum(pred^2) <= 1e-6 is left unscaled
+
+
+def psnr_scores(pred: Tensor, gt: Tensor, mask: Tensor, psnr_cfg) -> tuple[float, bool]:
+    """(PSNR in dB, whether the MSE floor was hit) under `protocol.psnr`."""
+    floor = float(psnr_cfg.mse_floor)
+    mse = masked_mse(pred, gt, mask, region=psnr_cfg.region)
+    psnr = psnr_from_mse(mse, mse_floor=floor)
+    if psnr_cfg.grey_floor:
+        psnr = max(psnr, grey_psnr(gt, mask, region=psnr_cfg.region, mse_floor=floor))
+    return psnr, mse <= floor
+
+
+def score_pair(pred: Tensor, gt: Tensor, mask: Tensor, protocol, net, *,
+               lpips_srgb: bool = False) -> dict:
+    """{psnr, psnr_floored, ssim, lpips} of [H, W, C] images in the scored colour space.
+
+    Args:
+        lpips_srgb: sRGB-encode both images before LPIPS (protocol.lpips.encode_srgb, albedo
+            and relight only).
+    """
+    psnr, floored = psnr_scores(pred, gt, mask, protocol.psnr)
+    lp_pred, lp_gt = (linear_to_srgb(pred), linear_to_srgb(gt)) if lpips_srgb else (pred, gt)
+    return {"psnr": psnr, "psnr_floored": floored,
+            "ssim": masked_ssim(pred, gt, mask, background=protocol.background,
+                                window=int(protocol.ssim.window), region=protocol.ssim.region,
+                                padding=protocol.ssim.padding),
+            "lpips": masked_lpips(lp_pred, lp_gt, mask, net=net, mode=protocol.lpips.mode,
+                                  background=protocol.background,
+                                  normalize=bool(protocol.lpips.normalize))}
+
+
+def relit_scale(out_linear: Tensor, ref_linear: Tensor, mask: Tensor) -> Tensor:
+    """Per-channel least-squares scale of the relit prediction over masked pixels [3]
+    (Stanford-ORB `calc_PSNR(scale_invariant=True)`)."""
+    p, g = out_linear.double()[mask], ref_linear.double().clamp_min(0.0)[mask]
+    den = (p * p).sum(0)
+    return torch.where(den > SCALE_EPS, (p * g).sum(0) / den.clamp_min(1e-30),
+                       torch.ones(3, dtype=torch.float64))
+
+
+def psnr_hdr(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg, psnr_cfg
+             ) -> float:
+    """Stanford-ORB's PSNR-H on linear radiance: both images multiplied by the mask, optionally
+    renormalised by mean(srgb(clip(gt, 0, 1))) / mean(clip(gt, 0, 1)), clipped to
+    [0, hdr_max], then PSNR with data range 1 (as its `mse_to_psnr`)."""
+    m = mask[..., None].double()
+    p, g = out_linear.double() * m, ref_linear.double().clamp_min(0.0) * m
+    if relight_cfg.hdr_gt_renorm:
+        g01 = g.clamp(0.0, 1.0)
+        if float(g01.mean()) > 1e-8:
+            k = linear_to_srgb(g01).mean() / g01.mean()
+            p, g = p * k, g * k
+    hi = float(relight_cfg.hdr_max)
+    return psnr_scores(p.clamp(0.0, hi), g.clamp(0.0, hi), mask, psnr_cfg)[0]
+
+
+def score_relit(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, protocol, net) -> dict:
+    """Scores of one relit view: the prediction `out_linear` against `ref_linear` ([H, W, 3]
+    linear radiance), after the protocol's scale fit and tone map; `psnr_h` if asked."""
+    cfg = protocol.relight
+    if cfg.scale_fit == "lstsq":
+        out_linear = out_linear.double() * relit_scale(out_linear, ref_linear, mask)
+        ref_linear = ref_linear.double()
+    # tone-mapped in the shader's dtype (float32) as protocol v1 did: same numbers bit for bit
+    row = score_pair(display_relit(out_linear, cfg), display_relit(ref_linear, cfg), mask,
+                     protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
+    if cfg.psnr_hdr:
+        row["psnr_h"] = psnr_hdr(out_linear, ref_linear, mask, cfg, protocol.psnr)
+    return row
+
+
+def has_metal(gt_metallic: list[Tensor], masks: list[Tensor], threshold: float) -> bool:
+    """True when any masked ground-truth pixel of the scene is metal (> threshold)."""
+    return any(bool((g[..., 0] > threshold)[m].any()) for g, m in zip(gt_metallic, masks))
+
+
+def metal_scores(pred: Tensor, gt: Tensor, mask: Tensor, metallic_cfg) -> dict:
+    """{mae, iou} of a metallic map (IoU of the metal masks at `metallic.threshold`)."""
+    return {"mae": masked_mae(pred, gt, mask),
+            "iou": masked_iou(pred, gt, mask, threshold=float(metallic_cfg.threshold))}
