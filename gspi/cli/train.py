@@ -54,7 +54,8 @@ def run(cfg: DictConfig) -> dict:
     out = Path(cfg.out)
     # stats.json is the run's record, written last: an earlier one must not outlive a killed rerun
     (out / "stats.json").unlink(missing_ok=True)
-    stats = train(plain, out, stop_at=plain["stage2"]["train"].get("stop_at"))
+    stats = train(plain, out, stop_at=plain["stage2"]["train"].get("stop_at"),
+                  stop_after_minutes=plain["stage2"]["train"].get("stop_after_minutes"))
     ev = plain["stage2"]["eval"]
     if ev["enabled"]:
         model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")

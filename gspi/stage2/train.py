@@ -150,7 +150,8 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
     return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
 
 
-def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None) -> dict:
+def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None,
+          stop_after_minutes: Optional[float] = None) -> dict:
     """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``.
 
     Writes ``checkpoint.pt`` (every ``checkpoint_every`` steps and at the end),
@@ -159,6 +160,8 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     Args:
         stop_at: checkpoint and return after this step (an interruption that a rerun resumes
             from; the schedule still follows ``steps``).
+        stop_after_minutes: the same, once this run has trained this many wall-clock minutes
+            (a CPU budget; chain runs through the exact resume).
     """
     out_dir = Path(out_dir)
     stage2, train_cfg = cfg["stage2"], cfg["stage2"]["train"]
@@ -191,7 +194,8 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     log_every = int(train_cfg.get("log_every", 100))
     start_step, t0 = state.step, time.perf_counter()
     end = total if stop_at is None else min(total, int(stop_at))
-    while state.step < end:
+    deadline = None if stop_after_minutes is None else t0 + 60.0 * float(stop_after_minutes)
+    while state.step < end and (deadline is None or time.perf_counter() < deadline):
         f0, inputs = sample_batch(scenes, data_cfg, int(train_cfg["batch_size"]), state.data_rng)
         values = train_step(state, f0, inputs, cfg, alphas_cumprod)
         metrics.log(state.step, values)
