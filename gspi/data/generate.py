@@ -20,13 +20,13 @@ import multiprocessing
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import torch
 
 from eval.layout import read_scene, write_json_atomic
 from gspi.data.contact_sheet import write_contact_sheet
-from gspi.data.environments import make_environment
+from gspi.data.environments import env_names
 from gspi.data.point_clouds import write_scene_point_cloud
 from gspi.data.render_scene import generate_scene, load_environment
 from gspi.data.scene_recipe import assign_splits, sample_scene_recipe
@@ -55,6 +55,10 @@ class BenchmarkConfig:
     threads: int = 1                          # torch threads per process
     workers: int = 1                          # scene-parallel processes
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
+    capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
+    relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
+    renderer: str = "splitsum"                # input views: splitsum | pathtraced
+    pathtrace: dict = field(default_factory=dict)  # gspi.data.pathtrace.PathTraceConfig kwargs
     lattice: dict = field(default_factory=lambda: {"num_views": 32, "radius": 3.0,
                                                    "fov_deg": 45.0, "min_elevation_deg": 0.0})
 
@@ -64,12 +68,24 @@ class BenchmarkConfig:
 
 
 def scene_recipes(seed: int, cfg: BenchmarkConfig) -> list[dict]:
-    return [sample_scene_recipe(seed, i, num_test_views=cfg.num_test_views,
-                                num_val_views=cfg.num_val_views,
-                                num_relight_envs=cfg.num_relight_envs,
-                                num_lattice_views=cfg.lattice["num_views"],
-                                min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
-            for i in range(cfg.num_scenes)]
+    """Recipes of every scene; non-default environment sets only change their environments."""
+    from gspi.data.env_sets import assign_environments, environment_sets, is_default
+
+    default_envs = is_default(cfg.capture_envs, cfg.relight_envs)
+    # Same draws as the default dataset (views, jitter seeds), whatever the environment sets.
+    num_drawn = cfg.num_relight_envs if default_envs else min(cfg.num_relight_envs,
+                                                              len(env_names("heldout")))
+    recipes = [sample_scene_recipe(seed, i, num_test_views=cfg.num_test_views,
+                                   num_val_views=cfg.num_val_views,
+                                   num_relight_envs=num_drawn,
+                                   num_lattice_views=cfg.lattice["num_views"],
+                                   min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
+               for i in range(cfg.num_scenes)]
+    if default_envs:
+        return recipes
+    capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
+    return [assign_environments(r, seed, list(capture), list(relight), cfg.num_relight_envs)
+            for r in recipes]
 
 
 _WORKER: dict = {}
@@ -115,14 +131,20 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
 
 
 def write_environments(env_dir: Path, names: list[str], cfg: BenchmarkConfig) -> dict[str, str]:
-    """Render each named environment once into `env_dir` (a scratch folder); name -> path."""
-    from eval.imageio import write_exr
+    """Make each named environment once into `env_dir` (a scratch folder); name -> path.
 
+    Sources follow `cfg.capture_envs` / `cfg.relight_envs` (gspi.data.env_sets)."""
+    from eval.imageio import write_exr
+    from gspi.data.env_sets import environment_sets, make_named_environment
+
+    capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
+    sources = {**capture, **relight}
     paths = {}
     for name in names:
         path = env_dir / f"{name}.exr"
-        write_exr(path, make_environment(name, cfg.env_height,
-                                         white_radiance=cfg.white_radiance).numpy())
+        write_exr(path, make_named_environment(name, sources.get(name, "procedural"),
+                                               cfg.env_height,
+                                               white_radiance=cfg.white_radiance).numpy())
         paths[name] = str(path)
     return paths
 
