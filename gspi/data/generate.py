@@ -114,12 +114,16 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
     envs, pre = {}, {}
     for n in names:
         envs[n], pre[n] = _environment(n)
+    from gspi.data.pathtrace import retracer
+
+    extra = {"name": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed": seed,
+             "preset": cfg.name, "supersample": cfg.supersample, "lattice": cfg.lattice}
+    if cfg.renderer != "splitsum":  # recorded only when not the default (byte-identity)
+        extra |= {"renderer": cfg.renderer, "pathtrace": dict(cfg.pathtrace)}
     stats = generate_scene(recipe, Path(out_dir), envs=envs, prefiltered=pre,
                            width=cfg.image_size, height=cfg.image_size,
-                           supersample=cfg.supersample, lattice=cfg.lattice,
-                           extra={"name": GENERATOR_NAME, "version": GENERATOR_VERSION,
-                                  "seed": seed, "preset": cfg.name,
-                                  "supersample": cfg.supersample, "lattice": cfg.lattice})
+                           supersample=cfg.supersample, lattice=cfg.lattice, extra=extra,
+                           retrace=retracer(cfg.renderer, cfg.pathtrace, recipe=recipe))
     t0 = time.perf_counter()
     scene = read_scene(Path(out_dir) / recipe["name"])
     if cfg.point_clouds:
