@@ -93,8 +93,12 @@ def test_environment_sets(tmp_path):
     for r0, r1 in zip(base, mine):
         assert r1["relight_envs"] == ["mine_a", "mine_b"]
         assert r1["capture_env"] in capture
-        assert {k: v for k, v in r0.items() if k not in ("capture_env", "relight_envs")} == \
-            {k: v for k, v in r1.items() if k not in ("capture_env", "relight_envs")}
+        # Only the relighting set changed: everything else, the capture env included, is kept.
+        assert {k: v for k, v in r0.items() if k != "relight_envs"} == \
+            {k: v for k, v in r1.items() if k != "relight_envs"}
+    both = scene_recipes(0, BenchmarkConfig(**{**cfg.__dict__, "relight_envs": [str(a)],
+                                               "capture_envs": [str(b)], "num_relight_envs": 1}))
+    assert all(r["capture_env"] == "mine_b" and r["relight_envs"] == ["mine_a"] for r in both)
     with pytest.raises(ValueError, match="num_relight_envs"):
         assign_environments(base[0], 0, ["x"], ["a"], 2)
 

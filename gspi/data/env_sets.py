@@ -7,9 +7,10 @@ Each option is one of
   user's own lat-long EXR files (named after the file stem).
 The two sets must be disjoint: a relighting environment is never seen in the inputs.
 
-With the defaults a recipe keeps the environments `gspi.data.scene_recipe` drew (datasets
-stay byte-identical); otherwise `assign_environments` redraws them from a separate seeded
-stream, so shape, material, views and jitter of every scene do not change with the sets.
+A set left at `procedural` keeps the environments `gspi.data.scene_recipe` drew (datasets
+stay byte-identical); another set is redrawn by `assign_environments` from its own seeded
+stream, so shape, material, views and jitter of every scene do not change with the sets, and
+changing only `relight_envs` leaves the input images byte-identical.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from gspi.data.hdri import POLYHAVEN_CAPTURE, POLYHAVEN_HELDOUT, POLYHAVEN_PREFI
 from gspi.data.scene_recipe import scene_rng
 
 PROCEDURAL = "procedural"
-ENV_STREAM = 3  # scene_rng stream of redrawn environments
+RELIGHT_STREAM, CAPTURE_STREAM = 3, 4  # scene_rng streams of redrawn environments
 
 
 def resolve_env_set(spec, kind: str) -> dict[str, str]:
@@ -68,16 +69,23 @@ def check_disjoint(capture: dict, relight: dict) -> None:
         raise ValueError(f"capture and relighting environments must be disjoint; both hold {both}")
 
 
-def assign_environments(recipe: dict, seed: int, capture: list[str], relight: list[str],
-                        num_relight: int) -> dict:
-    """A copy of `recipe` with its capture env and `num_relight` relight envs redrawn."""
-    if not 0 <= num_relight <= len(relight):
-        raise ValueError(f"num_relight_envs must be in [0, {len(relight)}] for relighting "
-                         f"environments {relight}, got {num_relight}")
-    rng = scene_rng(seed, recipe["index"], ENV_STREAM)
-    pick = sorted(rng.choice(len(relight), size=num_relight, replace=False).tolist())
-    return {**recipe, "capture_env": capture[int(rng.integers(0, len(capture)))],
-            "relight_envs": [relight[i] for i in pick]}
+def assign_environments(recipe: dict, seed: int, capture: list[str] | None,
+                        relight: list[str] | None, num_relight: int) -> dict:
+    """A copy of `recipe` with its capture env (unless `capture` is None) and its
+    `num_relight` relight envs (unless `relight` is None) redrawn, each from its own stream:
+    changing only the relighting set leaves the input images byte-identical."""
+    out = dict(recipe)
+    if relight is not None:
+        if not 0 <= num_relight <= len(relight):
+            raise ValueError(f"num_relight_envs must be in [0, {len(relight)}] for relighting "
+                             f"environments {relight}, got {num_relight}")
+        rng = scene_rng(seed, recipe["index"], RELIGHT_STREAM)
+        pick = sorted(rng.choice(len(relight), size=num_relight, replace=False).tolist())
+        out["relight_envs"] = [relight[i] for i in pick]
+    if capture is not None:
+        rng = scene_rng(seed, recipe["index"], CAPTURE_STREAM)
+        out["capture_env"] = capture[int(rng.integers(0, len(capture)))]
+    return out
 
 
 def make_named_environment(name: str, source: str, height: int, *,
@@ -88,8 +96,8 @@ def make_named_environment(name: str, source: str, height: int, *,
     return load_hdri(source, height, white_radiance=white_radiance)
 
 
-def is_default(capture_spec, relight_spec) -> bool:
-    return all(s is None or s == PROCEDURAL for s in (capture_spec, relight_spec))
+def is_default(*specs) -> bool:
+    return all(s is None or s == PROCEDURAL for s in specs)
 
 
 

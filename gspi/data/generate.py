@@ -84,8 +84,9 @@ def scene_recipes(seed: int, cfg: BenchmarkConfig) -> list[dict]:
     if default_envs:
         return recipes
     capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
-    return [assign_environments(r, seed, list(capture), list(relight), cfg.num_relight_envs)
-            for r in recipes]
+    capture = None if is_default(cfg.capture_envs) else list(capture)
+    relight = None if is_default(cfg.relight_envs) else list(relight)
+    return [assign_environments(r, seed, capture, relight, cfg.num_relight_envs) for r in recipes]
 
 
 _WORKER: dict = {}
