@@ -60,14 +60,16 @@ def test_textures_and_factors_give_exact_gt_maps(tmp_path):
     r = front_view(mesh)
     # Quad half-size 1/sqrt 2 after normalisation, at distance 3, 45 deg fov, 32 px:
     # it covers pixels ~[6.9, 25.1); the centres of its four blocks are at pixels 11 and 20.
-    inside, outside = r.mask[8:24, 8:24], np.concatenate([r.mask[:6].ravel(), r.mask[26:].ravel()])
+    inside = r.mask[8:24, 8:24]
+    outside = np.concatenate([r.mask[:6].ravel(), r.mask[26:].ravel()])
     assert inside.all() and not outside.any()
     for (bi, bj), (y, x) in {(0, 0): (11, 11), (0, 1): (11, 20), (1, 0): (20, 11),
                              (1, 1): (20, 20)}.items():
         lin = FACTOR * srgb_to_linear(torch.tensor(BLOCKS[bi, bj] / 255.0)).numpy()
         want = linear_to_srgb(torch.tensor(lin)).numpy()
         np.testing.assert_allclose(r.albedo_srgb[y, x], want, atol=1e-5)
-        np.testing.assert_allclose(r.roughness[y, x, 0], 0.5 * MR_BLOCKS[bi, bj, 1] / 255, atol=1e-6)
+        np.testing.assert_allclose(r.roughness[y, x, 0], 0.5 * MR_BLOCKS[bi, bj, 1] / 255,
+                                   atol=1e-6)
         np.testing.assert_allclose(r.metallic[y, x, 0], MR_BLOCKS[bi, bj, 2] / 255, atol=1e-6)
     np.testing.assert_allclose(r.normal[16, 16], [0.0, -1.0, 0.0], atol=1e-6)
     np.testing.assert_allclose(r.depth[16, 16, 0], 3.0, atol=1e-4)
@@ -95,7 +97,8 @@ def test_several_primitives_and_node_transforms(tmp_path):
     assert left.sum() > 20 and right.sum() > 20
     red, blue = r.albedo_srgb[:, :24][left], r.albedo_srgb[:, 24:][right]  # red box at -x
     assert np.allclose(red, [1.0, 0.0, 0.0]) and np.allclose(blue, [0.0, 0.0, 1.0])
-    assert np.allclose(r.roughness[:, :24][left], 0.2) and np.allclose(r.roughness[:, 24:][right], 0.9)
+    assert np.allclose(r.roughness[:, :24][left], 0.2)
+    assert np.allclose(r.roughness[:, 24:][right], 0.9)
 
 
 def _glb(doc: dict, binary: bytes = b"") -> bytes:

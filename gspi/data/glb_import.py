@@ -60,8 +60,8 @@ def glb_recipe(path: Path, index: int, seed: int, cfg) -> dict:
     """Views and environments of asset scene `index` (the procedural recipe's fields)."""
     from gspi.data.env_sets import assign_environments, environment_sets
 
-    lattice = fibonacci_hemisphere_lattice(cfg.lattice["num_views"], min_elevation_deg=cfg.lattice.get(
-        "min_elevation_deg", 0.0))
+    lattice = fibonacci_hemisphere_lattice(
+        cfg.lattice["num_views"], min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
     test_dirs = held_out_directions(cfg.num_test_views, scene_rng(seed, index, 1), lattice=lattice)
     val_dirs = held_out_directions(cfg.num_val_views, scene_rng(seed, index, 2),
                                    lattice=np.concatenate([lattice, test_dirs]))
