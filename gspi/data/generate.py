@@ -20,13 +20,13 @@ import multiprocessing
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import ClassVar, Optional
+from typing import Any, ClassVar, Optional
 
 import torch
 
 from eval.layout import read_scene, write_json_atomic
 from gspi.data.contact_sheet import write_contact_sheet
-from gspi.data.environments import make_environment
+from gspi.data.environments import env_names
 from gspi.data.lattice import CANONICAL_LATTICE
 from gspi.data.point_clouds import write_scene_point_cloud
 from gspi.data.render_scene import generate_scene, load_environment
@@ -58,6 +58,10 @@ class BenchmarkConfig:
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
     training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
+    capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
+    relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
+    renderer: str = "splitsum"                # input views: splitsum | pathtraced
+    pathtrace: dict = field(default_factory=dict)  # gspi.data.pathtrace.PathTraceConfig kwargs
     lattice: dict = field(default_factory=lambda: dict(CANONICAL_LATTICE))
 
     # Allowed values, checked by gspi.strict_config when gspi-data starts (inclusive; None = open).
@@ -73,12 +77,25 @@ class BenchmarkConfig:
 
 
 def scene_recipes(seed: int, cfg: BenchmarkConfig) -> list[dict]:
-    return [sample_scene_recipe(seed, i, num_test_views=cfg.num_test_views,
-                                num_val_views=cfg.num_val_views,
-                                num_relight_envs=cfg.num_relight_envs,
-                                num_lattice_views=cfg.lattice["num_views"],
-                                min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
-            for i in range(cfg.num_scenes)]
+    """Recipes of every scene; non-default environment sets only change their environments."""
+    from gspi.data.env_sets import assign_environments, environment_sets, is_default
+
+    default_envs = is_default(cfg.capture_envs, cfg.relight_envs)
+    # Same draws as the default dataset (views, jitter seeds), whatever the environment sets.
+    num_drawn = cfg.num_relight_envs if default_envs else min(cfg.num_relight_envs,
+                                                              len(env_names("heldout")))
+    recipes = [sample_scene_recipe(seed, i, num_test_views=cfg.num_test_views,
+                                   num_val_views=cfg.num_val_views,
+                                   num_relight_envs=num_drawn,
+                                   num_lattice_views=cfg.lattice["num_views"],
+                                   min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
+               for i in range(cfg.num_scenes)]
+    if default_envs:
+        return recipes
+    capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
+    capture = None if is_default(cfg.capture_envs) else list(capture)
+    relight = None if is_default(cfg.relight_envs) else list(relight)
+    return [assign_environments(r, seed, capture, relight, cfg.num_relight_envs) for r in recipes]
 
 
 _WORKER: dict = {}
@@ -107,13 +124,17 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
     envs, pre = {}, {}
     for n in names:
         envs[n], pre[n] = _environment(n)
+    from gspi.data.pathtrace import retracer
+
+    extra = {"name": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed": seed,
+             "preset": cfg.name, "supersample": cfg.supersample, "lattice": cfg.lattice}
+    if cfg.renderer != "splitsum":  # recorded only when not the default (byte-identity)
+        extra |= {"renderer": cfg.renderer, "pathtrace": dict(cfg.pathtrace)}
     size = int(recipe.get("image_size", cfg.image_size))
     stats = generate_scene(recipe, Path(out_dir), envs=envs, prefiltered=pre,
                            width=size, height=size,
-                           supersample=cfg.supersample, lattice=cfg.lattice,
-                           extra={"name": GENERATOR_NAME, "version": GENERATOR_VERSION,
-                                  "seed": seed, "preset": cfg.name,
-                                  "supersample": cfg.supersample, "lattice": cfg.lattice})
+                           supersample=cfg.supersample, lattice=cfg.lattice, extra=extra,
+                           retrace=retracer(cfg.renderer, cfg.pathtrace, recipe=recipe))
     t0 = time.perf_counter()
     scene = read_scene(Path(out_dir) / recipe["name"])
     if cfg.point_clouds:
@@ -129,14 +150,20 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
 
 
 def write_environments(env_dir: Path, names: list[str], cfg: BenchmarkConfig) -> dict[str, str]:
-    """Render each named environment once into `env_dir` (a scratch folder); name -> path."""
-    from eval.imageio import write_exr
+    """Make each named environment once into `env_dir` (a scratch folder); name -> path.
 
+    Sources follow `cfg.capture_envs` / `cfg.relight_envs` (gspi.data.env_sets)."""
+    from eval.imageio import write_exr
+    from gspi.data.env_sets import environment_sets, make_named_environment
+
+    capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
+    sources = {**capture, **relight}
     paths = {}
     for name in names:
         path = env_dir / f"{name}.exr"
-        write_exr(path, make_environment(name, cfg.env_height,
-                                         white_radiance=cfg.white_radiance).numpy())
+        write_exr(path, make_named_environment(name, sources.get(name, "procedural"),
+                                               cfg.env_height,
+                                               white_radiance=cfg.white_radiance).numpy())
         paths[name] = str(path)
     return paths
 
@@ -181,6 +208,7 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
 def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
                            scratch_dir: str | Path | None = None) -> dict:
     """The Stage II training pool (gspi.data.training_pool): resumes, skips complete scenes."""
+    from gspi.data.env_sets import environment_sets, is_default
     from gspi.data.training_pool import pending_recipes, pool_recipes, read_pool_done
 
     start = time.perf_counter()
@@ -188,6 +216,9 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
         raise ValueError("a training pool has train scenes only: set data.num_val_scenes=0, "
                          "data.num_test_scenes=0 and no data.only_splits")
     recipes = pool_recipes(seed, cfg.num_train_scenes, list(cfg.image_sizes or [cfg.image_size]))
+    if not is_default(cfg.capture_envs):  # e.g. polyhaven: cycle through that capture set
+        names = sorted(environment_sets(cfg.capture_envs, cfg.relight_envs)[0])
+        recipes = [{**r, "capture_env": names[r["index"] % len(names)]} for r in recipes]
     todo = pending_recipes(out_dir, recipes)
     stats, env_seconds = _render_recipes(out_dir, todo, cfg, seed=seed, scratch_dir=scratch_dir)
     done = set(read_pool_done(out_dir))

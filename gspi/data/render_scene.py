@@ -86,9 +86,20 @@ def _view_seed(view_seed: int, split: str, k: int) -> int:
     return int(ss.generate_state(1)[0])
 
 
+def sdf_renderer(recipe: dict):
+    """The procedural scenes' renderer: `render(cameras, height, width, env, supersample)`."""
+    shape = ShapeSDF(recipe["shape"])
+
+    def render(cameras, height, width, env, supersample):
+        return render_views(shape, recipe["material"], cameras, height, width, env=env,
+                            supersample=supersample)
+    return render
+
+
 def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor],
                    prefiltered: dict, width: int, height: int, supersample: int,
-                   lattice: dict, extra: dict | None = None) -> dict:
+                   lattice: dict, extra: dict | None = None, render=None,
+                   retrace=None) -> dict:
     """Render every view of a scene and write it (see module docstring).
 
     Args:
@@ -99,8 +110,13 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
         width, height: image size; supersample: S (S x S rays per pixel); lattice: kwargs of
             `lattice_cameras` (num_views, radius, fov_deg, min_elevation_deg).
         extra: more metadata for scene.json's `generator` entry.
+        render: `render(cameras, height, width, prefiltered env, supersample)` -> ViewRenders
+            (default: `sdf_renderer(recipe)`); GT maps and split-sum rgb of every view.
+        retrace: optional `retrace(cameras, height, width, env [h, w, 3])` -> one rgb
+            [H, W, 3] per camera that replaces the split-sum input (gspi.data.pathtrace);
+            maps, masks and relit ground truth stay those of `render`.
     Returns:
-        Stats: {"name", "seconds", "rays", "sdf_evals", "views"}.
+        Stats: {"name", "seconds", "rays", "sdf_evals", "views", "retrace_seconds"}.
     """
     start = time.perf_counter()
     root = Path(out_dir) / recipe["name"]
@@ -111,12 +127,17 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
     write_scene_json(scene)
     for name in [scene.capture_env, *scene.relight_envs]:
         write_exr(scene.envmap_path(name), envs[name].numpy())
-    shape = ShapeSDF(recipe["shape"])
+    render = render or sdf_renderer(recipe)
     todo = [(split, k, view) for split, vs in views.items() for k, view in enumerate(vs)]
     cameras = [(view.K, view.w2c, _view_seed(recipe["view_seed"], split, k))
                for split, k, view in todo]
-    renders = render_views(shape, recipe["material"], cameras, height, width,
-                           env=prefiltered[scene.capture_env], supersample=supersample)
+    renders = render(cameras, height, width, prefiltered[scene.capture_env], supersample)
+    retrace_seconds = 0.0
+    if retrace is not None:
+        t0 = time.perf_counter()
+        for r, rgb in zip(renders, retrace(cameras, height, width, envs[scene.capture_env])):
+            r.rgb = rgb
+        retrace_seconds = time.perf_counter() - t0
     for (split, _, view), r in zip(todo, renders):
         write_view(scene.view_dir(split, view.id), r)
     rays, evals = sum(r.rays for r in renders), sum(r.sdf_evals for r in renders)
@@ -126,7 +147,8 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
             write_exr(scene.view_dir("test", view.id) / f"relit_{env_name}.exr",
                       relight_stored_view(scene, view, env))
     return {"name": scene.name, "seconds": time.perf_counter() - start, "rays": rays,
-            "sdf_evals": evals, "views": sum(len(v) for v in views.values())}
+            "sdf_evals": evals, "views": sum(len(v) for v in views.values()),
+            "retrace_seconds": retrace_seconds}
 
 
 def load_environment(path: Path) -> torch.Tensor:

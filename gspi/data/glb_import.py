@@ -1,0 +1,131 @@
+"""Import glTF/GLB PBR objects into the canonical scene layout (docs/FORMAT.md).
+
+CLI (gspi/cli/data.py):
+    gspi-data import.glb=chair.glb out=DIR [preset=small] [data.renderer=pathtraced]
+    gspi-data import.glb=objects/ out=DIR       # objects/{train,val,test}/*.glb, or a flat
+                                                # folder of *.glb / *.gltf (all -> test)
+
+Each file becomes one scene named after its stem, exactly like a procedural scene: the asset
+(gspi.data.gltf) is normalised to the unit frame (bounding-box centre at the origin,
+farthest vertex at radius 1), rendered from the canonical lattice (train) and seeded
+held-out val/test views with the preset's image size and supersampling
+(gspi.data.mesh_render: GT albedo, roughness, metallic, normals, depth, masks and the
+split-sum input; `data.renderer=pathtraced` replaces the input by a Mitsuba rendering),
+lit by the capture environment, relit under the held-out ones (`data.capture_envs`,
+`data.relight_envs`). Scene `i` (files sorted by split then name) draws its views and
+environments from `scene_rng(seed, i, ...)` like the procedural scenes.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eval.layout import SPLITS, read_scene
+from gspi.data.lattice import fibonacci_hemisphere_lattice, held_out_directions
+from gspi.data.scene_recipe import scene_rng
+
+EXTENSIONS = (".glb", ".gltf")
+
+
+def glb_sources(src: str | Path) -> dict[str, list[Path]]:
+    """split -> asset files (see module docstring)."""
+    src = Path(src)
+    if src.is_file():
+        if src.suffix.lower() not in EXTENSIONS:
+            raise ValueError(f"{src}: not a .glb or .gltf file")
+        return {"test": [src]}
+    if not src.is_dir():
+        raise FileNotFoundError(f"{src}: no such file or folder")
+
+    def assets(folder: Path) -> list[Path]:
+        return sorted(p for p in folder.iterdir() if p.suffix.lower() in EXTENSIONS)
+
+    if any((src / s).is_dir() for s in SPLITS):
+        out = {s: assets(src / s) for s in SPLITS if (src / s).is_dir()}
+    else:
+        out = {"test": assets(src)}
+    files = [p for ps in out.values() for p in ps]
+    if not files:
+        raise FileNotFoundError(f"{src}: no .glb/.gltf files (flat or in train/val/test/)")
+    stems = [p.stem for p in files]
+    dup = sorted({s for s in stems if stems.count(s) > 1})
+    if dup:
+        raise ValueError(f"{src}: several assets share the scene names {dup}")
+    return out
+
+
+def glb_recipe(path: Path, index: int, seed: int, cfg) -> dict:
+    """Views and environments of asset scene `index` (the procedural recipe's fields)."""
+    from gspi.data.env_sets import assign_environments, environment_sets
+
+    lattice = fibonacci_hemisphere_lattice(
+        cfg.lattice["num_views"], min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
+    test_dirs = held_out_directions(cfg.num_test_views, scene_rng(seed, index, 1), lattice=lattice)
+    val_dirs = held_out_directions(cfg.num_val_views, scene_rng(seed, index, 2),
+                                   lattice=np.concatenate([lattice, test_dirs]))
+    recipe = {"index": index, "name": path.stem, "family": "glb", "source": str(path.resolve()),
+              "test_directions": test_dirs.tolist(), "val_directions": val_dirs.tolist(),
+              "view_seed": int(scene_rng(seed, index).integers(0, 2**31 - 1))}
+    capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
+    return assign_environments(recipe, seed, list(capture), list(relight), cfg.num_relight_envs)
+
+
+def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> dict:
+    """Import every asset of `src` into `out_dir` (see module docstring).
+
+    Args:
+        cfg: gspi.data.generate.BenchmarkConfig (sizes, lattice, environments, renderer).
+    Returns:
+        {"splits": {split: [names]}, "scenes": [per-scene stats]}.
+    """
+    from eval.relight import prefilter_environment
+    from gspi.data.env_sets import environment_sets, make_named_environment
+    from gspi.data.generate import merge_splits
+    from gspi.data.gltf import read_gltf
+    from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+    from gspi.data.pathtrace import retracer
+    from gspi.data.render_scene import generate_scene
+
+    out_dir = Path(out_dir)
+    sources = glb_sources(src)
+    capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
+    env_sources = {**capture, **relight}
+    envs, pre, stats = {}, {}, []
+    files = [(split, p) for split in SPLITS for p in sources.get(split, [])]
+    for index, (split, path) in enumerate(files):
+        start = time.perf_counter()
+        asset = read_gltf(path)
+        mesh = unit_frame_mesh(asset)
+        recipe = glb_recipe(path, index, seed, cfg)
+        for name in [recipe["capture_env"], *recipe["relight_envs"]]:
+            if name not in envs:
+                envs[name] = make_named_environment(name, env_sources[name], cfg.env_height,
+                                                    white_radiance=cfg.white_radiance)
+                pre[name] = prefilter_environment(envs[name])
+
+        def render(cameras, height, width, env, supersample, mesh=mesh):
+            return render_mesh_views(mesh, cameras, height, width, env=env,
+                                     supersample=supersample)
+
+        s = generate_scene(
+            recipe, out_dir, envs=envs, prefiltered=pre, width=cfg.image_size,
+            height=cfg.image_size, supersample=cfg.supersample, lattice=cfg.lattice,
+            render=render, retrace=retracer(cfg.renderer, cfg.pathtrace, mesh=mesh),
+            extra={"name": "gspi-glb-import", "version": 1, "seed": seed, "preset": cfg.name,
+                   "supersample": cfg.supersample, "lattice": cfg.lattice,
+                   "renderer": cfg.renderer, "ignored": asset.ignored,
+                   "unit_frame": {"center": mesh.center.tolist(), "scale": mesh.scale}})
+        if cfg.point_clouds or cfg.contact_sheets:
+            from gspi.data.contact_sheet import write_contact_sheet
+            from gspi.data.point_clouds import write_scene_point_cloud
+
+            scene = read_scene(out_dir / recipe["name"])
+            if cfg.point_clouds:
+                write_scene_point_cloud(scene)
+            if cfg.contact_sheets:
+                write_contact_sheet(scene)
+        stats.append({**s, "split": split, "seconds": time.perf_counter() - start})
+    splits = merge_splits(out_dir, {split: [p.stem for p in ps] for split, ps in sources.items()})
+    return {"splits": splits, "scenes": stats}

@@ -1,0 +1,338 @@
+"""Read a glTF 2.0 asset (`.glb`, or `.gltf` with its buffers) as triangles with PBR materials.
+
+Why not trimesh's loader: it stores `baseColorFactor` as 8-bit colour and flips texture
+rows; ground-truth albedo needs the factors and texture lookups exactly as the glTF spec
+defines them, so this module reads the (small) subset of the format the benchmark needs
+with numpy, and trimesh is used for what it does well, ray casting (gspi.data.mesh_render).
+
+Read: the default scene's node tree (matrix or TRS per node), every triangle primitive
+(mode 4) with POSITION, NORMAL, TEXCOORD_0 and indices (any component type, strides,
+normalised integers), and its material's `pbrMetallicRoughness`:
+
+    albedo (linear)  = baseColorFactor.rgb * srgb_to_linear(baseColorTexture.rgb)
+    roughness        = roughnessFactor * metallicRoughnessTexture.G   (linear)
+    metallic         = metallicFactor  * metallicRoughnessTexture.B   (linear)
+
+Textures are sampled bilinearly with REPEAT wrap at the hit's TEXCOORD_0, glTF's texel
+convention (uv (0, 0) = the top-left corner of the image's first row). Axes: glTF is Y-up;
+positions and normals are turned to the project's Z-up world as Blender's importer does,
+(x, y, z) -> (x, -z, y).
+
+Not read, and what happens instead (stated, logged, recorded in scene.json):
+* no material, or a material without `pbrMetallicRoughness`: the spec's defaults (base colour
+  1, metallic 1, roughness 1);
+* textures without TEXCOORD_0: factor-only material;
+* normal, occlusion and emissive textures, alpha, texture samplers' filters, KHR_* material
+  extensions in `extensionsUsed` (e.g. KHR_materials_transmission): ignored;
+* KHR_draco_mesh_compression is decoded with DracoPy;
+* any other extension in `extensionsRequired` (meshopt, KTX2, texture transforms), a
+  non-triangle primitive, a sparse accessor, a truncated or malformed file: `GLTFError`
+  naming the file.
+"""
+from __future__ import annotations
+
+import base64
+import io
+import json
+import logging
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+GLB_MAGIC = b"glTF"
+COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32,
+              5126: np.float32}
+NORMALISED = {np.int8: 127.0, np.uint8: 255.0, np.int16: 32767.0, np.uint16: 65535.0}
+WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+DRACO = "KHR_draco_mesh_compression"  # decoded with DracoPy (the package's bunny and suzi)
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+class GLTFError(ValueError):
+    """A glTF file is malformed, truncated or uses something this reader cannot honour."""
+
+
+@dataclass
+class Material:
+    """Factors (linear) and optional textures: base colour sRGB [h, w, 3] in [0, 1] and
+    metallic-roughness [h, w, 3] (G roughness, B metallic) in [0, 1]."""
+
+    base_color: np.ndarray = field(default_factory=lambda: np.ones(3))
+    roughness: float = 1.0
+    metallic: float = 1.0
+    base_color_texture: np.ndarray | None = None
+    metallic_roughness_texture: np.ndarray | None = None
+    name: str = ""
+
+
+@dataclass
+class Primitive:
+    """World (Z-up) triangles: vertices [V, 3], faces [F, 3], normals [V, 3] or None,
+    uv [V, 2] (glTF convention) or None."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None
+    uv: np.ndarray | None
+    material: Material
+
+
+@dataclass
+class Asset:
+    path: Path
+    primitives: list[Primitive]
+    ignored: list[str]          # what was not honoured (module docstring), for scene.json
+
+
+def _split_glb(path: Path, data: bytes) -> tuple[dict, bytes | None]:
+    if len(data) < 20:
+        raise GLTFError(f"{path}: truncated GLB ({len(data)} bytes)")
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    if magic != GLB_MAGIC or version != 2:
+        raise GLTFError(f"{path}: not a glTF 2.0 binary (magic {magic!r}, version {version})")
+    if length > len(data):
+        raise GLTFError(f"{path}: truncated GLB (header says {length} bytes, file has "
+                        f"{len(data)})")
+    chunks, offset = {}, 12
+    while offset + 8 <= length:
+        size, kind = struct.unpack_from("<I4s", data, offset)
+        if offset + 8 + size > length:
+            raise GLTFError(f"{path}: truncated GLB chunk {kind!r}")
+        chunks.setdefault(kind, data[offset + 8:offset + 8 + size])
+        offset += 8 + size
+    if b"JSON" not in chunks:
+        raise GLTFError(f"{path}: GLB has no JSON chunk")
+    try:
+        gltf = json.loads(chunks[b"JSON"].decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise GLTFError(f"{path}: GLB JSON chunk is malformed ({e})") from e
+    return gltf, chunks.get(b"BIN\x00")
+
+
+class _Reader:
+    def __init__(self, path: Path):
+        self.path = path
+        data = path.read_bytes()
+        if path.suffix.lower() == ".glb" or data[:4] == GLB_MAGIC:
+            self.gltf, self.bin = _split_glb(path, data)
+        else:
+            try:
+                self.gltf, self.bin = json.loads(data.decode("utf-8")), None
+            except (UnicodeDecodeError, json.JSONDecodeError) as e:
+                raise GLTFError(f"{path}: not a glTF JSON file ({e})") from e
+        if not str(self.gltf.get("asset", {}).get("version", "")).startswith("2"):
+            raise GLTFError(f"{path}: not glTF 2.0 (asset.version "
+                            f"{self.gltf.get('asset', {}).get('version')!r})")
+        self._buffers: dict[int, bytes] = {}
+
+    def fail(self, msg: str) -> GLTFError:
+        return GLTFError(f"{self.path}: {msg}")
+
+    def _get(self, key: str, index: int) -> dict:
+        items = self.gltf.get(key, [])
+        if not 0 <= index < len(items):
+            raise self.fail(f"{key}[{index}] does not exist")
+        return items[index]
+
+    def buffer(self, index: int) -> bytes:
+        if index not in self._buffers:
+            buf = self._get("buffers", index)
+            uri = buf.get("uri")
+            if uri is None:
+                data = self.bin
+                if data is None:
+                    raise self.fail(f"buffers[{index}] has no uri and the file no BIN chunk")
+            elif uri.startswith("data:"):
+                data = base64.b64decode(uri.split(",", 1)[1])
+            else:
+                file = self.path.parent / uri
+                if not file.is_file():
+                    raise self.fail(f"buffer file {file} not found")
+                data = file.read_bytes()
+            if len(data) < buf.get("byteLength", 0):
+                raise self.fail(f"buffers[{index}] truncated ({len(data)} of "
+                                f"{buf['byteLength']} bytes)")
+            self._buffers[index] = data
+        return self._buffers[index]
+
+    def view_bytes(self, index: int) -> tuple[bytes, int, int | None]:
+        view = self._get("bufferViews", index)
+        data = self.buffer(int(view["buffer"]))
+        start, length = int(view.get("byteOffset", 0)), int(view["byteLength"])
+        if start + length > len(data):
+            raise self.fail(f"bufferViews[{index}] runs past its buffer (truncated file?)")
+        return data, start, view.get("byteStride")
+
+    def accessor(self, index: int) -> np.ndarray:
+        acc = self._get("accessors", index)
+        if "sparse" in acc:
+            raise self.fail(f"accessors[{index}]: sparse accessors are not supported")
+        dtype = np.dtype(COMPONENTS[acc["componentType"]]).newbyteorder("<")
+        width, count = WIDTH[acc["type"]], int(acc["count"])
+        data, start, stride = self.view_bytes(int(acc["bufferView"]))
+        start += int(acc.get("byteOffset", 0))
+        item = dtype.itemsize * width
+        stride = int(stride or item)
+        end = start + stride * (count - 1) + item
+        if end > len(data):
+            raise self.fail(f"accessors[{index}] runs past its buffer (truncated file?)")
+        raw = np.frombuffer(data, np.uint8, count=end - start, offset=start)
+        rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
+        out = np.ascontiguousarray(rows).view(dtype).reshape(count, width)
+        if acc.get("normalized") and dtype.type in NORMALISED:
+            return np.maximum(out / NORMALISED[dtype.type], -1.0)
+        return out.astype(np.float64) if dtype.kind == "f" else out
+
+    def image(self, tex_index: int) -> np.ndarray:
+        from PIL import Image
+
+        tex = self._get("textures", tex_index)
+        if "source" not in tex:
+            raise self.fail(f"textures[{tex_index}] has no source image (extension-only?)")
+        img = self._get("images", int(tex["source"]))
+        if "bufferView" in img:
+            data, start, _ = self.view_bytes(int(img["bufferView"]))
+            view = self._get("bufferViews", int(img["bufferView"]))
+            blob = data[start:start + int(view["byteLength"])]
+        elif img.get("uri", "").startswith("data:"):
+            blob = base64.b64decode(img["uri"].split(",", 1)[1])
+        else:
+            file = self.path.parent / img.get("uri", "")
+            if not file.is_file():
+                raise self.fail(f"image file {file} not found")
+            blob = file.read_bytes()
+        try:
+            pil = Image.open(io.BytesIO(blob))
+            pil.load()
+        except Exception as e:  # Pillow raises many types for bad images
+            raise self.fail(f"images[{tex['source']}] is not a readable image ({e})") from e
+        arr = np.asarray(pil.convert("RGB"), dtype=np.float64)
+        return arr / (65535.0 if pil.mode.startswith("I;16") else 255.0)
+
+
+def _node_matrix(node: dict) -> np.ndarray:
+    if "matrix" in node:
+        return np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major
+    x, y, z, w = node.get("rotation", [0.0, 0.0, 0.0, 1.0])
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    m = np.eye(4)
+    m[:3, :3] = R * np.asarray(node.get("scale", [1.0, 1.0, 1.0]))[None, :]
+    m[:3, 3] = node.get("translation", [0.0, 0.0, 0.0])
+    return m
+
+
+def _material(r: _Reader, index: int | None, has_uv: bool, ignored: list[str]) -> Material:
+    if index is None:
+        ignored.append("primitive without material: glTF default material")
+        return Material()
+    mat = r._get("materials", index)
+    name = mat.get("name", f"materials[{index}]")
+    for key in ("normalTexture", "occlusionTexture", "emissiveTexture"):
+        if key in mat:
+            ignored.append(f"{name}: {key}")
+    pbr = mat.get("pbrMetallicRoughness")
+    if pbr is None:
+        ignored.append(f"{name}: no pbrMetallicRoughness, glTF defaults")
+        return Material(name=name)
+    out = Material(base_color=np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), float)[:3],
+                   roughness=float(pbr.get("roughnessFactor", 1.0)),
+                   metallic=float(pbr.get("metallicFactor", 1.0)), name=name)
+    for key, attr in (("baseColorTexture", "base_color_texture"),
+                      ("metallicRoughnessTexture", "metallic_roughness_texture")):
+        if key not in pbr:
+            continue
+        if pbr[key].get("texCoord", 0) != 0 or not has_uv:
+            ignored.append(f"{name}: {key} without TEXCOORD_0, factor only")
+            continue
+        setattr(out, attr, r.image(int(pbr[key]["index"])))
+    return out
+
+
+def _draco(r: _Reader, ext: dict) -> dict[str, np.ndarray]:
+    """Decode a KHR_draco_mesh_compression primitive (DracoPy): attributes + indices."""
+    try:
+        import DracoPy
+    except ImportError as e:
+        raise r.fail(f"uses {DRACO}; pip install DracoPy to read it") from e
+    data, start, _ = r.view_bytes(int(ext["bufferView"]))
+    view = r._get("bufferViews", int(ext["bufferView"]))
+    try:
+        mesh = DracoPy.decode(data[start:start + int(view["byteLength"])])
+    except Exception as e:  # DracoPy raises its own failure types
+        raise r.fail(f"Draco data cannot be decoded ({e})") from e
+    out = {"indices": np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)}
+    for name, uid in ext["attributes"].items():
+        attr = mesh.get_attribute_by_unique_id(int(uid))
+        if attr is not None and name in ("POSITION", "NORMAL", "TEXCOORD_0"):
+            out[name] = np.asarray(attr["data"], dtype=np.float64)
+    if "POSITION" not in out:
+        raise r.fail("Draco primitive without POSITION")
+    return out
+
+
+def read_gltf(path: str | Path) -> Asset:
+    """Read `path` (see module docstring). Raises GLTFError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise GLTFError(f"{path}: file not found")
+    r = _Reader(path)
+    required = [e for e in r.gltf.get("extensionsRequired", []) if e != DRACO]
+    if required:
+        raise r.fail(f"requires glTF extensions {required}, which this reader cannot honour")
+    ignored = [f"extension {e}" for e in r.gltf.get("extensionsUsed", []) if e != DRACO]
+    scenes = r.gltf.get("scenes", [])
+    roots = (scenes[int(r.gltf.get("scene", 0))]["nodes"] if scenes else
+             list(range(len(r.gltf.get("nodes", [])))))
+    prims: list[Primitive] = []
+    materials: dict = {}
+    try:
+        stack = [(int(n), np.eye(4)) for n in roots]
+        while stack:
+            idx, parent = stack.pop()
+            node = r._get("nodes", idx)
+            world = parent @ _node_matrix(node)
+            stack += [(int(c), world) for c in node.get("children", [])]
+            if "mesh" not in node:
+                continue
+            for p in r._get("meshes", int(node["mesh"]))["primitives"]:
+                if p.get("mode", 4) != 4:
+                    raise r.fail(f"primitive mode {p['mode']} is not triangles")
+                attrs = p["attributes"]
+                if DRACO in p.get("extensions", {}):
+                    data = _draco(r, p["extensions"][DRACO])
+                    pos, faces = data["POSITION"], data["indices"]
+                else:
+                    data = {k: r.accessor(int(v)) for k, v in attrs.items()
+                            if k in ("NORMAL", "TEXCOORD_0")}
+                    pos = r.accessor(int(attrs["POSITION"]))
+                    faces = (r.accessor(int(p["indices"])).reshape(-1, 3) if "indices" in p
+                             else np.arange(len(pos)).reshape(-1, 3))
+                if len(faces) == 0 or faces.max() >= len(pos):
+                    raise r.fail("primitive indices out of range or empty")
+                lin = Y_UP_TO_Z_UP @ world[:3, :3]
+                v = pos @ lin.T + Y_UP_TO_Z_UP @ world[:3, 3]
+                n = None
+                if "NORMAL" in data:
+                    n = data["NORMAL"] @ np.linalg.inv(lin)  # rows of (L^-T n)
+                    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+                uv = data.get("TEXCOORD_0")
+                if np.linalg.det(lin) < 0:  # mirrored node: keep counter-clockwise faces
+                    faces = faces[:, ::-1]
+                key = (p.get("material"), uv is not None)
+                if key not in materials:
+                    materials[key] = _material(r, p.get("material"), uv is not None, ignored)
+                prims.append(Primitive(v, faces.astype(np.int64), n, uv, materials[key]))
+    except (KeyError, IndexError, TypeError) as e:
+        raise r.fail(f"malformed glTF ({type(e).__name__}: {e})") from e
+    if not prims:
+        raise r.fail("no triangle primitives in the default scene")
+    ignored = sorted(set(ignored))
+    for item in ignored:
+        log.warning("%s: ignored %s", path, item)
+    return Asset(path, prims, ignored)

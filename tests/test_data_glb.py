@@ -1,0 +1,192 @@
+"""glTF/GLB import: GT maps from known textures and factors, masks, unit frame, several
+primitives, bad files, the CLI (gspi.data.gltf, gspi.data.mesh_render, gspi.data.glb_import)."""
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.layout import read_scene, read_splits, read_view_file
+from gspi.data.gltf import GLTFError, read_gltf
+from gspi.data.lattice import intrinsics_from_fov, look_at_w2c
+from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+
+trimesh = pytest.importorskip("trimesh")
+Image = pytest.importorskip("PIL.Image")
+
+# 8x8 texture, four constant 4x4 blocks (top-left, top-right, bottom-left, bottom-right).
+BLOCKS = np.array([[[230, 20, 10], [10, 200, 40]], [[20, 30, 220], [250, 240, 30]]], np.uint8)
+# metallicRoughness: G = roughness, B = metallic per block.
+MR_BLOCKS = np.array([[[0, 51, 255], [0, 204, 0]], [[0, 102, 255], [0, 255, 128]]], np.uint8)
+FACTOR = np.array([1.0, 128 / 255, 1.0])  # trimesh stores factors as 8-bit: keep them exact
+
+
+def _blocky(blocks: np.ndarray) -> np.ndarray:
+    return np.repeat(np.repeat(blocks, 4, axis=0), 4, axis=1)
+
+
+def quad_glb(path, *, textured=True):
+    """A 2x2 quad in glTF's x-y plane facing +z (world -y), texture upright on it."""
+    v = np.array([[-1, 1, 0], [1, 1, 0], [-1, -1, 0], [1, -1, 0]], float)
+    m = trimesh.Trimesh(v, np.array([[0, 2, 1], [1, 2, 3]]), process=False)
+    mat = trimesh.visual.material.PBRMaterial(
+        baseColorFactor=np.append(FACTOR, 1.0), roughnessFactor=0.5, metallicFactor=1.0,
+        baseColorTexture=Image.fromarray(_blocky(BLOCKS)) if textured else None,
+        metallicRoughnessTexture=Image.fromarray(_blocky(MR_BLOCKS)) if textured else None)
+    # trimesh's uv have v up and are flipped on export: (0, 1) here = glTF (0, 0), top-left.
+    m.visual = trimesh.visual.TextureVisuals(uv=np.array([[0, 1], [1, 1], [0, 0], [1, 0.0]]),
+                                             material=mat)
+    path.write_bytes(m.export(file_type="glb"))
+    return path
+
+
+def front_view(mesh, size=32, env=None):
+    """View from world -y (the quad's front), up +z: image right = +x, top = +z."""
+    K = intrinsics_from_fov(45.0, size, size)
+    w2c = look_at_w2c(np.array([0.0, -3.0, 0.0]))
+    env = torch.ones(8, 16, 3) if env is None else env
+    return render_mesh_views(mesh, [(K, w2c, 0)], size, size, env=env, supersample=2)[0]
+
+
+def test_textures_and_factors_give_exact_gt_maps(tmp_path):
+    mesh = unit_frame_mesh(read_gltf(quad_glb(tmp_path / "quad.glb")))
+    assert np.isclose(np.linalg.norm(mesh.vertices, axis=-1).max(), 1.0)
+    r = front_view(mesh)
+    # Quad half-size 1/sqrt 2 after normalisation, at distance 3, 45 deg fov, 32 px:
+    # it covers pixels ~[6.9, 25.1); the centres of its four blocks are at pixels 11 and 20.
+    inside = r.mask[8:24, 8:24]
+    outside = np.concatenate([r.mask[:6].ravel(), r.mask[26:].ravel()])
+    assert inside.all() and not outside.any()
+    for (bi, bj), (y, x) in {(0, 0): (11, 11), (0, 1): (11, 20), (1, 0): (20, 11),
+                             (1, 1): (20, 20)}.items():
+        lin = FACTOR * srgb_to_linear(torch.tensor(BLOCKS[bi, bj] / 255.0)).numpy()
+        want = linear_to_srgb(torch.tensor(lin)).numpy()
+        np.testing.assert_allclose(r.albedo_srgb[y, x], want, atol=1e-5)
+        np.testing.assert_allclose(r.roughness[y, x, 0], 0.5 * MR_BLOCKS[bi, bj, 1] / 255,
+                                   atol=1e-6)
+        np.testing.assert_allclose(r.metallic[y, x, 0], MR_BLOCKS[bi, bj, 2] / 255, atol=1e-6)
+    np.testing.assert_allclose(r.normal[16, 16], [0.0, -1.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(r.depth[16, 16, 0], 3.0, atol=1e-4)
+    assert (r.albedo_srgb[~r.mask] == 0).all() and (r.depth[~r.mask] == 0).all()
+
+
+def test_several_primitives_and_node_transforms(tmp_path):
+    a = trimesh.creation.box(extents=[1, 1, 1])
+    b = trimesh.creation.box(extents=[1, 1, 1])
+    for m, colour, rough in ((a, [255, 0, 0, 255], 0.2), (b, [0, 0, 255, 255], 0.9)):
+        m.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
+            baseColorFactor=colour, roughnessFactor=rough, metallicFactor=0.0))
+    scene = trimesh.Scene()
+    scene.add_geometry(a, transform=trimesh.transformations.translation_matrix([-2.0, 5, 0]))
+    scene.add_geometry(b, transform=trimesh.transformations.translation_matrix([2.0, 5, 0]))
+    path = tmp_path / "two.glb"
+    path.write_bytes(scene.export(file_type="glb"))
+    asset = read_gltf(path)
+    assert len(asset.primitives) == 2
+    mesh = unit_frame_mesh(asset)
+    np.testing.assert_allclose(0.5 * (mesh.vertices.min(0) + mesh.vertices.max(0)), 0, atol=1e-9)
+    np.testing.assert_allclose(mesh.center, [0.0, 0.0, 5.0])  # glTF y = 5 -> world z = 5
+    r = front_view(mesh, size=48)
+    left, right = r.mask[:, :24], r.mask[:, 24:]
+    assert left.sum() > 20 and right.sum() > 20
+    red, blue = r.albedo_srgb[:, :24][left], r.albedo_srgb[:, 24:][right]  # red box at -x
+    assert np.allclose(red, [1.0, 0.0, 0.0]) and np.allclose(blue, [0.0, 0.0, 1.0])
+    assert np.allclose(r.roughness[:, :24][left], 0.2)
+    assert np.allclose(r.roughness[:, 24:][right], 0.9)
+
+
+def _glb(doc: dict, binary: bytes = b"") -> bytes:
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    chunks = struct.pack("<I4s", len(js), b"JSON") + js
+    if binary:
+        chunks += struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
+
+
+def _triangle_doc(**extra) -> tuple[dict, bytes]:
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+           "nodes": [{"mesh": 0}], "buffers": [{"byteLength": len(pos)}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(pos)}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]}
+    for key, value in extra.items():
+        doc[key] = value
+    return doc, pos
+
+
+def test_bad_glb_inputs(tmp_path):
+    doc, pos = _triangle_doc()
+    (tmp_path / "nomat.glb").write_bytes(_glb(doc, pos))
+    asset = read_gltf(tmp_path / "nomat.glb")  # fallback: the spec's default material
+    m = asset.primitives[0].material
+    assert (m.base_color == 1).all() and m.roughness == 1 and m.metallic == 1
+    assert any("default material" in s for s in asset.ignored)
+
+    doc, pos = _triangle_doc(materials=[{"pbrMetallicRoughness": {
+        "baseColorFactor": [0.2, 0.4, 0.6, 1], "baseColorTexture": {"index": 0}}}],
+        extensionsUsed=["KHR_materials_transmission"])
+    doc["meshes"][0]["primitives"][0]["material"] = 0
+    (tmp_path / "nouv.glb").write_bytes(_glb(doc, pos))
+    asset = read_gltf(tmp_path / "nouv.glb")  # texture without UVs: factor only, stated
+    m = asset.primitives[0].material
+    assert m.base_color_texture is None and np.allclose(m.base_color, [0.2, 0.4, 0.6])
+    assert "extension KHR_materials_transmission" in asset.ignored
+    assert any("without TEXCOORD_0" in s for s in asset.ignored)
+
+    doc, pos = _triangle_doc(extensionsRequired=["EXT_meshopt_compression"])
+    (tmp_path / "meshopt.glb").write_bytes(_glb(doc, pos))
+    with pytest.raises(GLTFError, match="meshopt.glb.*EXT_meshopt_compression"):
+        read_gltf(tmp_path / "meshopt.glb")
+
+    good = quad_glb(tmp_path / "quad.glb").read_bytes()
+    (tmp_path / "cut.glb").write_bytes(good[: len(good) // 2])
+    with pytest.raises(GLTFError, match="cut.glb.*truncated"):
+        read_gltf(tmp_path / "cut.glb")
+    (tmp_path / "junk.glb").write_bytes(b"not a gltf file at all")
+    with pytest.raises(GLTFError, match="junk.glb"):
+        read_gltf(tmp_path / "junk.glb")
+
+    doc, pos = _triangle_doc()
+    doc["meshes"][0]["primitives"][0]["mode"] = 1
+    (tmp_path / "lines.glb").write_bytes(_glb(doc, pos))
+    with pytest.raises(GLTFError, match="lines.glb.*not triangles"):
+        read_gltf(tmp_path / "lines.glb")
+
+
+def test_cli_imports_a_folder_with_splits(tmp_path):
+    from gspi.cli.data import run
+
+    src = tmp_path / "objects"
+    (src / "train").mkdir(parents=True)
+    (src / "test").mkdir()
+    quad_glb(src / "train" / "quad_a.glb")
+    quad_glb(src / "test" / "quad_b.glb", textured=False)
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    cfg = OmegaConf.load(conf / "gspi_data.yaml")
+    cfg.data = OmegaConf.load(conf / "data" / "tiny.yaml")
+    cfg.out = str(tmp_path / "out")
+    cfg["import"].glb = str(src)
+    cfg.data.update(image_size=16, num_test_views=2, num_val_views=1, num_relight_envs=1,
+                    point_clouds=False, contact_sheets=False)
+    cfg.lattice.num_views = 4
+    result = run(cfg)
+    assert result["mode"] == "import_glb"
+    assert read_splits(tmp_path / "out") == {"train": ["quad_a"], "val": [], "test": ["quad_b"]}
+    scene = read_scene(tmp_path / "out" / "quad_b")
+    assert len(scene.views["train"]) == 4 and len(scene.views["test"]) == 2
+    t00 = scene.view_dir("test", "t00")
+    assert (t00 / f"relit_{scene.relight_envs[0]}.exr").is_file()
+    albedo = read_view_file(t00, "albedo.png")
+    mask = read_view_file(t00, "mask.png")[..., 0] > 0.5
+    want = linear_to_srgb(torch.tensor(FACTOR)).numpy()
+    assert mask.any() and np.abs(albedo[mask] - want).max() <= 1 / 255 + 1e-6
+    assert json.loads((scene.root / "scene.json").read_text())["generator"]["family"] == "glb"
