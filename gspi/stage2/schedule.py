@@ -5,9 +5,10 @@ Decision: our own implementation, not diffusers' schedulers. The math is ~60 lin
 closed-form formulas (below), while diffusers pulls in huggingface-hub, safetensors and
 requests at import, and its ``DDIMScheduler.step`` takes ONE timestep for the whole batch
 (training here draws one timestep per sample) and keeps the schedule in float32. diffusers
-stays an optional test oracle (``pip install -e .[hf]``): ``tests/test_stage2_schedule.py``
-checks ``alphas_cumprod``, ``add_noise`` and a full DDIM loop against
-``DDIMScheduler(beta_schedule="squaredcos_cap_v2", timestep_spacing="trailing")`` to 1e-6.
+stays the test oracle without being installed: ``tests/golden/record_oracles.py`` ran
+``DDIMScheduler(beta_schedule="squaredcos_cap_v2", timestep_spacing="trailing")`` once and
+``tests/test_stage2_schedule.py`` checks ``alphas_cumprod``, the timesteps, ``add_noise`` and four
+full DDIM loops against its recorded outputs (``tests/golden/diffusers_ddim.json``).
 
 Formulas (Nichol & Dhariwal 2021; diffusers ``betas_for_alpha_bar``, "squaredcos_cap_v2"):
 
