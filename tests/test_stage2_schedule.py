@@ -7,7 +7,7 @@ import torch
 
 from gspi.stage2.model import DenoiserOutput
 from gspi.stage2.sampler import ddim_sample
-from gspi.stage2.schedule import (cosine_alphas_cumprod, ddim_timesteps, min_snr_eps_weights,
+from gspi.stage2.schedule import (cosine_alphas_cumprod, ddim_timesteps, eps_from_f0, f0_from_eps, min_snr_eps_weights,
                                   predict_eps_from_f0, predict_f0_from_eps, q_sample, snr)
 from tests.oracle_fixtures import (FULL_LOOP_CASES, NUM_STEPS_CASES, AffineEpsModel, add_noise_inputs,
                                    make_f0, make_inputs)
@@ -64,6 +64,14 @@ class TestQSample:
         f_t = q_sample(f0, t, eps)
         torch.testing.assert_close(predict_f0_from_eps(f_t, t, eps), f0, rtol=0, atol=1e-9)
         torch.testing.assert_close(predict_eps_from_f0(f_t, t, f0), eps, rtol=0, atol=1e-9)
+
+    def test_conversions_take_a_float_or_a_tensor_alpha_bar(self):
+        f0, eps = make_f0(), make_f0(seed=4)
+        ab = float(cosine_alphas_cumprod()[700])
+        f_t = q_sample(f0, 700, eps)
+        torch.testing.assert_close(f0_from_eps(f_t, eps, ab), f0, rtol=0, atol=1e-9)
+        torch.testing.assert_close(eps_from_f0(f_t, f0, torch.tensor(ab, dtype=f0.dtype)), eps, rtol=0, atol=1e-9)
+        assert not torch.allclose(f0_from_eps(f_t, eps, ab * 0.99), f0, atol=1e-3)
 
     def test_per_sample_timesteps(self):
         f0, eps = make_f0(), torch.zeros(2, 16, 5, dtype=torch.float64)

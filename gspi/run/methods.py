@@ -18,7 +18,7 @@ from typing import Any, Callable, Mapping, Optional
 
 from eval.layout import Scene
 from gspi.gaussians.model import Gaussians2D
-from gspi.run.stages import StageClock
+from gspi.stage_clock import StageClock
 
 KINDS = ("pipeline", "inhouse", "external")
 
@@ -42,7 +42,7 @@ class Method:
     def prepare(self) -> dict:
         """Per-run set-up; returns what the run record should keep about it."""
         if self.kind == "pipeline":
-            from gspi.pipeline import load_stage2_context
+            from gspi.run.stage2_model import load_stage2_context
 
             ctx = load_stage2_context(self.run_cfg, self.cache_root)
             self.shared["stage2"] = ctx

@@ -35,7 +35,7 @@ from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_at
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
 from gspi.run.methods import Method
 from gspi.run.record import config_hash, invalidate_result, is_complete, read_result, write_result
-from gspi.run.stages import StageClock
+from gspi.stage_clock import StageClock
 from gspi.run.tracking import flatten, make_tracker
 
 log = logging.getLogger(__name__)
