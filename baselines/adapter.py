@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.colorspace import linear_to_srgb
 from eval.imageio import ImageFormatError, read_png
 from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta
 
@@ -76,11 +76,6 @@ def option(cfg: Mapping, key: str, allowed: tuple | None = None):
 def srgb_encode(x_linear: np.ndarray) -> np.ndarray:
     """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1, eval.colorspace), any shape."""
     return linear_to_srgb(torch.from_numpy(np.asarray(x_linear, np.float64))).numpy()
-
-
-def srgb_decode(x_srgb: np.ndarray) -> np.ndarray:
-    """sRGB-encoded [0, 1] -> linear [0, 1] (IEC 61966-2-1, eval.colorspace), any shape."""
-    return srgb_to_linear(torch.from_numpy(np.asarray(x_srgb, np.float64))).numpy()
 
 
 def read_output_png(path: Path, what: str) -> np.ndarray:
