@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from eval.atomic import write_json_atomic
 from eval.colorspace import linear_to_srgb
 from eval.imageio import ImageFormatError, read_png
 from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta
@@ -252,8 +253,7 @@ class Adapter:
         for argv in argvs:
             subprocess.run(argv, cwd=checkout, check=True)
         seconds = time.perf_counter() - start
-        (Path(model_dir) / RUNTIME_FILE).write_text(json.dumps(
-            {"system": self.name, "seconds": seconds, "commands": argvs}, indent=2) + "\n")
+        write_json_atomic(Path(model_dir) / RUNTIME_FILE, {"system": self.name, "seconds": seconds, "commands": argvs})
         return seconds
 
     # --- import -------------------------------------------------------------------------
