@@ -65,3 +65,15 @@ def test_external_without_outputs_is_unavailable():
     method = build_method(method_cfg("gs_ir"), {"data_dir": "."}, Path("."))
     with pytest.raises(MethodUnavailable, match="method.outputs"):
         method.prepare()
+
+
+def test_external_systems_and_their_adapters_come_from_the_method_files():
+    from baselines.adapter import Adapter, get_adapter, load_method_config, systems
+
+    assert systems() == sorted(n for n, cls in EXPECTED.items() if cls is ExternalMethod)
+    for name in systems():
+        adapter = get_adapter(name)
+        assert isinstance(adapter, Adapter) and type(adapter).__name__ == method_cfg(name)["adapter"].rpartition(".")[2]
+    for not_external in ("gspi", "no_decomposition", "nope"):
+        with pytest.raises(ValueError, match="unknown system"):
+            load_method_config(not_external)
