@@ -8,9 +8,13 @@ which the tests read on every commit. Regenerate only on purpose (a new fixture 
 
 Run from the repository root with the packages on a throwaway path (never the project's venv)::
 
-    pip install --target /tmp/oracle diffusers huggingface_hub safetensors regex lpips
-    pip install --target /tmp/oracle --no-deps torchvision
+    # --no-deps where a dependency would bring its own torch/numpy over the venv's
+    python -m pip install --target /tmp/oracle --no-deps diffusers lpips safetensors regex torchvision
+    python -m pip install --target /tmp/oracle huggingface_hub
     PYTHONPATH=/tmp/oracle:. python -m tests.golden.record_oracles
+
+(recorded with diffusers 0.42.1, lpips 0.1.4, torchvision 0.29.1 on torch 2.13.0+cpu; the
+versions are written into each golden's ``producer``)
 
 lpips needs torchvision only for the AlexNet module layout (``pnet_rand=True`` downloads nothing,
 and our converted weights are loaded into it). A torchvision built for a newer torch fails to
@@ -93,7 +97,10 @@ def record_lpips() -> dict:
         non_spatial = ref(x, y)
         ref.spatial = True
         spatial = ref(x, y)
-    return {"producer": {"lpips": "0.1.4 (richzhang/PerceptualSimilarity)", "torch": torch.__version__,
+    from importlib.metadata import version
+
+    return {"producer": {"lpips": f"{version('lpips')} (richzhang/PerceptualSimilarity)",
+                         "torchvision": version("torchvision"), "torch": torch.__version__,
                          "net": "alex", "version": "0.1", "script": "tests/golden/record_oracles.py",
                          "weights_sha256": state_dict_sha256(ref.state_dict())},
             "note": "lpips.LPIPS(pnet_rand=True) with eval.lpips_weights' converted weights loaded: "
