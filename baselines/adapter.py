@@ -25,20 +25,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.atomic import write_json_atomic
+from eval.colorspace import linear_to_srgb
 from eval.imageio import ImageFormatError, read_png
 from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta
 
 RUNTIME_FILE = "gspi_runtime.json"  # written into the model dir by `Adapter.run`
 METHOD_CONF_DIR = Path(__file__).resolve().parents[1] / "conf" / "method"
-ADAPTERS = {  # system name -> "module:class"
-    "gs_ir": "baselines.gs_ir:GsIrAdapter",
-    "r3dg": "baselines.r3dg:R3dgAdapter",
-    "gaussianshader": "baselines.gaussianshader:GaussianShaderAdapter",
-    "irgs": "baselines.irgs:IrgsAdapter",
-    "lumigauss": "baselines.lumigauss:LumiGaussAdapter",
-    "materialanything": "baselines.materialanything:MaterialAnythingAdapter",
-}
 
 
 class AdapterError(ValueError):
@@ -76,11 +69,6 @@ def option(cfg: Mapping, key: str, allowed: tuple | None = None):
 def srgb_encode(x_linear: np.ndarray) -> np.ndarray:
     """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1, eval.colorspace), any shape."""
     return linear_to_srgb(torch.from_numpy(np.asarray(x_linear, np.float64))).numpy()
-
-
-def srgb_decode(x_srgb: np.ndarray) -> np.ndarray:
-    """sRGB-encoded [0, 1] -> linear [0, 1] (IEC 61966-2-1, eval.colorspace), any shape."""
-    return srgb_to_linear(torch.from_numpy(np.asarray(x_srgb, np.float64))).numpy()
 
 
 def read_output_png(path: Path, what: str) -> np.ndarray:
@@ -257,8 +245,7 @@ class Adapter:
         for argv in argvs:
             subprocess.run(argv, cwd=checkout, check=True)
         seconds = time.perf_counter() - start
-        (Path(model_dir) / RUNTIME_FILE).write_text(json.dumps(
-            {"system": self.name, "seconds": seconds, "commands": argvs}, indent=2) + "\n")
+        write_json_atomic(Path(model_dir) / RUNTIME_FILE, {"system": self.name, "seconds": seconds, "commands": argvs})
         return seconds
 
     # --- import -------------------------------------------------------------------------
@@ -317,21 +304,28 @@ def check_map(values: np.ndarray, channel: str, scene: Scene, where: str) -> Non
 
 # ----------------------------------------------------------------------------- registry
 
-def get_adapter(name: str) -> Adapter:
-    """The adapter of system `name` (one of ADAPTERS)."""
-    if name not in ADAPTERS:
-        raise ValueError(f"unknown system {name!r}; allowed: {', '.join(ADAPTERS)}")
-    module, cls = ADAPTERS[name].split(":")
-    return getattr(importlib.import_module(module), cls)()
+def systems() -> list[str]:
+    """Names of the external systems: the conf/method/<name>.yaml files that name an ``adapter``."""
+    from omegaconf import OmegaConf
+
+    return sorted(p.stem for p in METHOD_CONF_DIR.glob("*.yaml") if OmegaConf.load(p).get("adapter"))
 
 
 def load_method_config(name: str) -> dict:
-    """conf/method/<name>.yaml as a plain dict (the recipe defaults)."""
+    """conf/method/<name>.yaml of an external system as a plain dict (the recipe defaults)."""
     from omegaconf import OmegaConf
 
-    if name not in ADAPTERS:
-        raise ValueError(f"unknown system {name!r}; allowed: {', '.join(ADAPTERS)}")
-    return OmegaConf.to_container(OmegaConf.load(METHOD_CONF_DIR / f"{name}.yaml"), resolve=True)
+    path = METHOD_CONF_DIR / f"{name}.yaml"
+    cfg = OmegaConf.to_container(OmegaConf.load(path), resolve=True) if path.is_file() else {}
+    if not cfg.get("adapter"):
+        raise ValueError(f"unknown system {name!r}; allowed: {', '.join(systems())}")
+    return cfg
+
+
+def get_adapter(name: str) -> Adapter:
+    """The adapter of system `name`: the class its conf/method/<name>.yaml names as ``adapter``."""
+    module, _, cls = str(load_method_config(name)["adapter"]).rpartition(".")
+    return getattr(importlib.import_module(module), cls)()
 
 
 def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str | Path) -> Path:

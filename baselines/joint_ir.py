@@ -79,12 +79,12 @@ class JointIRConfig:
 
     @classmethod
     def from_mapping(cls, cfg: Mapping | None) -> "JointIRConfig":
-        """Builds the config from ``conf/method/joint_ir.yaml`` (``name``/``kind`` ignored).
+        """Builds the config from ``conf/method/joint_ir.yaml`` (``name``/``_target_`` ignored).
 
         Raises:
             ValueError: on an unknown key, naming the allowed ones.
         """
-        values = {k: v for k, v in dict(cfg or {}).items() if k not in ("name", "kind")}
+        values = {k: v for k, v in dict(cfg or {}).items() if k not in ("name", "_target_")}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:

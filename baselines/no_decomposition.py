@@ -84,6 +84,27 @@ def fit_constants(data_dir: Path) -> dict[str, float]:
     return {"roughness": r_sum / count, "metallic": m_sum / count}
 
 
+def prepare(cfg: Mapping, data_dir: Path) -> tuple[dict, dict]:
+    """Per-run set-up for the runner: the constants, fitted once on the training split.
+
+    Args:
+        cfg: ``conf/method/no_decomposition.yaml`` contents (``fallback_constants``).
+        data_dir: The run's dataset folder.
+
+    Returns:
+        ``(keyword arguments of predict_scene, what the run record keeps)``. Without training
+        scenes, ``cfg["fallback_constants"]`` when set (else :func:`fit_constants` raises).
+    """
+    data_dir = Path(data_dir)
+    has_train = (data_dir / "splits.json").is_file() and read_splits(data_dir).get("train")
+    if has_train or not cfg.get("fallback_constants"):
+        constants = fit_constants(data_dir)
+        return {"constants": constants}, {"constants": constants, "constants_source": "fitted on the training split"}
+    constants = {k: float(v) for k, v in cfg["fallback_constants"].items()}
+    return {"constants": constants}, {"constants": constants,
+                                      "constants_source": "method.fallback_constants (the dataset has no training scenes)"}
+
+
 def observed_albedo(asset: Gaussians2D, w2c: np.ndarray, K: np.ndarray, width: int, height: int,
                     *, silhouette_alpha: float = DEFAULT_SILHOUETTE_ALPHA) -> tuple[torch.Tensor, torch.Tensor]:
     """The asset's colour at one camera as an albedo map.

@@ -23,28 +23,22 @@ import numpy as np
 from eval.layout import Scene, write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import write_ply
-from gspi.run.stages import StageClock
+from gspi.stage_clock import StageClock
 
 log = logging.getLogger(__name__)
 
 
 @dataclass
 class Stage2Context:
-    """What every scene of a run shares: the Stage II model, its training config, its encoder."""
+    """What every scene of a run shares: the Stage II model, its training config, its encoder.
+
+    Built by the caller (``gspi.run.stage2_model.load_stage2_context`` loads or trains it).
+    """
 
     model: Any
     model_cfg: Mapping[str, Any]
     encoder: Any
     info: dict
-
-
-def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Context:
-    from gspi.run.stage2_model import load_or_train
-    from gspi.stage2.encoders import build_encoder
-
-    model, model_cfg, info = load_or_train(cfg, cache_root)
-    return Stage2Context(model=model, model_cfg=model_cfg, encoder=build_encoder(model_cfg["stage2"]["prior"]),
-                         info=info)
 
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:

@@ -12,7 +12,7 @@ import torch
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from baselines.adapter import ADAPTERS, AdapterError, get_adapter, load_method_config
+from baselines.adapter import AdapterError, get_adapter, load_method_config, systems
 from eval.colorspace import linear_to_srgb
 from eval.layout import read_meta, read_view_file
 from tests.fixtures import make_scene
@@ -129,7 +129,7 @@ def test_commands_follow_options(tmp_path):
     argvs = get_adapter("gs_ir").commands(tmp_path / "d", tmp_path / "m",
                                           {**cfg, "gamma": False, "metallic": True})
     assert "--gamma" not in argvs[3] and "--metallic" in argvs[3] and "" not in argvs[3]
-    for name in ADAPTERS:  # every recipe formats (no unknown placeholder)
+    for name in systems():  # every recipe formats (no unknown placeholder)
         assert get_adapter(name).commands(tmp_path / "d", tmp_path / "m", load_method_config(name))
 
 

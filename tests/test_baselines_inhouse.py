@@ -156,7 +156,7 @@ def test_joint_ir_predict_scene_writes_every_test_view(tmp_path):
     asset = surfel_sphere(300)
     scene = _synthetic_scene(tmp_path, asset)
     stats = joint_ir.predict_scene(scene, asset, tmp_path / "pred" / "syn",
-                                   {"name": "joint_ir", "kind": "inhouse", "iterations": 3,
+                                   {"name": "joint_ir", "_target_": "gspi.run.methods.InhouseMethod", "iterations": 3,
                                     "env_height": 8})
     assert stats["test_views"] == 2 and stats["material_s"] > 0 and stats["iterations"] == 3
     for v in scene.split_views("test"):
@@ -184,10 +184,10 @@ def test_joint_ir_without_train_views_is_an_error(tmp_path):
 # ---------------------------------------------------------------- configs
 def test_method_configs_are_complete_and_known():
     cfg = yaml.safe_load((CONF / "joint_ir.yaml").read_text())
-    assert cfg["name"] == "joint_ir" and cfg["kind"] == "inhouse"
+    assert cfg["name"] == "joint_ir" and cfg["_target_"] == "gspi.run.methods.InhouseMethod"
     options = joint_ir.JointIRConfig.from_mapping(cfg)
-    assert set(cfg) - {"name", "kind"} == set(vars(options))  # every option stated in the YAML
+    assert set(cfg) - {"name", "_target_"} == set(vars(options))  # every option stated in the YAML
     with pytest.raises(ValueError, match=r"unknown joint_ir option\(s\) \['lr'\]"):
         joint_ir.JointIRConfig.from_mapping({"lr": 0.1})
     nd = yaml.safe_load((CONF / "no_decomposition.yaml").read_text())
-    assert nd["name"] == "no_decomposition" and nd["kind"] == "inhouse"
+    assert nd["name"] == "no_decomposition" and nd["_target_"] == "gspi.run.methods.InhouseMethod"

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from gspi.run.record import config_hash, is_complete, read_result, write_result
-from gspi.run.stages import StageClock
+from gspi.stage_clock import StageClock
 from gspi.stage2.infer import nearest_fill, subsample_indices
 
 from tests.run_helpers import run_config
@@ -61,7 +61,7 @@ def test_x0_head_is_read_as_eps_consistently():
     """With prediction=x0, the sampler's f0 estimate from the returned eps IS the head's output."""
     from gspi.stage2.inputs import Stage2Inputs
     from gspi.stage2.model import RCWConfig, RCWDenoiser
-    from gspi.stage2.schedule import cosine_alphas_cumprod
+    from gspi.stage2.schedule import predict_f0_from_eps
 
     torch.manual_seed(0)
     cfg = RCWConfig(num_latents=4, latent_dim=16, point_dim=16, num_blocks=1, num_compute_layers=1, num_heads=2,
@@ -74,9 +74,7 @@ def test_x0_head_is_read_as_eps_consistently():
     eps_head = RCWDenoiser(RCWConfig(**{**cfg.__dict__, "prediction": "eps"})).double()
     eps_head.load_state_dict(model.state_dict())
     head = eps_head(f_t, t, inputs).eps
-    abar = cosine_alphas_cumprod()[t].reshape(-1, 1, 1).double()
-    f0_from_eps = (f_t - (1 - abar).sqrt() * eps) / abar.sqrt()
-    assert torch.allclose(f0_from_eps, head, atol=1e-6)
+    assert torch.allclose(predict_f0_from_eps(f_t, t, eps), head, atol=1e-6)
     with pytest.raises(ValueError, match="prediction"):
         RCWConfig(prediction="v")
 

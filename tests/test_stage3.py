@@ -21,7 +21,7 @@ from gspi.gaussians.lattice_render import LatticeRenders, lattice_camera_tensors
 from gspi.stage1.point_cloud import PointCloud
 from gspi.stage3.config import Stage3Config
 from gspi.stage3.distill import distill, harmonized_albedo_targets
-from gspi.stage3.export import render_material_maps, write_prediction_meta, write_scene_predictions
+from gspi.stage3.export import render_material_maps, write_scene_predictions
 from gspi.stage3.init import initialize_pbr, sh_gain
 from gspi.stage3.loss import masked_dssim, masked_material_loss
 from gspi.stage3.targets import StagedTargets, stage_targets
@@ -484,7 +484,7 @@ def test_pbr_ply_round_trip_rerenders_identical_maps(tmp_path, sphere):
 def test_scene_predictions_are_scored_by_the_evaluator(tmp_path, lpips_net):
     from eval.config import ProtocolConfig
     from eval.evaluate import evaluate
-    from eval.layout import read_meta, read_view_file
+    from eval.layout import read_view_file
     from tests.fixtures import RADIUS, make_scene
 
     scene = make_scene(tmp_path / "gt", "sphere_0", size=48, num_test=2)
@@ -493,10 +493,8 @@ def test_scene_predictions_are_scored_by_the_evaluator(tmp_path, lpips_net):
     asset = asset.with_pbr(torch.full((n, 3), 0.2), torch.full((n, 1), -0.3), torch.full((n, 1), 1.0))
     pred_dir = tmp_path / "pred" / scene.name
     paths = write_scene_predictions(asset, scene, pred_dir)
-    write_prediction_meta(pred_dir, material_s=1.5, end_to_end_s=None)
     assert [p.relative_to(pred_dir).as_posix() for p in paths[:3]] == [
         "test/000/albedo.png", "test/000/roughness.png", "test/000/metallic.png"]
-    assert read_meta(pred_dir)["method"] == "gs-pi"
     protocol = OmegaConf.structured(ProtocolConfig(channels=["albedo", "roughness", "metallic"]))
     result = evaluate(tmp_path / "gt", tmp_path / "pred", protocol, net=lpips_net)
     assert len(result.rows) == 2 * 3 and result.info["missing"] == []

@@ -35,6 +35,7 @@ import numpy as np
 import png  # pypng: 16-bit RGBA
 import torch
 
+from eval.atomic import write_json_atomic
 from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.imageio import read_exr, read_png
 from eval.layout import SPLITS, LayoutError, Scene, View, check_name, read_scene, read_view_file, \
@@ -183,7 +184,7 @@ def export_nerf_synthetic(scene_dir: str | Path, out_dir: str | Path, *, bits: i
         data = {"camera_angle_x": angle, "frames": frames,
                 "gspi": {"name": scene.name, "capture_env": scene.capture_env,
                          "relight_envs": scene.relight_envs}}
-        (out / f"transforms_{split}.json").write_text(json.dumps(data, indent=2) + "\n")
+        write_json_atomic(out / f"transforms_{split}.json", data)
     if (scene.root / "envmaps").is_dir():
         shutil.copytree(scene.root / "envmaps", out / "envmaps", dirs_exist_ok=True)
     return out

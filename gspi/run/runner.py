@@ -33,9 +33,9 @@ import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
-from gspi.run.methods import Method
+from gspi.run.methods import Method, build_method
 from gspi.run.record import config_hash, invalidate_result, is_complete, read_result, write_result
-from gspi.run.stages import StageClock
+from gspi.stage_clock import StageClock
 from gspi.run.tracking import flatten, make_tracker
 
 log = logging.getLogger(__name__)
@@ -95,7 +95,7 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     material_s = clock.seconds(*method.material_stages)
     recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
     end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
-    if method.kind == "external":  # the system's own runtime (user value or timed run), not the import's
+    if method.reports_own_runtime:  # the system's own runtime (user value or timed run), not the import's
         runtime = read_meta(pred_scene).get("runtime_s", {})
         material_s, end_to_end = runtime.get("material"), runtime.get("end_to_end")
     points_scores = stats.pop("points_scores", None) if isinstance(stats, dict) else None
@@ -268,7 +268,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
     t0 = time.perf_counter()
     try:
         names = select_scenes(data_dir, cfg["split"], cfg.get("scenes"))
-        method = Method(method_cfg, cfg, cache_root)
+        method = build_method(method_cfg, cfg, cache_root)
         prepared = method.prepare()
         errors = {}
         scene_args = dict(data_dir=data_dir, method=method, cfg=cfg, out=out, cfg_hash=cfg_hash,

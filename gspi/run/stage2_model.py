@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from eval.layout import read_splits
+from gspi.pipeline import Stage2Context
 from gspi.run.locks import file_lock
 from gspi.run.record import config_hash
 
@@ -49,6 +50,15 @@ def check_compatible(saved: Mapping[str, Any], wanted: Mapping[str, Any], path: 
         desc = "; ".join(f"{k}: checkpoint {a!r}, run {b!r}" for k, (a, b) in bad.items())
         raise ValueError(f"{path}: the Stage II checkpoint does not match the run's config ({desc}); "
                          f"set stage2.checkpoint=null to train a matching model")
+
+
+def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Context:
+    """The run's :class:`~gspi.pipeline.Stage2Context`: :func:`load_or_train` plus the prior's encoder."""
+    from gspi.stage2.encoders import build_encoder
+
+    model, model_cfg, info = load_or_train(cfg, cache_root)
+    return Stage2Context(model=model, model_cfg=model_cfg, encoder=build_encoder(model_cfg["stage2"]["prior"]),
+                         info=info)
 
 
 def load_or_train(cfg: Mapping[str, Any], cache_root: Path):

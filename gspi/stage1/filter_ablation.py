@@ -12,7 +12,6 @@ the given config and each filter alone, with distances to the scene's GT point c
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eval.atomic import write_json_atomic, write_text_atomic
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import LatticeRenders, apply_filters, render_lattice, unproject_renders
 from gspi.stage1.point_cloud import PointCloud
@@ -112,8 +112,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{scene}: {time.perf_counter() - t0:.1f} s", flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "report.json").write_text(json.dumps({"config": cfg.to_dict(), "scenes": reports}, indent=2) + "\n")
-    (out / "report.md").write_text(markdown(reports))
+    write_json_atomic(out / "report.json", {"config": cfg.to_dict(), "scenes": reports})
+    write_text_atomic(out / "report.md", markdown(reports))
     print(markdown(reports))
 
 

@@ -26,6 +26,7 @@ from torch import Tensor, nn
 
 from gspi.stage2.blocks import Mlp, RCWBlock, fourier_dim, fourier_features, timestep_sinusoid
 from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.schedule import cosine_alphas_cumprod, eps_from_f0
 
 VIEW_ONEHOT_DIM = 32  # V = 32 lattice views (paper Sec. "Learned View-Direction Conditioning")
 
@@ -161,7 +162,7 @@ class RCWDenoiser(nn.Module):
         return DenoiserOutput(eps=eps, latents=latents)
 
     def eps_from_x0(self, f0_hat: Tensor, f_t: Tensor, t: Tensor) -> Tensor:
-        """``(f_t - sqrt(abar_t) f0_hat) / sqrt(1 - abar_t)``: an x0-predicting head, read as eps.
+        """An x0-predicting head read as eps (:func:`~gspi.stage2.schedule.eps_from_f0` at ``t``).
 
         The loss (Min-SNR-gamma eps MSE) and the DDIM sampler are unchanged; only what the
         network has to represent changes. With an eps head, the clean-feature estimate at
@@ -170,11 +171,9 @@ class RCWDenoiser(nn.Module):
         (docs/STAGE2.md "Why an x0 head for the CPU checkpoint").
         """
         abar = self._alphas_cumprod(f_t.device)[t.long()].to(f_t.dtype).reshape(-1, 1, 1)
-        return (f_t - abar.sqrt() * f0_hat) / (1.0 - abar).sqrt()
+        return eps_from_f0(f_t, f0_hat, abar)
 
     def _alphas_cumprod(self, device: torch.device) -> Tensor:
-        from gspi.stage2.schedule import cosine_alphas_cumprod
-
         cached = getattr(self, "_abar", None)
         if cached is None or cached.device != device:
             cached = cosine_alphas_cumprod(self.config.num_train_timesteps).to(device)

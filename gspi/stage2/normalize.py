@@ -67,11 +67,6 @@ def pbr_from_model(features_model: Tensor) -> Tensor:
     return ((features_model + 1.0) * 0.5).clamp(0.0, 1.0)
 
 
-def split_pbr(features: Tensor) -> dict[str, Tensor]:
-    """[..., 5] PBR features -> {"albedo": [..., 3], "roughness": [...], "metallic": [...]}."""
-    return {"albedo": features[..., :3], "roughness": features[..., 3], "metallic": features[..., 4]}
-
-
 def view_onehot(view_index: Tensor, num_views: int = 32) -> Tensor:
     """[...] int lattice view indices -> [..., num_views] float32 one-hot (the 32-dim
     view-source indicator of paper Eq. per_point_cond)."""

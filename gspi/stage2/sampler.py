@@ -24,7 +24,7 @@ from torch import Tensor
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.model import DenoiserOutput, RCWDenoiser
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_from_model, to_unit_sphere
-from gspi.stage2.schedule import cosine_alphas_cumprod, ddim_timesteps
+from gspi.stage2.schedule import cosine_alphas_cumprod, ddim_timesteps, eps_from_f0, f0_from_eps
 
 FEATURE_DIM = 5
 
@@ -60,11 +60,11 @@ def ddim_step(
     Returns:
         (f_prev [B, N, C], f0_hat [B, N, C]).
     """
-    f0_hat = (f_t - (1.0 - ab_t) ** 0.5 * eps_hat) / ab_t ** 0.5
+    f0_hat = f0_from_eps(f_t, eps_hat, ab_t)
     if clip_sample:
         f0_hat = f0_hat.clamp(-1.0, 1.0)
         if use_clipped_model_output:
-            eps_hat = (f_t - ab_t ** 0.5 * f0_hat) / (1.0 - ab_t) ** 0.5
+            eps_hat = eps_from_f0(f_t, f0_hat, ab_t)
     sigma = eta * ((1.0 - ab_prev) / (1.0 - ab_t)) ** 0.5 * (1.0 - ab_t / ab_prev) ** 0.5
     f_prev = ab_prev ** 0.5 * f0_hat + (1.0 - ab_prev - sigma ** 2) ** 0.5 * eps_hat
     if eta > 0:

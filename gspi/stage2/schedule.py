@@ -5,9 +5,10 @@ Decision: our own implementation, not diffusers' schedulers. The math is ~60 lin
 closed-form formulas (below), while diffusers pulls in huggingface-hub, safetensors and
 requests at import, and its ``DDIMScheduler.step`` takes ONE timestep for the whole batch
 (training here draws one timestep per sample) and keeps the schedule in float32. diffusers
-stays an optional test oracle (``pip install -e .[hf]``): ``tests/test_stage2_schedule.py``
-checks ``alphas_cumprod``, ``add_noise`` and a full DDIM loop against
-``DDIMScheduler(beta_schedule="squaredcos_cap_v2", timestep_spacing="trailing")`` to 1e-6.
+stays the test oracle without being installed: ``tests/golden/record_oracles.py`` ran
+``DDIMScheduler(beta_schedule="squaredcos_cap_v2", timestep_spacing="trailing")`` once and
+``tests/test_stage2_schedule.py`` checks ``alphas_cumprod``, the timesteps, ``add_noise`` and four
+full DDIM loops against its recorded outputs (``tests/golden/diffusers_ddim.json``).
 
 Formulas (Nichol & Dhariwal 2021; diffusers ``betas_for_alpha_bar``, "squaredcos_cap_v2"):
 
@@ -85,6 +86,32 @@ def q_sample(
     return ab.sqrt() * f0 + (1.0 - ab).sqrt() * eps
 
 
+def f0_from_eps(f_t: Tensor, eps: Tensor, alpha_bar: Tensor | float) -> Tensor:
+    """``f0 = (f_t - sqrt(1 - ab) eps) / sqrt(ab)``: the one eps -> x0 conversion (inverse of q_sample).
+
+    Args:
+        f_t: [B, N, C] noisy features; eps: [B, N, C] (predicted) noise.
+        alpha_bar: ab_t as a float or a tensor broadcasting against ``f_t`` (e.g. [B, 1, 1]).
+    Returns:
+        [B, N, C] clean-feature estimate (unclipped).
+    """
+    return (f_t - (1.0 - alpha_bar) ** 0.5 * eps) / alpha_bar ** 0.5
+
+
+def eps_from_f0(f_t: Tensor, f0: Tensor, alpha_bar: Tensor | float) -> Tensor:
+    """``eps = (f_t - sqrt(ab) f0) / sqrt(1 - ab)``: the one x0 -> eps conversion.
+
+    Used after x0 clipping (GLIDE style) and to read an x0-predicting head as eps.
+
+    Args:
+        f_t: [B, N, C] noisy features; f0: [B, N, C] clean-feature estimate.
+        alpha_bar: ab_t as a float or a tensor broadcasting against ``f_t`` (e.g. [B, 1, 1]).
+    Returns:
+        [B, N, C] noise consistent with ``f0``.
+    """
+    return (f_t - alpha_bar ** 0.5 * f0) / (1.0 - alpha_bar) ** 0.5
+
+
 def predict_f0_from_eps(
     f_t: Tensor,  # [B, N, C] noisy features
     t: Tensor | int,  # [B] or scalar int
@@ -92,13 +119,12 @@ def predict_f0_from_eps(
     *,
     alphas_cumprod: Optional[Tensor] = None,
 ) -> Tensor:
-    """Inverse of :func:`q_sample`: ``f0 = (f_t - sqrt(1 - ab_t) eps) / sqrt(ab_t)``.
+    """:func:`f0_from_eps` at timestep indices ``t`` of the schedule.
 
     Returns:
         [B, N, C] clean-feature estimate (unclipped).
     """
-    ab = _gather(_schedule(alphas_cumprod), t, f_t)
-    return (f_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
+    return f0_from_eps(f_t, eps, _gather(_schedule(alphas_cumprod), t, f_t))
 
 
 def predict_eps_from_f0(
@@ -108,13 +134,12 @@ def predict_eps_from_f0(
     *,
     alphas_cumprod: Optional[Tensor] = None,
 ) -> Tensor:
-    """``eps = (f_t - sqrt(ab_t) f0) / sqrt(1 - ab_t)`` (used after x0 clipping, GLIDE style).
+    """:func:`eps_from_f0` at timestep indices ``t`` of the schedule.
 
     Returns:
         [B, N, C] noise consistent with ``f0``.
     """
-    ab = _gather(_schedule(alphas_cumprod), t, f_t)
-    return (f_t - ab.sqrt() * f0) / (1.0 - ab).sqrt()
+    return eps_from_f0(f_t, f0, _gather(_schedule(alphas_cumprod), t, f_t))
 
 
 def snr(t: Tensor | int, *, alphas_cumprod: Optional[Tensor] = None) -> Tensor:

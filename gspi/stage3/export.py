@@ -11,11 +11,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.layout import Scene, write_material, write_meta
+from eval.layout import Scene, write_material
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage3.render import render_materials
-
-METHOD_NAME = "gs-pi"
 
 
 @torch.no_grad()
@@ -53,8 +51,8 @@ def write_scene_predictions(asset: Gaussians2D, scene: Scene, out_scene_dir: Pat
     """Renders the asset's material maps at a scene's views into the canonical prediction layout.
 
     Writes ``<out_scene_dir>/<split>/<view id>/{albedo,roughness,metallic}.png`` (16-bit, albedo
-    sRGB-encoded) through ``eval.layout.write_material``; ``meta.json`` is not written (see
-    :func:`write_prediction_meta`).
+    sRGB-encoded) through ``eval.layout.write_material``; ``meta.json`` (method name, runtimes)
+    is the runner's (``gspi.run``), not written here.
 
     Returns:
         The written paths, views in the scene's order.
@@ -67,10 +65,3 @@ def write_scene_predictions(asset: Gaussians2D, scene: Scene, out_scene_dir: Pat
         vdir = Path(out_scene_dir) / split / view.id
         paths += [write_material(vdir, channel, maps[channel][i]) for channel in ("albedo", "roughness", "metallic")]
     return paths
-
-
-def write_prediction_meta(out_scene_dir: Path, *, material_s: float | None, end_to_end_s: float | None,
-                          method: str = METHOD_NAME, **extra) -> Path:
-    """``<out_scene_dir>/meta.json`` with the method name and runtimes in seconds."""
-    return write_meta(Path(out_scene_dir), method=method, material_s=material_s, end_to_end_s=end_to_end_s,
-                      **extra)

@@ -25,7 +25,7 @@ def test_gspi_run_removes_the_old_record_before_it_writes(micro_dataset, tmp_pat
     complete record and scores, killed as soon as it starts its method, leaves neither A's
     record nor A's scores; A's rerun is then not "complete, skipped"."""
     from eval.atomic import write_json_atomic
-    from gspi.run.methods import Method
+    from gspi.run.methods import InhouseMethod
     from gspi.run.record import config_hash, is_complete, write_result
     from gspi.run.runner import run_job
     from tests.run_helpers import run_config
@@ -39,7 +39,7 @@ def test_gspi_run_removes_the_old_record_before_it_writes(micro_dataset, tmp_pat
     write_result(out, status="complete", cfg_hash=hash_a, method="no_decomposition", ablation="full", table=None,
                  seed=0, data=str(micro_dataset), scenes=["scene_of_a"], material_eval="eval")
     assert is_complete(out, hash_a)
-    monkeypatch.setattr(Method, "prepare", _kill)
+    monkeypatch.setattr(InhouseMethod, "prepare", _kill)
     with pytest.raises(KeyboardInterrupt):
         run_job(run_config(micro_dataset, out, ["method=no_decomposition", "figures=false", "seed=1"]))
     assert not (out / "result.json").exists() and not (out / "eval" / "summary.json").exists()

@@ -1,0 +1,103 @@
+"""The import graph between floors (STYLE.md 2: lower floors never import upper ones; eval/ never
+imports gspi/). Every import statement of every module is read from its AST, including imports
+inside functions, so a lazy import cannot hide an upward edge.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("eval", "gspi", "baselines")
+
+LOWER = ("eval", "gspi.strict_config", "gspi.data", "gspi.gaussians")
+STAGE = LOWER + ("gspi.stage_clock",)
+# floor -> the floors (or modules) it may import besides itself. A floor missing here fails the
+# test: a new gspi subpackage or top-level module must be placed in the graph on purpose.
+ALLOWED: dict[str, tuple[str, ...]] = {
+    "eval": (),
+    "gspi": (),  # gspi/__init__.py
+    "gspi.strict_config": (),
+    "gspi.stage_clock": (),
+    "gspi.data": ("eval", "gspi.strict_config"),
+    "gspi.gaussians": ("eval", "gspi.data"),
+    "gspi.recon": LOWER,
+    "gspi.stage1": LOWER,
+    # Stage I's output record (points with their source pixels) and its scatter/fill are read
+    # by the stages that consume it; nothing else of another stage is.
+    "gspi.stage2": LOWER + ("gspi.stage1.point_cloud",),
+    "gspi.stage3": LOWER + ("gspi.stage1.point_cloud",),
+    "gspi.relight": LOWER,
+    "gspi.pipeline": STAGE + ("gspi.stage1", "gspi.stage2", "gspi.stage3"),
+    "baselines": LOWER + ("gspi.recon",),
+    "gspi.run": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
+                         "gspi.relight", "baselines"),
+    "gspi.cli": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
+                         "gspi.relight", "gspi.run", "baselines"),
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_names(path: Path) -> list[tuple[str, int]]:
+    """(dotted name, line) of every import in ``path``; ``from a import b`` gives ``a`` and ``a.b``."""
+    name = module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module
+            found.append((module, node.lineno))
+            found += [(f"{module}.{alias.name}", node.lineno) for alias in node.names]
+    return found
+
+
+def floor(name: str) -> str | None:
+    """The floor of a dotted module name: eval, baselines, gspi.<first part>; None outside the project."""
+    parts = name.split(".")
+    if parts[0] in ("eval", "baselines"):
+        return parts[0]
+    if parts[0] == "gspi":
+        return ".".join(parts[:2])
+    return None
+
+
+def is_allowed(src: str, target: str) -> bool:
+    return floor(target) == src or any(target == a or target.startswith(a + ".") for a in ALLOWED[src])
+
+
+def project_modules() -> list[Path]:
+    return sorted(p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py"))
+
+
+def test_every_floor_is_placed_in_the_graph():
+    floors = {floor(module_name(p)) for p in project_modules()}
+    assert floors - set(ALLOWED) == set(), "add these floors to ALLOWED on purpose"
+
+
+def test_scanner_sees_function_level_and_relative_imports(tmp_path):
+    # pipeline.py imports the stages inside run_gspi_scene only
+    names = [n for n, _ in imported_names(ROOT / "gspi" / "pipeline.py")]
+    assert "gspi.stage3.distill.distill" in names
+    assert not is_allowed("eval", "gspi.data.lattice") and not is_allowed("gspi.stage1", "gspi.run.record")
+    assert not is_allowed("gspi.stage2", "gspi.stage1.extract") and is_allowed("gspi.stage2", "gspi.stage1.point_cloud")
+    assert is_allowed("gspi.run", "gspi.pipeline") and not is_allowed("gspi.pipeline", "gspi.run.stage2_model")
+
+
+@pytest.mark.parametrize("path", project_modules(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_imports_point_down(path):
+    src = floor(module_name(path))
+    bad = [f"{path.relative_to(ROOT)}:{line} imports {name}" for name, line in imported_names(path)
+           if floor(name) is not None and not is_allowed(src, name)]
+    assert not bad, f"{src} may import only {ALLOWED[src]}:\n" + "\n".join(bad)

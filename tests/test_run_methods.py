@@ -1,0 +1,79 @@
+"""Method choice comes from config: conf/method/<name>.yaml's ``_target_`` (gspi/run/methods.py)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gspi.run.methods import (ExternalMethod, GspiMethod, InhouseMethod, Method, MethodUnavailable,
+                              build_method)
+
+CONF = Path(__file__).resolve().parents[1] / "conf" / "method"
+EXPECTED = {"gspi": GspiMethod, "no_decomposition": InhouseMethod, "joint_ir": InhouseMethod,
+            "gs_ir": ExternalMethod, "r3dg": ExternalMethod, "gaussianshader": ExternalMethod,
+            "irgs": ExternalMethod, "lumigauss": ExternalMethod, "materialanything": ExternalMethod}
+
+
+def method_cfg(name: str) -> dict:
+    return yaml.safe_load((CONF / f"{name}.yaml").read_text())
+
+
+def test_every_method_file_names_its_class():
+    assert {p.stem for p in CONF.glob("*.yaml")} == set(EXPECTED)
+    for name, cls in EXPECTED.items():
+        cfg = method_cfg(name)
+        assert "kind" not in cfg
+        method = build_method(cfg, {"data_dir": "."}, Path("."))
+        assert type(method) is cls and method.name == name and "_target_" not in method.cfg
+        assert method.needs_asset == (cls is not ExternalMethod)
+        assert method.reports_own_runtime == (cls is ExternalMethod)
+
+
+def test_build_method_rejects_missing_or_foreign_targets():
+    with pytest.raises(ValueError, match="no _target_"):
+        build_method({"name": "x"}, {}, Path("."))
+    with pytest.raises(ValueError, match="is not a gspi.run.methods.Method"):
+        build_method({"name": "x", "_target_": "pathlib.Path"}, {}, Path("."))
+    with pytest.raises(ImportError):
+        build_method({"name": "x", "_target_": "gspi.run.methods.NoSuchMethod"}, {}, Path("."))
+
+
+class Constant(Method):
+    needs_asset = False
+
+
+def test_a_new_method_is_a_target_not_a_branch():
+    method = build_method({"name": "c", "_target_": f"{__name__}.Constant"}, {}, Path("."))
+    assert type(method) is Constant and method.prepare() == {} and not method.needs_asset
+    with pytest.raises(NotImplementedError):
+        method.predict(None, Path("."), asset=None, clock=None, work_dir=Path("."), split="test")
+
+
+def test_no_decomposition_prepare_is_the_baselines_own(tmp_path):
+    (tmp_path / "splits.json").write_text(json.dumps({"test": ["a"]}))  # no training scenes
+    method = build_method(method_cfg("no_decomposition"), {"data_dir": str(tmp_path)}, tmp_path)
+    record = method.prepare()
+    assert record["constants"] == {"roughness": 0.5071, "metallic": 0.1865}
+    assert "fallback" in record["constants_source"] and method.shared == {"constants": record["constants"]}
+    joint = build_method(method_cfg("joint_ir"), {"data_dir": str(tmp_path)}, tmp_path)
+    assert joint.prepare() == {} and joint.shared == {}  # baselines.joint_ir has no prepare
+
+
+def test_external_without_outputs_is_unavailable():
+    method = build_method(method_cfg("gs_ir"), {"data_dir": "."}, Path("."))
+    with pytest.raises(MethodUnavailable, match="method.outputs"):
+        method.prepare()
+
+
+def test_external_systems_and_their_adapters_come_from_the_method_files():
+    from baselines.adapter import Adapter, get_adapter, load_method_config, systems
+
+    assert systems() == sorted(n for n, cls in EXPECTED.items() if cls is ExternalMethod)
+    for name in systems():
+        adapter = get_adapter(name)
+        assert isinstance(adapter, Adapter) and type(adapter).__name__ == method_cfg(name)["adapter"].rpartition(".")[2]
+    for not_external in ("gspi", "no_decomposition", "nope"):
+        with pytest.raises(ValueError, match="unknown system"):
+            load_method_config(not_external)
