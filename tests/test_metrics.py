@@ -210,3 +210,20 @@ class TestMaskedLpips:
             masked_lpips(pred, gt, torch.ones(48, 48), net=lpips_net, mode="bogus")
         with pytest.raises(ValueError, match="too small"):
             masked_lpips(pred[:16, :16], gt[:16, :16], torch.ones(16, 16), net=lpips_net)
+
+
+def test_valid_ssim_map_is_kornias_in_float64_and_unchanged_in_float32():
+    """ssim_map's separable-conv form (kept so Stage III's float32 loss, hence the demo, is
+    unchanged) is kornia.metrics.ssim with valid padding to 1e-12 in float64."""
+    import kornia
+
+    from eval.metrics import ssim_map
+
+    g = torch.Generator().manual_seed(3)
+    a, b = torch.rand(2, 40, 36, 3, generator=g, dtype=torch.float64)
+    ref = kornia.metrics.ssim(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None], 11, eps=0.0,
+                              padding="valid")[0].permute(1, 2, 0)
+    ours = ssim_map(a, b)
+    assert ours.shape == (30, 26, 3)
+    assert float((ours - ref).abs().max()) < 1e-12
+    assert ssim_map(a.float(), b.float()).dtype == torch.float32
