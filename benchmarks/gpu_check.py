@@ -44,6 +44,7 @@ SMOKE = {"image_size": 32, "num_views": 32, "ddim_steps": 2, "stage3_iterations"
 # step -> seconds it needs at least (paper size on one H100/H200, gsplat's compile included)
 ESTIMATE_S = {"gpu_tests": 120, "e2e_tiny": 90, "stage2_train_throughput": 30,
               "stage2_sampling_linearity": 40, "paper_scene": 150, "stage2_train_burst": 20}
+TINY_EXTRA = ["stage2.prior.alexnet.input_size=64"]  # the tests' tiny prior (tests/test_stage2_train.py)
 PAPER_FIGURES = {"material_min_per_scene": 5.4, "stage2_s_50_ddim": 18.0, "end_to_end_min_512px": 10.4}
 
 
@@ -110,7 +111,7 @@ def _tiny_job(ctx: dict, name: str, device: str, extra: list[str] = ()) -> dict:
     from tests.run_helpers import run_config
 
     out = ctx["work"] / name
-    cfg = run_config(ctx["data"], out, [f"device={device}", "figures=false", *extra])
+    cfg = run_config(ctx["data"], out, [f"device={device}", "figures=false", *TINY_EXTRA, *extra])
     t0 = time.perf_counter()
     result = run_job(cfg)
     numbers = {}
