@@ -70,7 +70,8 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     from gspi.device import resolve_device
 
     device = resolve_device(cfg.get("device", "cpu"))  # checked at start-up (check_run_config)
-    asset = asset.to(device)  # Stages I and III render where the asset lives (a no-op on the CPU)
+    if device.type != "cpu":  # Stages I and III render where the asset lives
+        asset = asset.to(device)
     work_dir.mkdir(parents=True, exist_ok=True)
     s1cfg = Stage1Config.from_dict(dict(cfg["stage1"]))
     with clock.stage("stage1"):
