@@ -11,7 +11,8 @@ every step, so a killed run keeps what finished):
 3. ``stage2_train_throughput``: training points/s of the Stage II model (``stage2=default``).
 4. ``stage2_sampling_linearity``: whole-cloud DDIM sampling time at N and 10N; t(10N)/t(N).
 5. ``paper_scene``: one scene at 512 px, 32 views, whole cloud, 50 DDIM steps, 500 Stage III
-   iterations, ``stage2=default``: wall time and peak GPU memory of every stage (meta.json).
+   iterations, ``stage2=default`` (untrained: 2 steps), ``recon=default``: wall time and peak GPU
+   memory of every stage (meta.json).
 6. ``stage2_train_burst``: Stage II training on the data generated in step 2 with the time
    left; saves the checkpoint (EMA-only into OUT when small enough, else its size and hash).
 
@@ -37,8 +38,9 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 log = logging.getLogger("gpu_check")
 E2E_RTOL = 0.02  # metrics of the CUDA run within 2 % of the CPU run (other rasterizer: gsplat)
+GPU_TEST_FILES = ["tests/test_rasterize.py"]  # the @pytest.mark.gpu tests (gsplat vs torch)
 PAPER = {"image_size": 512, "num_views": 32, "ddim_steps": 50, "stage3_iterations": 500,
-         "sampling_points": 100_000, "throughput_steps": 10, "train_batch": 8, "budget_s": 480}
+         "sampling_points": 50_000, "throughput_steps": 10, "train_batch": 8, "budget_s": 480}
 SMOKE = {"image_size": 32, "num_views": 32, "ddim_steps": 2, "stage3_iterations": 4,
          "sampling_points": 300, "throughput_steps": 2, "train_batch": 2, "budget_s": 600}
 # step -> seconds it needs at least (paper size on one H100/H200, gsplat's compile included)
@@ -100,18 +102,33 @@ def _synthetic_inputs(model, num_points: int, batch: int, device: torch.device):
 def step_gpu_tests(ctx: dict) -> dict:
     if ctx["device"].type != "cuda":
         return {"skipped": "no CUDA: the gpu tests skip themselves"}
-    cmd = [sys.executable, "-m", "pytest", "-q", "-m", "gpu", "-p", "no:cacheprovider", "tests/"]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=max(30, ctx["budget"].left()))
+    cmd = [sys.executable, "-m", "pytest", "-q", "-rs", "-m", "gpu", "-p", "no:cacheprovider", *GPU_TEST_FILES]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True,
+                          timeout=max(30, min(240, ctx["budget"].left())))
     (ctx["out"] / "pytest_gpu.txt").write_text(proc.stdout + proc.stderr)
     return {"returncode": proc.returncode, "summary": (proc.stdout.strip().splitlines() or [""])[-1]}
 
 
 def _tiny_job(ctx: dict, name: str, device: str, extra: list[str] = ()) -> dict:
+    """A gspi-run job with every stage at its smallest (tests/run_helpers.py TINY_RUN)."""
+    from tests.run_helpers import TINY_RUN
+
+    return _job(ctx, name, [*TINY_RUN, f"device={device}", *TINY_EXTRA, *extra])
+
+
+def _job(ctx: dict, name: str, overrides: list[str]) -> dict:
+    """One gspi-run job in-process (as the CLI composes it) on ``ctx["data"]``; its metrics."""
+    from eval.config import register_configs
     from gspi.run.runner import run_job
-    from tests.run_helpers import run_config
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
 
     out = ctx["work"] / name
-    cfg = run_config(ctx["data"], out, [f"device={device}", "figures=false", *TINY_EXTRA, *extra])
+    register_configs()
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("gspi_run", overrides=[f"data_dir={ctx['data']}", f"out={out}", "figures=false",
+                                             "logger=none", "progress=false", *overrides])
+    cfg = OmegaConf.to_container(cfg, resolve=True)
     t0 = time.perf_counter()
     result = run_job(cfg)
     numbers = {}
@@ -216,7 +233,8 @@ def step_paper_scene(ctx: dict) -> dict:
     data, t0 = ctx["data"], time.perf_counter()
     if not ctx["smoke"]:  # one 512 px scene (+ one training scene for Stage II's 2 steps)
         data = ctx["work"] / "paper_data"
-        overrides = ["preset=tiny", f"out={data}", "seed=0", "data.num_train_scenes=1", "data.num_val_scenes=0",
+        overrides = ["preset=tiny", f"out={data}", "seed=0", "data.workers=8", "data.num_train_scenes=1",
+                     "data.num_val_scenes=0",
                      "data.num_test_scenes=1", f"data.image_size={size}", "data.supersample=1",
                      "data.num_test_views=2", "data.num_val_views=1", "data.num_relight_envs=1",
                      "data.contact_sheets=false"]
@@ -228,10 +246,13 @@ def step_paper_scene(ctx: dict) -> dict:
     ctx_saved = ctx["data"]
     ctx["data"] = data
     try:
-        job = _tiny_job(ctx, "paper_scene", device, [
-            stage2, "stage2.train.steps=2", "stage2.inference.max_points=null",
-            f"stage2.inference.num_steps={int(cfg['ddim_steps'])}", f"stage1.image_size={size}",
-            f"stage1.num_views={int(cfg['num_views'])}", f"stage3.iterations={int(cfg['stage3_iterations'])}"])
+        scale = (["recon=tiny", "recon.iterations=60", "recon.init.num_points=300", *TINY_EXTRA]
+                 if ctx["smoke"] else ["recon=default"])  # the paper's 2DGS asset (1500 iterations)
+        job = _job(ctx, "paper_scene", [
+            f"device={device}", *scale, stage2, "stage2.train.steps=2", "stage2.inference.max_points=null",
+            f"stage2.inference.num_steps={int(cfg['ddim_steps'])}", "stage1=default", f"stage1.image_size={size}",
+            f"stage1.num_views={int(cfg['num_views'])}", "stage3=default",
+            f"stage3.iterations={int(cfg['stage3_iterations'])}"])
     finally:
         ctx["data"] = ctx_saved
     metas = list(Path(job["out"]).glob("predictions/*/meta.json"))
