@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
 
-.PHONY: install demo test test-all bench lpips-weights real-assets clean chromium report-check
+.PHONY: install demo test test-all bench lpips-weights real-assets clean chromium report-check gpu-prepare gpu-check-smoke
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -66,6 +66,14 @@ report-check: install
 BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage3
 bench: install
 	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done
+
+# The one-shot GPU check (docs/REPRODUCE.md "GPU check"): wheels + weights for the device call,
+# then the call to paste; its CPU smoke run (tiny sizes, ~35 s).
+gpu-prepare: install
+	PY=$(PY) bash benchmarks/gpu_prepare.sh
+
+gpu-check-smoke: install
+	OMP_NUM_THREADS=1 $(PY) -m benchmarks.gpu_check --smoke --out gpu_check_smoke
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache

@@ -67,6 +67,11 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     from gspi.stage3.export import write_scene_predictions
     from gspi.stage3.targets import stage_targets
 
+    from gspi.device import resolve_device
+
+    device = resolve_device(cfg.get("device", "cpu"))  # checked at start-up (check_run_config)
+    if device.type != "cpu":  # Stages I and III render where the asset lives
+        asset = asset.to(device)
     work_dir.mkdir(parents=True, exist_ok=True)
     s1cfg = Stage1Config.from_dict(dict(cfg["stage1"]))
     with clock.stage("stage1"):
@@ -79,7 +84,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         pbr, s2 = predict_generated_points(
             stage2.model, points, renders, local_mode=data_cfg["local_condition"], encoder=stage2.encoder,
             cfg=InferenceConfig.from_mapping(cfg["stage2"]["inference"]),
-            tol_pixels=float(data_cfg.get("visibility_tol_pixels", 2.0)))
+            tol_pixels=float(data_cfg.get("visibility_tol_pixels", 2.0)), device=device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None

@@ -49,6 +49,7 @@ def run(cfg: DictConfig) -> dict:
 
     from eval.layout import read_scene, write_json_atomic
     from gspi.gaussians.ply import write_ply
+    from gspi.device import resolve_device
     from gspi.recon.data import ReconInputError, load_scene_views
     from gspi.recon.init import init_gaussians
     from gspi.recon.trainer import ReconConfig, display_transform_name, evaluate_views, fit_gaussians
@@ -62,7 +63,7 @@ def run(cfg: DictConfig) -> dict:
     if not (scene_dir / "scene.json").is_file():
         raise ReconInputError(f"{scene_dir / 'scene.json'}: file not found (not a canonical scene folder)")
     scene = read_scene(scene_dir)
-    device = torch.device(cfg.get("device", "cpu"))
+    device = resolve_device(cfg.get("device", "cpu"))
     views = load_scene_views(scene, cfg.train_split).to(device)
     eval_split = cfg.get("eval_split")
     test = None

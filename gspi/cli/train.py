@@ -7,6 +7,9 @@ Examples:
     gspi-train data=data/paper out=runs/s2 stage2.prior.encoder=dinov2 stage2.prior.dinov2.path=models/dinov2-base
     gspi-train data=data/small out=runs/s2_small stage2=cpu_small stage2.train.steps=8000   # resumes
 
+Several GPUs (docs/REPRODUCE.md): `torchrun --nproc_per_node=4 -m gspi.cli.train ... device=cuda`
+(data-parallel, the same global batch; gspi/stage2/distributed.py).
+
 Rerunning with the same `out` resumes from `<out>/checkpoint.pt` (model, EMA, optimizer, step,
 RNG states). Writes checkpoint.pt, metrics.jsonl, loss_curve.png, stats.json and (if
 stage2.eval.enabled) eval_points/{scores.json,table.md} into `out`, which is also Hydra's run
@@ -41,6 +44,8 @@ def run(cfg: DictConfig) -> dict:
 
     from gspi.stage2.checkpoint import load_stage2_checkpoint
     from gspi.stage2.evaluate_points import evaluate_checkpoint
+    from gspi.device import resolve_device
+    from gspi.stage2.distributed import from_env, shutdown
     from gspi.stage2.train import train
 
     from eval.atomic import write_json_atomic
@@ -48,14 +53,20 @@ def run(cfg: DictConfig) -> dict:
 
     check_value("threads", cfg.threads, int, lo=1, hi=1024)
     check_value("seed", cfg.seed, int, lo=0)
+    dist = from_env(resolve_device(cfg.get("device", "cpu")))  # torchrun: one rank per GPU
     torch.set_num_threads(int(cfg.threads))
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain.pop("hydra", None)
     out = Path(cfg.out)
     # stats.json is the run's record, written last: an earlier one must not outlive a killed rerun
-    (out / "stats.json").unlink(missing_ok=True)
+    if dist.is_main:
+        (out / "stats.json").unlink(missing_ok=True)
     stats = train(plain, out, stop_at=plain["stage2"]["train"].get("stop_at"),
-                  stop_after_minutes=plain["stage2"]["train"].get("stop_after_minutes"))
+                  stop_after_minutes=plain["stage2"]["train"].get("stop_after_minutes"), dist=dist)
+    if not dist.is_main:  # rank 0 evaluates and writes the record
+        shutdown(dist)
+        return stats
+    shutdown(dist)
     ev = plain["stage2"]["eval"]
     if ev["enabled"]:
         model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")

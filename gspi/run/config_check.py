@@ -21,6 +21,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
 
     from eval.config import validate_protocol
     from eval.layout import SPLITS
+    from gspi.device import resolve_device
     from gspi.recon.trainer import ReconConfig
     from gspi.stage1.config import Stage1Config
     from gspi.stage3.config import Stage3Config
@@ -29,6 +30,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
         if key in cfg:
             check_value(key, cfg[key], kind, lo=lo, hi=hi)
     check_value("split", cfg.get("split"), str, choices=SPLITS)
+    resolve_device(cfg.get("device", "cpu"))  # device=cuda without CUDA fails here, naming the key
     for key in ("data_dir", "out"):
         check_value(key, cfg.get(key), str)
     if cfg.get("scenes") is not None:

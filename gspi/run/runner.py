@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
+from gspi.device import resolve_device
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
 from gspi.run.methods import Method, build_method
 from gspi.run.record import config_hash, invalidate_result, is_complete, read_result, write_result
@@ -86,7 +87,7 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
         with clock.stage("recon"):
             asset, asset_info = scene_asset(scene, assets=cfg.get("assets"), num_scenes=num_scenes,
                                             recon_cfg=cfg["recon"], cache_root=cache_root,
-                                            device=cfg.get("device", "cpu"))
+                                            device=str(resolve_device(cfg.get("device", "cpu"))))
     stats = method.predict(scene, pred_scene, asset=asset, clock=clock, work_dir=work, split=split,
                            progress=progress)
     coverage = check_prediction_covers_scene(scene, pred_scene, split)  # black maps fail the scene

@@ -64,6 +64,8 @@ def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Conte
 def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
     """(model in eval mode with EMA weights, the checkpoint's config, info)."""
     from gspi.stage2.checkpoint import load_stage2_checkpoint
+    from gspi.device import resolve_device
+    from gspi.stage2.distributed import DistContext
     from gspi.stage2.train import train
 
     ckpt = cfg["stage2"].get("checkpoint")
@@ -80,7 +82,8 @@ def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
         stats = None
         if not (done.is_file() and _finished(done, train_cfg)):
             log.info("training Stage II into %s", folder)
-            stats = train(train_cfg, folder, stop_at=train_cfg["stage2"]["train"].get("stop_at"))
+            stats = train(train_cfg, folder, stop_at=train_cfg["stage2"]["train"].get("stop_at"),
+                          dist=DistContext(device=resolve_device(cfg.get("device", "cpu"))))
         model, saved = load_stage2_checkpoint(done)
     return model, saved, {"checkpoint": str(done), "trained": stats is not None, "train_stats": stats}
 

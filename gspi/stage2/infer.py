@@ -28,6 +28,7 @@ from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.stage1.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.data import LatticeCameras, local_condition_dim, multiview_condition_from_views, srgb_top_rgb
 from gspi.stage2.model import RCWDenoiser
+from gspi.stage2.oom import run_with_chunk_halving
 from gspi.stage2.sampler import predict_point_pbr
 
 
@@ -95,10 +96,11 @@ def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> 
 
 
 def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: LatticeRenders, *,
-                             local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0
-                             ) -> tuple[np.ndarray, dict]:
+                             local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0,
+                             device: Optional[torch.device] = None) -> tuple[np.ndarray, dict]:
     """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
-    metallic) in [0, 1] + stats."""
+    metallic) in [0, 1] + stats. ``device``: where the sampling runs (None: the model's, as before);
+    the conditions and prior features move there once, the PBR comes back as numpy."""
     t0 = time.perf_counter()
     if model.config.local_cond_dim != local_condition_dim(local_mode):
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
@@ -111,13 +113,21 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     pts = points if sub is None else points.subset(sub)
     cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels)
     t_cond = time.perf_counter() - t0
-    samples = [predict_point_pbr(model, pts.xyz, cond, feats, num_steps=cfg.num_steps, seed=cfg.seed + k,
-                                 write_chunk=cfg.write_chunk, guidance_scale=cfg.guidance_scale).numpy()
-               for k in range(max(1, cfg.num_samples))]
+    model = model if device is None else model.to(device)
+
+    def sample_all(chunk: Optional[int]) -> list[np.ndarray]:
+        return [predict_point_pbr(model, pts.xyz, cond, feats, num_steps=cfg.num_steps, seed=cfg.seed + k,
+                                  write_chunk=chunk, guidance_scale=cfg.guidance_scale,
+                                  device=device).cpu().numpy()
+                for k in range(max(1, cfg.num_samples))]
+
+    samples, chunk = run_with_chunk_halving(sample_all, cfg.write_chunk, len(pts))
     pbr = np.mean(samples, axis=0).astype(np.float32)
     if sub is not None:
         pbr = nearest_fill(pts.xyz, pbr, points.xyz)
     stats = {"num_points": len(points), "num_sampled": len(pts), "num_steps": cfg.num_steps,
              "num_samples": max(1, cfg.num_samples), "guidance_scale": cfg.guidance_scale,
              "seconds_conditions": round(t_cond, 3), "seconds": round(time.perf_counter() - t0, 3)}
+    if chunk != cfg.write_chunk:  # shrunk after running out of GPU memory
+        stats["write_chunk"] = chunk
     return pbr, stats

@@ -36,18 +36,25 @@ def denoising_loss(
     alphas_cumprod: Optional[Tensor] = None,  # [T]; None = cosine, T = 1000
     min_snr_gamma: float = MIN_SNR_GAMMA,
     self_condition_prob: float = 0.5,
+    shard: Optional[tuple[int, int]] = None,
 ) -> Tensor:
     """Min-SNR-weighted eps-prediction loss of one batch (module docstring).
 
+    Args:
+        shard: ``(rank, world_size)`` when ``f0`` is one rank's slice of a global batch of
+            ``world_size * B`` (gspi.stage2.distributed): t, eps and the condition drops are
+            drawn for the global batch and sliced, so the ranks together see one process's draws.
     Returns:
         scalar loss (graded w.r.t. the model parameters).
     """
     alphas_cumprod = cosine_alphas_cumprod() if alphas_cumprod is None else alphas_cumprod
     b, device = f0.shape[0], f0.device
-    t = (_uniform((b,), generator, device) * len(alphas_cumprod)).long().clamp(max=len(alphas_cumprod) - 1)
-    eps = sample_noise(tuple(f0.shape), generator=generator, device=device, dtype=f0.dtype)
+    rank, world = shard or (0, 1)
+    mine, gb = slice(rank * b, (rank + 1) * b), b * world  # this rank's rows of the global batch
+    t = (_uniform((gb,), generator, device) * len(alphas_cumprod)).long().clamp(max=len(alphas_cumprod) - 1)[mine]
+    eps = sample_noise((gb, *f0.shape[1:]), generator=generator, device=device, dtype=f0.dtype)[mine]
     f_t = q_sample(f0, t, eps, alphas_cumprod=alphas_cumprod)
-    cond_keep = _uniform((b,), generator, device) >= model.config.cond_drop_prob
+    cond_keep = (_uniform((gb,), generator, device) >= model.config.cond_drop_prob)[mine]
     prev_latents = None
     if model.config.self_condition and float(_uniform((1,), generator, device)) < self_condition_prob:
         with torch.no_grad():

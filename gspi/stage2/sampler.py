@@ -149,6 +149,7 @@ def predict_point_pbr(
     write_chunk: Optional[int] = 32768,
     guidance_scale: float = 1.0,
     num_train_timesteps: int = 1000,
+    device: Optional[torch.device] = None,
 ) -> Tensor:
     """DDIM-samples PBR features for the ENTIRE cloud at once (paper: N_test = N, no view-dropout).
 
@@ -157,6 +158,8 @@ def predict_point_pbr(
 
     Args:
         frame: unit-sphere frame; None fits it on ``xyz`` (what Stage I inference has).
+        device: where the DDIM loop runs (the frame and the noise are made on the CPU first, so
+            a device changes no draw); None = the CPU, as before. The result is on ``device``.
     Returns:
         [N, 5] float32 in [0, 1]: albedo (sRGB-encoded) RGB, roughness, metallic.
     """
@@ -168,6 +171,8 @@ def predict_point_pbr(
         tokens = global_feats.float().flatten(2).transpose(1, 2)[None]  # [1, 32, 25, D]
     inputs = Stage2Inputs(xyz=xyz_unit, local_cond=torch.as_tensor(np.asarray(local_cond)).float()[None],
                           global_tokens=tokens)
+    if device is not None:
+        inputs = inputs.to(device)
     generator = torch.Generator().manual_seed(int(seed))
     f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
                     write_chunk=write_chunk, alphas_cumprod=cosine_alphas_cumprod(num_train_timesteps))

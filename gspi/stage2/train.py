@@ -22,6 +22,7 @@ from torch import Tensor
 
 from gspi.stage2.checkpoint import (CheckpointError, load_weights, rcw_config_dict, read_checkpoint,
                                     save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
+from gspi.stage2.distributed import DistContext
 from gspi.stage2.data import (PointDataConfig, ScenePoints, load_scene_points, local_condition_dim,
                               sample_batch)
 from gspi.stage2.encoders import build_encoder
@@ -125,8 +126,9 @@ class TrainState:
 
 
 def train_step(state: TrainState, f0: Tensor, inputs: Stage2Inputs, cfg: Mapping[str, Any],
-               alphas_cumprod: Tensor) -> dict[str, float]:
-    """One AdamW step on one batch; updates the EMA. Returns the logged scalars."""
+               alphas_cumprod: Tensor, dist: DistContext = DistContext()) -> dict[str, float]:
+    """One AdamW step on one batch (this rank's slice under ``dist``); updates the EMA.
+    Returns the logged scalars (the loss averaged over ranks)."""
     train, diffusion = cfg["stage2"]["train"], cfg["stage2"]["diffusion"]
     lr = learning_rate(state.step, train)
     for group in state.optimizer.param_groups:
@@ -134,16 +136,27 @@ def train_step(state: TrainState, f0: Tensor, inputs: Stage2Inputs, cfg: Mapping
     state.model.train()
     loss = denoising_loss(state.model, f0, inputs, generator=state.loss_generator, alphas_cumprod=alphas_cumprod,
                           min_snr_gamma=float(diffusion["min_snr_gamma"]),
-                          self_condition_prob=float(diffusion["self_condition_prob"]))
+                          self_condition_prob=float(diffusion["self_condition_prob"]), shard=dist.loss_shard)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"non-finite Stage II loss {float(loss)} at step {state.step}")
     state.optimizer.zero_grad(set_to_none=True)
     loss.backward()
+    dist.average_gradients(state.model)
     grad_norm = torch.nn.utils.clip_grad_norm_(state.model.parameters(), float(train["grad_clip"]))
     state.optimizer.step()
     update_ema(state.ema, state.model, decay=float(train["ema_decay"]), step=state.step)
     state.step += 1
-    return {LOSS_KEY: float(loss.detach()), "stage2/train/grad_norm": float(grad_norm), "stage2/train/lr": lr}
+    return {LOSS_KEY: dist.mean(float(loss.detach())), "stage2/train/grad_norm": float(grad_norm), "stage2/train/lr": lr}
+
+
+class _NoMetrics:
+    """metrics.jsonl of a rank other than 0: nothing is written."""
+
+    def log(self, step, values) -> None:
+        pass
+
+    def truncate_after(self, step) -> None:
+        pass
 
 
 def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) -> Path:
@@ -151,7 +164,7 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
 
 
 def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None,
-          stop_after_minutes: Optional[float] = None) -> dict:
+          stop_after_minutes: Optional[float] = None, dist: DistContext = DistContext()) -> dict:
     """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``.
 
     Writes ``checkpoint.pt`` (every ``checkpoint_every`` steps and at the end),
@@ -162,6 +175,8 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             from; the schedule still follows ``steps``).
         stop_after_minutes: the same, once this run has trained this many wall-clock minutes
             (a CPU budget; chain runs through the exact resume).
+        dist: this process's rank, world size and device (gspi.stage2.distributed); rank 0
+            alone writes. The default is one CPU process, the plain run.
     """
     out_dir = Path(out_dir)
     stage2, train_cfg = cfg["stage2"], cfg["stage2"]["train"]
@@ -169,7 +184,10 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     scenes = load_split(cfg, "train", encoder)
     data_cfg = PointDataConfig.from_mapping(stage2["data"])
     state = TrainState(cfg, rcw_config(stage2, encoder.feature_dim))
-    metrics = JsonlMetrics(out_dir / "metrics.jsonl")
+    if dist.device.type != "cpu":
+        state.model.to(dist.device), state.ema.to(dist.device)
+    dist.local_batch(int(train_cfg["batch_size"]))  # divisible by the ranks, checked before any step
+    metrics = JsonlMetrics(out_dir / "metrics.jsonl") if dist.is_main else _NoMetrics()
     ckpt_path = out_dir / "checkpoint.pt"
     if ckpt_path.is_file():
         state.load(ckpt_path)
@@ -189,25 +207,29 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             load_weights(state.model, weights, init_from, "init_from")
             load_weights(state.ema, weights, init_from, "init_from")
             log.info("initialised the weights from %s", init_from)
-    alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"]))
+    alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"])).to(dist.device)
     total, every = int(train_cfg["steps"]), int(train_cfg["checkpoint_every"])
     log_every = int(train_cfg.get("log_every", 100))
     start_step, t0 = state.step, time.perf_counter()
     end = total if stop_at is None else min(total, int(stop_at))
     deadline = None if stop_after_minutes is None else t0 + 60.0 * float(stop_after_minutes)
-    while state.step < end and (deadline is None or time.perf_counter() < deadline):
-        f0, inputs = sample_batch(scenes, data_cfg, int(train_cfg["batch_size"]), state.data_rng)
-        values = train_step(state, f0, inputs, cfg, alphas_cumprod)
+    while state.step < end and (deadline is None or not dist.any(time.perf_counter() >= deadline)):
+        f0, inputs = dist.shard(*sample_batch(scenes, data_cfg, int(train_cfg["batch_size"]), state.data_rng))
+        values = train_step(state, f0, inputs, cfg, alphas_cumprod, dist)
         metrics.log(state.step, values)
         if state.step % log_every == 0:
             log.info("step %d  loss %.4f  lr %.2e", state.step, values[LOSS_KEY], values["stage2/train/lr"])
         if state.step % every == 0 and state.step < end:
             state.elapsed_s += time.perf_counter() - t0
             t0 = time.perf_counter()
-            save_checkpoint(state, cfg, out_dir)
+            if dist.is_main:
+                save_checkpoint(state, cfg, out_dir)
     state.elapsed_s += time.perf_counter() - t0
-    if state.step > start_step or not ckpt_path.is_file():
+    if dist.is_main and (state.step > start_step or not ckpt_path.is_file()):
         save_checkpoint(state, cfg, out_dir)
+    dist.barrier()
+    if not dist.is_main:
+        return {"steps": state.step, "rank": dist.rank}
     plot_loss_curve(metrics, out_dir / "loss_curve.png")
     _, losses = metrics.series(LOSS_KEY)
     return {"steps": state.step, "resumed_from": start_step, "wall_time_s": round(state.elapsed_s, 2),
