@@ -130,3 +130,22 @@ def test_nearest_surface_depth_window_reads_the_near_side_of_an_edge():
     # the far pixel next to the edge now reports the near surface; background stays inf only
     # where no foreground pixel is within 1 px
     np.testing.assert_array_equal(window[0, 1], [2.0, 2.0, 2.0, 4.0])
+
+
+def test_an_asset_seen_by_few_lattice_views_is_refused():
+    """A small object far off-centre (mostly outside the lattice's frames) must not become a
+    cloud of a few views that runs to "complete" (issue 17, class 5)."""
+    from gspi.stage1.extract import check_cloud_covers_lattice
+
+    asset = surfel_sphere(200, radius=0.2)
+    asset.means.data += torch.tensor([4.0, 0.0, 0.0], dtype=asset.means.dtype)   # outside the rig: 6 views
+    off = {"enabled": False}
+    cfg = Stage1Config.from_dict({"image_size": 16, "outliers": off, "mask_consistency": off,
+                                  "depth_consensus": off})
+    with pytest.raises(ValueError, match=r"from \d+ of 32 lattice views"):
+        extract_point_cloud(asset, cfg)
+    _, renders, _ = extract_point_cloud(surfel_sphere(200, radius=RADIUS), cfg)
+    few = PointCloud(xyz=np.zeros((3, 3), np.float32), view=np.int32([0, 1, 2]),
+                     pixel=np.zeros((3, 2), np.int32), rgb=np.zeros((3, 3), np.float32))
+    with pytest.raises(ValueError, match="from 3 of 32"):
+        check_cloud_covers_lattice(few, renders)

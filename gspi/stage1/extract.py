@@ -88,6 +88,20 @@ def apply_filters(points: PointCloud, renders: LatticeRenders, cfg: Stage1Config
     return points, report
 
 
+MIN_VIEW_FRACTION = 0.25  # of the lattice views that must contribute points to the cloud
+
+
+def check_cloud_covers_lattice(points: PointCloud, renders: LatticeRenders) -> None:
+    """An object seen from a hemisphere of cameras shows up in most of them: a cloud drawn from
+    fewer than a quarter of the lattice views (an asset that is mostly out of frame or behind
+    the cameras) would be distilled from a few views and scored as a normal run."""
+    views = np.unique(points.view).size
+    if views < MIN_VIEW_FRACTION * renders.num_views:
+        raise ValueError(f"Stage I: the point cloud comes from {views} of {renders.num_views} lattice "
+                         f"views (< {MIN_VIEW_FRACTION:.0%}); the asset does not cover the lattice "
+                         "(check its scale and position: objects must fit the unit sphere)")
+
+
 def maybe_subsample(points: PointCloud, max_points: Optional[int], seed: int) -> PointCloud:
     """A seeded uniform subsample of ``max_points`` points (kept in their original order); all
     points when ``max_points`` is None or not below the count.
@@ -119,6 +133,7 @@ def extract_point_cloud(gaussians: Gaussians2D, cfg: Stage1Config, *,
     if len(points) == 0:
         raise ValueError("Stage I kept no point: the asset renders no foreground on the lattice "
                          f"(alpha >= {cfg.alpha_threshold}); check the asset's scale and position")
+    check_cloud_covers_lattice(points, renders)
     num_filtered = len(points)
     points = maybe_subsample(points, cfg.max_points, cfg.seed)
     total = time.perf_counter() - start
