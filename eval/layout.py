@@ -115,29 +115,28 @@ def _matrix(value, shape: tuple[int, int], where: str) -> np.ndarray:
     return arr
 
 
-def read_json_object(path: str | Path) -> dict:
-    """A JSON file that must hold an object; LayoutError naming the file otherwise (missing,
-    truncated, not an object, nested too deep to parse)."""
-    return _load_json(Path(path))
-
-
-def _load_json(path: Path) -> dict:
+def read_json_object(path: str | Path, *, error: type[Exception] = LayoutError, what: str = "file") -> dict:
+    """A JSON file that must hold an object; ``error`` naming the file otherwise (missing,
+    truncated, not an object, nested too deep to parse). The one JSON-object reader of eval/:
+    run records and sweeps pass their own error class and what the file is."""
+    path = Path(path)
     if not path.is_file():
-        raise LayoutError(f"{path}: file not found")
+        raise error(f"{path}: {what} not found")
     try:
         data = json.loads(path.read_text())
     except (ValueError, RecursionError) as exc:  # RecursionError: absurdly nested JSON
-        raise LayoutError(f"{path}: invalid JSON ({str(exc)[:200] or type(exc).__name__})") from exc
+        raise error(f"{path}: invalid JSON ({str(exc)[:200] or type(exc).__name__})") from exc
     if not isinstance(data, dict):
-        raise LayoutError(f"{path}: expected a JSON object, found {type(data).__name__}")
+        raise error(f"{path}: expected a JSON object, found {type(data).__name__}")
     return data
+
 
 
 def read_scene(scene_dir: str | Path) -> Scene:
     """Parse and validate `<scene_dir>/scene.json`."""
     root = Path(scene_dir)
     path = root / "scene.json"
-    data = _load_json(path)
+    data = read_json_object(path)
     for key in ("name", "width", "height", "views", "capture_env", "relight_envs"):
         if key not in data:
             raise LayoutError(f"{path}: missing key {key!r}")
@@ -199,7 +198,7 @@ def write_scene_json(scene: Scene) -> Path:
 def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
     """`<dataset>/splits.json` = {"train": [scene names], "val": [...], "test": [...]}."""
     path = Path(dataset_dir) / "splits.json"
-    data = _load_json(path)
+    data = read_json_object(path)
     out = {}
     for split, names in data.items():
         if not isinstance(names, list):
@@ -280,7 +279,7 @@ def read_meta(pred_scene_dir: Path) -> dict:
     path = Path(pred_scene_dir) / "meta.json"
     if not path.exists():
         return {}
-    data = _load_json(path)
+    data = read_json_object(path)
     runtime = data.get("runtime_s", {})
     if runtime is None:
         runtime = data["runtime_s"] = {}

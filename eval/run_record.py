@@ -11,9 +11,10 @@ is a killed job that nothing tabulates or skips.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
+
+from eval.layout import read_json_object
 
 RECORD_NAME = "result.json"
 RECORD_FORMAT = "gspi-run"
@@ -42,15 +43,7 @@ def build_record(*, status: str, cfg_hash: str, method: str, ablation: str, tabl
 
 def load_record_json(path: Path) -> dict:
     """The parsed JSON object of ``path``; RecordError (naming the file) if it is not one."""
-    if not path.is_file():
-        raise RecordError(f"{path}: run record not found")
-    try:
-        data = json.loads(path.read_text())
-    except (ValueError, RecursionError) as exc:  # RecursionError: absurdly nested JSON
-        raise RecordError(f"{path}: invalid JSON ({str(exc)[:200] or type(exc).__name__})") from exc
-    if not isinstance(data, dict):
-        raise RecordError(f"{path}: expected a JSON object, found {type(data).__name__}")
-    return data
+    return read_json_object(path, error=RecordError, what="run record")
 
 
 def check_record(data: dict, path: Path) -> None:

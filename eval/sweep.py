@@ -14,7 +14,6 @@ fractions. Nothing here knows how the runs were made.
 """
 from __future__ import annotations
 
-import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.layout import read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
 
@@ -90,15 +90,7 @@ def infer_table(method: str, ablation: str) -> str:
 
 
 def _read_json(path: Path, what: str) -> dict:
-    if not path.is_file():
-        raise SweepError(f"{path}: {what} not found")
-    try:
-        data = json.loads(path.read_text())
-    except (ValueError, RecursionError) as exc:  # RecursionError: absurdly nested JSON
-        raise SweepError(f"{path}: invalid JSON ({str(exc)[:200] or type(exc).__name__})") from exc
-    if not isinstance(data, dict):
-        raise SweepError(f"{path}: expected a JSON object, found {type(data).__name__}")
-    return data
+    return read_json_object(path, error=SweepError, what=what)
 
 
 def _subfolder(path: Path, data: dict, key: str) -> Path | None:
