@@ -153,7 +153,7 @@ def _finite_or_inf(value, where: str) -> float:
     return float(value)
 
 
-def _per_scene_rows(per_scene: dict, where: Path, measure: str) -> list[dict]:
+def per_scene_rows(per_scene: dict, where: Path, measure: str) -> list[dict]:
     """{scene: {channel: {metric: value}}} -> rows; unknown channels (e.g. "avg") are skipped:
     channel averages are recomputed by the tables, one definition for every measure."""
     if not isinstance(per_scene, dict) or not per_scene:
@@ -203,7 +203,7 @@ def _runtime_rows(record: RunRecord, eval_meta: dict, scenes: list[str]) -> list
     return [dict(r, measure="runtime", metric="minutes") for r in rows]
 
 
-def _protocol_name(protocol, default: str) -> str:
+def protocol_name(protocol, default: str) -> str:
     """"name vN" of a {"name", "version"} object, a string as given, else `default`."""
     if isinstance(protocol, dict):
         return f"{protocol.get('name')} v{protocol.get('version')}"
@@ -217,15 +217,15 @@ def record_values(record: RunRecord) -> tuple[list[dict], list[str]]:
         meta_path = record.material_eval / "eval_meta.json"
         meta = _read_json(meta_path, "eval_meta.json of material_eval")
         _read_json(record.material_eval / "summary.json", "summary.json of material_eval")
-        material = _per_scene_rows(meta.get("per_scene"), meta_path, "material")
-        protocol["material"] = (_protocol_name(meta.get("protocol"), "unnamed protocol")
+        material = per_scene_rows(meta.get("per_scene"), meta_path, "material")
+        protocol["material"] = (protocol_name(meta.get("protocol"), "unnamed protocol")
                                 + f" #{protocol_hash(recorded_protocol(meta))}")
         rows += material + _runtime_rows(record, meta, sorted({r["scene"] for r in material}))
     if record.points_eval is not None:
         summary_path = record.points_eval / "summary.json"
         summary = _read_json(summary_path, "summary.json of points_eval")
-        rows += _per_scene_rows(summary.get("per_scene"), summary_path, "points")
-        protocol["points"] = _protocol_name(summary.get("protocol"), "points-eval")
+        rows += per_scene_rows(summary.get("per_scene"), summary_path, "points")
+        protocol["points"] = protocol_name(summary.get("protocol"), "points-eval")
     present = {r["scene"] for r in rows}
     lacking = [s for s in record.scenes if s not in present]
     if lacking:

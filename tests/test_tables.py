@@ -1,11 +1,20 @@
-"""gspi-table: Table 1 layout, best/second marks, '--' for missing channels, protocol mixing."""
+"""gspi-table on plain gspi-eval folders: Table 1 layout, best/second marks, '--' for missing
+channels, runs of one method averaged, protocol/data/scene mixing refused. The same builder
+and renderer as sweeps (tests/test_tables_sweep.py)."""
 import json
 
 import pytest
 from omegaconf import OmegaConf
 
-from eval.tables import build_table1, find_runs, load_run, positional_to_overrides, rank_marks, \
-    run, to_latex, to_markdown
+from eval.eval_folders import find_eval_folders, load_eval_folders
+from eval.tables import positional_to_overrides, run
+from eval.tables_render import to_latex, to_markdown
+from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+
+
+def build(root):
+    sweep = load_eval_folders([root])
+    return build_sweep_table(sweep, TABLE_SPECS["table1"]), sweep
 
 
 def _write_run(root, name, summary, method, protocol=("gspi-decoupled", 1), runtime=(1.5, 3.0),
@@ -33,38 +42,40 @@ def runs(tmp_path):
 
 
 def test_best_and_second_per_column(runs):
-    table = build_table1([load_run(r) for r in find_runs([runs])])
-    marks = rank_marks(table)
+    table, _ = build(runs)
+    marks = table.marks
     assert marks.loc["B", "psnr/albedo"] == 1 and marks.loc["A", "psnr/albedo"] == 2
     assert marks.loc["B", "lpips/albedo"] == 1 and marks.loc["C", "lpips/albedo"] == 0
-    assert marks.loc["C", "runtime/material"] == 1 and marks.loc["A", "runtime/material"] == 2
+    assert marks.loc["C", "minutes/material"] == 1 and marks.loc["A", "minutes/material"] == 2
     assert marks.loc["A", "psnr/roughness"] == 2  # C has no roughness: not ranked
 
 
 def test_percent_units_and_missing_channel(runs):
-    table = build_table1([load_run(r) for r in find_runs([runs])])
-    assert table.loc["B", "ssim/albedo"] == pytest.approx(90.0)
-    assert table.loc["A", "lpips/relight"] == pytest.approx(5.0)
-    md = to_markdown(table)
+    table, sweep = build(runs)
+    assert table.mean.loc["B", "ssim/albedo"] == pytest.approx(90.0)
+    assert table.mean.loc["A", "lpips/relight"] == pytest.approx(5.0)
+    md = to_markdown(table, sweep)
     c_row = next(line for line in md.splitlines() if line.startswith("| C |"))
-    assert c_row.count("--") == 6  # roughness and metallic in three metric groups
-    assert "**25.00**" in md and "<u>20.00</u>" in md and "5.4 (10.4)" in md
-    tex = to_latex(table)
+    # roughness and metallic in three metric groups, and Δ (no GS-PI row to compare with)
+    assert c_row.count("--") == 7
+    assert "**25.00**" in md and "<u>20.00</u>" in md and "<u>5.4</u> (10.4)" in md
+    tex = to_latex(table, sweep)
     assert r"\cellcolor{BaselineBestCell}\textbf{25.00}" in tex and r"\toprule" in tex
 
 
 def test_runs_of_one_method_are_averaged(tmp_path):
     _write_run(tmp_path, "s0", _summary(20.0, 0.8, 0.05), "A")
     _write_run(tmp_path, "s1", _summary(22.0, 0.6, 0.07), "A")
-    table = build_table1([load_run(r) for r in find_runs([tmp_path])])
-    assert len(table) == 1 and table.loc["A", "psnr/metallic"] == pytest.approx(21.0)
+    table, _ = build(tmp_path)
+    assert table.labels == ["A"] and table.mean.loc["A", "psnr/metallic"] == pytest.approx(21.0)
+    assert table.count.loc["A", "psnr/metallic"] == 2  # two (scene, run) units
 
 
 def test_mixed_protocols_are_refused(tmp_path):
     _write_run(tmp_path, "a", _summary(20.0, 0.8, 0.05), "A")
     _write_run(tmp_path, "b", _summary(20.0, 0.8, 0.05), "B", protocol=("gspi-decoupled", 2))
     with pytest.raises(ValueError, match="different protocols"):
-        build_table1([load_run(r) for r in find_runs([tmp_path])])
+        build(tmp_path)
 
 
 def test_run_writes_three_formats(runs, tmp_path):
@@ -81,7 +92,7 @@ def test_positional_dirs_become_runs_override():
 
 def test_missing_folder_is_an_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="no complete gspi-eval folder"):
-        find_runs([tmp_path])
+        find_eval_folders([tmp_path])
 
 
 def test_positional_folders_may_contain_equals_signs(tmp_path):
@@ -101,8 +112,8 @@ def test_one_killed_gspi_eval_folder_is_named_and_skipped(runs, tmp_path):
     half = runs / "half"
     half.mkdir()
     (half / "summary.json").write_text("{}")          # killed before eval_meta.json
-    table = run(OmegaConf.create({"runs": [str(runs)], "out": str(tmp_path / "t")}))
-    assert sorted(table.index) == ["A", "B", "C"]
+    table = run(OmegaConf.create({"runs": [str(runs)], "out": str(tmp_path / "t")}))["table1"]
+    assert sorted(table.labels) == ["A", "B", "C"]
     md = (tmp_path / "t" / "table1.md").read_text()
     assert "Incomplete gspi-eval folder(s) left out" in md
     assert str(killed) in md and str(half) in md
@@ -113,18 +124,17 @@ def test_only_killed_folders_is_an_error_naming_them(tmp_path):
     (tmp_path / "h").mkdir()
     (tmp_path / "h" / "summary.json").write_text("{}")
     with pytest.raises(FileNotFoundError, match="incomplete .killed.. folders: .*h"):
-        find_runs([tmp_path / "h"])
+        find_eval_folders([tmp_path / "h"])
 
 
-@pytest.mark.parametrize("key, a, b, what", [
-    ("data", "/d/small", "/d/tiny", "ground-truth datasets"),
-    ("scenes", ["s1", "s2"], ["s1"], "scene sets")])
-def test_runs_of_one_method_on_different_data_are_refused(tmp_path, key, a, b, what):
+@pytest.mark.parametrize("key, a, b, message", [
+    ("data", "/d/small", "/d/tiny", "method=A ablation=full was scored on different datasets"),
+    ("scenes", ["s1", "s2"], ["s1"], "method 'A': its runs were scored on different scene sets")])
+def test_runs_of_one_method_on_different_data_are_refused(tmp_path, key, a, b, message):
     _write_run(tmp_path, "r0", _summary(20.0, 0.8, 0.05), "A", **{key: a})
     _write_run(tmp_path, "r1", _summary(22.0, 0.6, 0.07), "A", **{key: b})
-    with pytest.raises(ValueError, match=f"method 'A': its runs were scored on different {what}"
-                                         f"(.|\n)*r0(.|\n)*r1"):
-        build_table1([load_run(r) for r in find_runs([tmp_path])])
+    with pytest.raises(ValueError, match=f"{message}(.|\n)*r0(.|\n)*r1"):
+        build(tmp_path)
 
 
 def test_protocol_refusal_names_runs_and_differing_keys(tmp_path):
@@ -133,7 +143,7 @@ def test_protocol_refusal_names_runs_and_differing_keys(tmp_path):
     _write_run(tmp_path, "b", _summary(20.0, 0.8, 0.05), "B",
                protocol_config=dict(base, relight={"tonemap": "clamp"}))
     with pytest.raises(ValueError) as err:
-        build_table1([load_run(r) for r in find_runs([tmp_path])])
+        build(tmp_path)
     assert "relight.tonemap: 'aces' != 'clamp'" in str(err.value)
     assert str(tmp_path / "a") in str(err.value) and str(tmp_path / "b") in str(err.value)
 

@@ -345,8 +345,8 @@ class TestCommand:
             {c: {"psnr": 20.0, "ssim": 0.8, "lpips": 0.05} for c in MATERIAL + ("relight",)}))
         (d / "eval_meta.json").write_text(json.dumps(
             {"method": "A", "protocol": {"name": "p", "version": 1}}))
-        table = run(self._cfg([d], tmp_path / "o"))
-        assert table.loc["A", "psnr/albedo"] == 20.0
+        table = run(self._cfg([d], tmp_path / "o"))["table1"]
+        assert table.mean.loc["A", "psnr/albedo"] == 20.0
         assert (tmp_path / "o" / "table1.md").is_file()
 
     def test_config_composes_with_its_options(self, tmp_path):
