@@ -5,7 +5,7 @@ import torch
 
 from gspi.stage1 import filters
 from gspi.stage1.extract import Stage1Config, extract_point_cloud
-from gspi.stage1.point_cloud import PointCloud, local_condition
+from gspi.point_cloud import PointCloud, local_condition
 from tests.fixtures import surfel_sphere
 
 RADIUS = 0.8

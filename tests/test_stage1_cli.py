@@ -13,9 +13,9 @@ from gspi.cli.extract import CONF_DIR, run
 from gspi.gaussians.ply import write_ply
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import maybe_subsample
-from gspi.stage1.point_cloud import PointCloud
+from gspi.point_cloud import PointCloud
 from gspi.stage2.evaluate_points import PSNR_CAP_DB
-from gspi.stage1.point_cloud import nearest_fill, scatter_pixel_values
+from gspi.point_cloud import nearest_fill, scatter_pixel_values
 from gspi.stage2.score_generated import gt_oracle_pbr, scatter_point_values, score_generated_points
 from tests.fixtures import surfel_sphere
 from tests.test_stage2_data import make_lattice_scene

@@ -18,7 +18,7 @@ from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import PBR_COMMENTS, read_ply, write_ply
 from gspi.gaussians.sh import rgb_to_sh
 from gspi.gaussians.lattice_render import LatticeRenders, lattice_camera_tensors
-from gspi.stage1.point_cloud import PointCloud
+from gspi.point_cloud import PointCloud
 from gspi.stage3.config import Stage3Config
 from gspi.stage3.distill import distill, harmonized_albedo_targets
 from gspi.stage3.export import render_material_maps, write_scene_predictions

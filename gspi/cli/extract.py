@@ -12,7 +12,7 @@ Renders the asset's 32 canonical lattice views, unprojects foreground pixels wit
 depth and applies the three filters (gspi/stage1/). Writes into ``out`` (also Hydra's run dir,
 with ``.hydra/``; the working directory never changes):
 
-* ``points.npz``: ``gspi.stage1.point_cloud.PointCloud`` (xyz, source view, pixel, linear RGB,
+* ``points.npz``: ``gspi.point_cloud.PointCloud`` (xyz, source view, pixel, linear RGB,
   image size);
 * ``stage1.json``: the config, the per-filter report (count, removed and, with ``scene=``, the
   distances of kept and removed points to the scene's ``gt_points.npz`` in world units and pixel

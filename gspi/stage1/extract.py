@@ -24,7 +24,7 @@ from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.lattice_render import LatticeRenders, render_lattice as render_lattice_maps
 from gspi.stage1 import filters
 from gspi.stage1.config import Stage1Config
-from gspi.stage1.point_cloud import PointCloud
+from gspi.point_cloud import PointCloud
 from gspi.stage1.report import source_footprint, step_stats
 
 __all__ = ["Stage1Config", "LatticeRenders", "render_lattice", "unproject_renders", "apply_filters",

@@ -22,7 +22,7 @@ import torch
 from eval.atomic import write_json_atomic, write_text_atomic
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import LatticeRenders, apply_filters, render_lattice, unproject_renders
-from gspi.stage1.point_cloud import PointCloud
+from gspi.point_cloud import PointCloud
 from gspi.stage1.report import reference_spacing, source_footprint
 
 FILTERS = ("outliers", "mask_consistency", "depth_consensus")

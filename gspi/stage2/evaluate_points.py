@@ -31,7 +31,7 @@ from eval.atomic import write_json_atomic
 from gspi.stage2.data import PointDataConfig, ScenePoints, whole_scene_inputs
 from gspi.stage2.normalize import pbr_from_model
 from gspi.data.gt_maps import read_gt_view_maps
-from gspi.stage1.point_cloud import scatter_pixel_values
+from gspi.point_cloud import scatter_pixel_values
 
 log = logging.getLogger(__name__)
 CHANNELS = {"albedo": slice(0, 3), "roughness": slice(3, 4), "metallic": slice(4, 5)}

@@ -25,7 +25,7 @@ from torch import Tensor
 from eval.colorspace import linear_to_srgb
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.gaussians.lattice_render import LatticeRenders
-from gspi.stage1.point_cloud import PointCloud, nearest_fill
+from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.data import LatticeCameras, local_condition_dim, multiview_condition_from_views, srgb_top_rgb
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving

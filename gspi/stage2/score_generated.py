@@ -12,7 +12,7 @@ The Stage I lattice must be rendered at the scene's own image size (a pixel inde
 pixel in both); a mismatch raises an error. When Stage II predicts on a subsample
 (``stage1.max_points``), ``nearest_fill`` propagates the values to the full cloud first.
 
-    from gspi.stage1.point_cloud import PointCloud
+    from gspi.point_cloud import PointCloud
     points = PointCloud.load("runs/extract/s002/points.npz")
     scores = score_generated_points(points, pbr, Path("data/small/s002_multipart_ceramic"))
 
@@ -32,7 +32,7 @@ import numpy as np
 
 from gspi.data.gt_maps import read_gt_view_maps
 from gspi.data.lattice import NUM_LATTICE_VIEWS
-from gspi.stage1.point_cloud import PointCloud, nearest_fill, scatter_pixel_values
+from gspi.point_cloud import PointCloud, nearest_fill, scatter_pixel_values
 
 PBR_CHANNELS = 5  # albedo (sRGB-encoded, as stored) 3, roughness 1, metallic 1
 

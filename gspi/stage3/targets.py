@@ -24,7 +24,7 @@ from scipy import ndimage
 from eval.layout import Scene
 from gspi.data.gt_maps import read_gt_view_maps
 from gspi.gaussians.lattice_render import LatticeRenders
-from gspi.stage1.point_cloud import PointCloud, scatter_pixel_values
+from gspi.point_cloud import PointCloud, scatter_pixel_values
 
 
 @dataclass
