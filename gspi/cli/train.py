@@ -43,6 +43,7 @@ def run(cfg: DictConfig) -> dict:
     import torch
 
     from gspi.stage2.checkpoint import load_stage2_checkpoint
+    from gspi.stage2.config import complete_stage2
     from gspi.stage2.evaluate_points import evaluate_checkpoint
     from gspi.device import resolve_device
     from gspi.stage2.distributed import from_env, shutdown
@@ -57,12 +58,13 @@ def run(cfg: DictConfig) -> dict:
     torch.set_num_threads(int(cfg.threads))
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain.pop("hydra", None)
+    plain["stage2"] = complete_stage2(plain["stage2"])  # an unknown or ill-typed key fails here
     out = Path(cfg.out)
     # stats.json is the run's record, written last: an earlier one must not outlive a killed rerun
     if dist.is_main:
         (out / "stats.json").unlink(missing_ok=True)
-    stats = train(plain, out, stop_at=plain["stage2"]["train"].get("stop_at"),
-                  stop_after_minutes=plain["stage2"]["train"].get("stop_after_minutes"), dist=dist)
+    stats = train(plain, out, stop_at=plain["stage2"]["train"]["stop_at"],
+                  stop_after_minutes=plain["stage2"]["train"]["stop_after_minutes"], dist=dist)
     if not dist.is_main:  # rank 0 evaluates and writes the record
         shutdown(dist)
         return stats
@@ -72,7 +74,7 @@ def run(cfg: DictConfig) -> dict:
         model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")
         result = evaluate_checkpoint(model, saved_cfg, plain["data_dir"], out / "eval_points", split=ev["split"],
                                      num_steps=int(ev["num_steps"]), seed=int(ev["seed"]),
-                                     write_chunk=ev.get("write_chunk"))
+                                     write_chunk=ev["write_chunk"])
         stats["eval_points"] = {"split": ev["split"], "mean": result["mean"]}
     write_json_atomic(out / "stats.json", stats, allow_nan=True)
     log.info("wrote %s", out / "stats.json")

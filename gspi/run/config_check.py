@@ -24,6 +24,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
     from gspi.device import resolve_device
     from gspi.recon.trainer import ReconConfig
     from gspi.stage1.config import Stage1Config
+    from gspi.stage2.config import Stage2Config
     from gspi.stage3.config import Stage3Config
 
     for key, (kind, lo, hi) in JOB_KEYS.items():
@@ -39,7 +40,8 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
         from eval.layout import check_name
         for name in cfg["scenes"]:
             check_name(name, "scenes")
-    for key, kind in (("recon", ReconConfig), ("stage1", Stage1Config), ("stage3", Stage3Config)):
+    for key, kind in (("recon", ReconConfig), ("stage1", Stage1Config), ("stage2", Stage2Config),
+                      ("stage3", Stage3Config)):
         if cfg.get(key) is not None:
             kind.from_dict(dict(cfg[key]))
     if cfg.get("eval") is not None:

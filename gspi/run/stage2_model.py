@@ -64,25 +64,27 @@ def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Conte
 def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
     """(model in eval mode with EMA weights, the checkpoint's config, info)."""
     from gspi.stage2.checkpoint import load_stage2_checkpoint
+    from gspi.stage2.config import complete_stage2
     from gspi.device import resolve_device
     from gspi.stage2.distributed import DistContext
     from gspi.stage2.train import train
 
-    ckpt = cfg["stage2"].get("checkpoint")
+    stage2 = complete_stage2(cfg["stage2"])
+    ckpt = stage2["checkpoint"]
     if ckpt:
         path = resolve_path(ckpt)
         model, saved = load_stage2_checkpoint(path)
         check_compatible(saved, cfg, path)
         return model, saved, {"checkpoint": str(path), "trained": False}
     folder = Path(cache_root) / "stage2" / training_hash(cfg)
-    train_cfg = {"stage2": {k: v for k, v in cfg["stage2"].items() if k != "checkpoint"},
+    train_cfg = {"stage2": {k: v for k, v in stage2.items() if k != "checkpoint"},
                  "data_dir": str(cfg["data_dir"]), "seed": int(cfg["seed"])}
     with file_lock(folder):
         done = folder / "checkpoint.pt"
         stats = None
         if not (done.is_file() and _finished(done, train_cfg)):
             log.info("training Stage II into %s", folder)
-            stats = train(train_cfg, folder, stop_at=train_cfg["stage2"]["train"].get("stop_at"),
+            stats = train(train_cfg, folder, stop_at=stage2["train"]["stop_at"],
                           dist=DistContext(device=resolve_device(cfg.get("device", "cpu"))))
         model, saved = load_stage2_checkpoint(done)
     return model, saved, {"checkpoint": str(done), "trained": stats is not None, "train_stats": stats}
@@ -92,5 +94,5 @@ def _finished(path: Path, train_cfg: Mapping[str, Any]) -> bool:
     from gspi.stage2.checkpoint import read_checkpoint
 
     train = train_cfg["stage2"]["train"]
-    last = min(int(train["steps"]), int(train.get("stop_at") or train["steps"]))
+    last = min(int(train["steps"]), int(train["stop_at"] or train["steps"]))
     return int(read_checkpoint(path)["step"]) >= last

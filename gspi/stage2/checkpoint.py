@@ -88,14 +88,22 @@ def load_stage2_checkpoint(path: str | Path) -> tuple[RCWDenoiser, dict]:
     Args:
         path: a training checkpoint (``<out>/checkpoint.pt``) or a shipped EMA-only file.
     Returns:
-        (model, cfg): cfg = {"stage2": ..., "seed": ..., ...} as saved (plain dict).
+        (model, cfg): cfg = {"stage2": ..., "seed": ..., ...} as saved (plain dict), ``stage2``
+        completed with the defaults of keys added since (``gspi.stage2.config``).
     Raises:
         FileNotFoundError / CheckpointError naming ``path``.
     """
+    from gspi.stage2.config import complete_stage2
+
     ckpt = read_checkpoint(path)
     model = RCWDenoiser(rcw_config_from(ckpt, path))
     load_weights(model, ckpt["ema"], path, "EMA")
-    return model.eval().requires_grad_(False), ckpt["config"]
+    cfg = dict(ckpt["config"])
+    try:  # an older checkpoint's config lacks newer keys: their defaults (gspi.stage2.config)
+        cfg["stage2"] = complete_stage2(cfg["stage2"])
+    except (KeyError, ValueError) as exc:
+        raise CheckpointError(f"{path}: its stored Stage II config is not valid: {exc}") from None
+    return model.eval().requires_grad_(False), cfg
 
 
 def export_ema_only(src: str | Path, dst: str | Path, *, half: bool = False) -> Path:

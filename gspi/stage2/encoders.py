@@ -22,13 +22,16 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Protocol
+from typing import Any, ClassVar, Mapping, Optional, Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from gspi.strict_config import dataclass_from_dict
 
 GRID_SIZE = 5  # 5 x 5 pooled cells per view (paper)
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -150,19 +153,44 @@ class NoPriorEncoder:
         return {"name": self.name, "version": ENCODER_CACHE_VERSION}
 
 
-def build_encoder(prior: Mapping[str, Any], *, device: str = "cpu") -> PriorEncoder:
+@dataclass
+class AlexNetOptions:
+    layer: str = "relu5"              # 256-dim ImageNet AlexNet conv5 (after ReLU)
+    input_size: int = 224
+
+    RANGES: ClassVar[dict] = {"input_size": (32, 4096)}
+    CHOICES: ClassVar[dict] = {"layer": tuple(ALEXNET_LAYERS)}
+
+
+@dataclass
+class Dinov2Options:
+    path: Optional[str] = None        # local Dinov2Model.save_pretrained folder (never downloaded)
+    input_size: int = 224             # multiple of the patch size (14)
+
+    RANGES: ClassVar[dict] = {"input_size": (14, 4096)}
+
+
+@dataclass
+class PriorConfig:
+    encoder: str = "alexnet"          # alexnet (offline default) | dinov2 (paper) | none (A1)
+    cache_dir: Optional[str] = None   # null = <data>/.cache/stage2_prior
+    alexnet: AlexNetOptions = field(default_factory=AlexNetOptions)
+    dinov2: Dinov2Options = field(default_factory=Dinov2Options)
+
+    def __post_init__(self) -> None:
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"unknown stage2.prior.encoder {self.encoder!r}; allowed: {', '.join(ENCODERS)}")
+
+
+def build_encoder(prior: Mapping[str, Any] | PriorConfig, *, device: str = "cpu") -> PriorEncoder:
     """Factory from the ``stage2.prior`` config (keys ``encoder``, ``alexnet``, ``dinov2``)."""
-    name = prior["encoder"]
-    if name == "alexnet":
-        opts = prior.get("alexnet") or {}
-        return AlexNetEncoder(layer=opts.get("layer", "relu5"), input_size=opts.get("input_size", 224),
-                              device=device)
-    if name == "dinov2":
-        opts = prior.get("dinov2") or {}
-        return Dinov2Encoder(path=opts.get("path"), input_size=opts.get("input_size", 224), device=device)
-    if name == "none":
-        return NoPriorEncoder()
-    raise ValueError(f"unknown stage2.prior.encoder {name!r}; allowed: {', '.join(ENCODERS)}")
+    if not isinstance(prior, PriorConfig):
+        prior = dataclass_from_dict(PriorConfig, prior, "stage2.prior")
+    if prior.encoder == "alexnet":
+        return AlexNetEncoder(layer=prior.alexnet.layer, input_size=prior.alexnet.input_size, device=device)
+    if prior.encoder == "dinov2":
+        return Dinov2Encoder(path=prior.dinov2.path, input_size=prior.dinov2.input_size, device=device)
+    return NoPriorEncoder()
 
 
 def encoder_hash(encoder: PriorEncoder) -> str:

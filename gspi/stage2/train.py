@@ -5,7 +5,8 @@ warm-up and cosine decay, gradient clipping, an EMA of the weights, periodic che
 that a rerun resumes from exactly (whole-cloud inference: ``gspi.stage2.sampler.predict_point_pbr``).
 
 ``cfg`` is the resolved ``gspi-train`` config as a plain dict (``conf/gspi_train.yaml``):
-``data_dir`` (dataset dir), ``out``, ``seed``, ``stage2.{model,diffusion,prior,data,train,eval}``.
+``data_dir`` (dataset dir), ``out``, ``seed`` and ``stage2`` (``gspi.stage2.config``; ``train``
+completes and checks it first, so every key below is present).
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from torch import Tensor
 
 from gspi.stage2.checkpoint import (CheckpointError, load_weights, rcw_config_dict, read_checkpoint,
                                     save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
+from gspi.stage2.config import complete_stage2
 from gspi.stage2.distributed import DistContext
 from gspi.stage2.data import (PointDataConfig, ScenePoints, load_scene_points, local_condition_dim,
                               sample_batch)
@@ -39,17 +41,16 @@ LOSS_KEY = "stage2/train/loss"
 
 def rcw_config(stage2: Mapping[str, Any], global_token_dim: int) -> RCWConfig:
     """RCWConfig from ``stage2.model``; the condition widths follow ``stage2.data`` and the encoder."""
-    local = stage2["data"]["local_condition"]
-    diffusion = stage2.get("diffusion", {})
+    stage2 = complete_stage2(stage2)
+    local, diffusion = stage2["data"]["local_condition"], stage2["diffusion"]
     return RCWConfig(**stage2["model"], local_cond_dim=local_condition_dim(local),
                      use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim,
-                     prediction=str(diffusion.get("prediction", "eps")),
-                     num_train_timesteps=int(diffusion.get("num_train_timesteps", 1000)))
+                     prediction=diffusion["prediction"], num_train_timesteps=diffusion["num_train_timesteps"])
 
 
 def cache_dir(cfg: Mapping[str, Any]) -> Path:
     """``stage2.prior.cache_dir``, default ``<data>/.cache/stage2_prior``."""
-    return Path(cfg["stage2"]["prior"].get("cache_dir") or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
+    return Path(cfg["stage2"]["prior"]["cache_dir"] or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
 
 
 def load_split(cfg: Mapping[str, Any], split: str, encoder) -> list[ScenePoints]:
@@ -70,7 +71,7 @@ def learning_rate(step: int, train: Mapping[str, Any]) -> float:
     if step < warmup:
         return lr * (step + 1) / warmup
     progress = min(1.0, (step - warmup) / max(1, total - warmup))
-    ratio = float(train.get("min_lr_ratio", 0.1))
+    ratio = float(train["min_lr_ratio"])
     return lr * (ratio + (1.0 - ratio) * 0.5 * (1.0 + math.cos(math.pi * progress)))
 
 
@@ -179,6 +180,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             alone writes. The default is one CPU process, the plain run.
     """
     out_dir = Path(out_dir)
+    cfg = {**cfg, "stage2": complete_stage2(cfg["stage2"])}  # checked; every key present
     stage2, train_cfg = cfg["stage2"], cfg["stage2"]["train"]
     encoder = build_encoder(stage2["prior"])
     scenes = load_split(cfg, "train", encoder)
@@ -195,7 +197,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         log.info("resumed from %s at step %d", ckpt_path, state.step)
     else:
         metrics.truncate_after(-1)
-        init_from = train_cfg.get("init_from")
+        init_from = train_cfg["init_from"]
         if init_from:  # fine-tuning: weights (not optimizer or step) of another Stage II model
             from gspi.stage2.checkpoint import read_checkpoint, load_weights
 
@@ -209,7 +211,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             log.info("initialised the weights from %s", init_from)
     alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"])).to(dist.device)
     total, every = int(train_cfg["steps"]), int(train_cfg["checkpoint_every"])
-    log_every = int(train_cfg.get("log_every", 100))
+    log_every = int(train_cfg["log_every"])
     start_step, t0 = state.step, time.perf_counter()
     end = total if stop_at is None else min(total, int(stop_at))
     deadline = None if stop_after_minutes is None else t0 + 60.0 * float(stop_after_minutes)

@@ -64,7 +64,7 @@ class Stage3Config:
     lr: LrConfig = field(default_factory=LrConfig)
 
     # Allowed values, checked by gspi.strict_config at start-up (inclusive; None = open).
-    RANGES: ClassVar[dict] = {"image_size": (8, 8192), "num_views": (1, None), "iterations": (0, None),
+    RANGES: ClassVar[dict] = {"iterations": (0, None),
                               "views_per_iteration": (1, None), "seed": (0, None), "log_every": (1, None)}
     CHOICES: ClassVar[dict] = {"backend": ("auto", "torch", "gsplat")}
 

@@ -1,0 +1,99 @@
+"""Stage II's config dataclass (gspi/stage2/config.py): one set of defaults, equal to
+conf/stage2/default.yaml; every key checked at start-up; older checkpoints completed."""
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from gspi.stage2.config import DERIVED_MODEL_KEYS, MODEL_KEYS, Stage2Config, complete_stage2
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def composed(*overrides, name="gspi_train"):
+    with initialize_config_dir(version_base="1.3", config_dir=CONF):
+        return OmegaConf.to_container(compose(name, overrides=list(overrides)).stage2, resolve=True)
+
+
+def test_default_yaml_equals_the_dataclass_defaults():
+    assert composed() == complete_stage2({})
+
+
+@pytest.mark.parametrize("overrides", [["stage2=cpu_small"], ["stage2=tiny"], ["stage2=cpu_pool"],
+                                       ["ablation=a1_no_global_prior"], ["ablation=a5_multiview_injection"],
+                                       ["ablation=a4_npts_1024_nlat_384"]])
+def test_every_shipped_stage2_config_is_complete_and_valid(overrides):
+    node = composed(*overrides)
+    assert complete_stage2(node) == node  # nothing missing, nothing unknown
+
+
+def test_a_missing_key_gets_its_default_and_a_set_one_is_kept():
+    full = complete_stage2({"train": {"lr": 0.5}, "model": {"num_heads": 4, "latent_dim": 96, "point_dim": 64}})
+    assert full["train"]["lr"] == 0.5 and full["train"]["min_lr_ratio"] == 0.1
+    assert full["model"]["num_heads"] == 4 and full["model"]["num_latents"] == 256
+    assert set(full["model"]) == set(MODEL_KEYS)
+    assert full["prior"]["alexnet"] == {"layer": "relu5", "input_size": 224}
+
+
+@pytest.mark.parametrize("node, message", [
+    ({"train": {"lrr": 1e-3}}, r"stage2\.train\.lrr"),
+    ({"train": {"batch_size": "8"}}, r"stage2\.train\.batch_size='8': must be an integer"),
+    ({"train": {"batch_size": 0}}, r"stage2\.train\.batch_size=0: must be an integer >= 1"),
+    ({"diffusion": {"prediction": "v"}}, r"stage2\.diffusion\.prediction='v': must be one of \['eps', 'x0'\]"),
+    ({"prior": {"encoder": "clip"}}, "alexnet, dinov2, none"),
+    ({"prior": {"alexnet": {"layer": "fc7"}}}, "relu5"),
+    ({"data": {"local_condition": "depth"}}, r"local_condition='depth'"),
+    ({"model": {"local_cond_dim": 3}}, r"stage2\.model\.local_cond_dim is derived"),
+    ({"model": {"latent_dim": 100, "num_heads": 8}}, "not divisible"),
+    ({"model": {"num_blocks": 2.5}}, r"stage2\.model\.num_blocks=2\.5"),
+    ({"eval": {"split": "dev"}}, r"stage2\.eval\.split='dev'"),
+    ({"train": {"betas": [0.9]}}, r"stage2\.train\.betas"),
+    ({"inference": {"num_stepz": 5}}, r"stage2\.inference\.num_stepz"),
+])
+def test_bad_values_are_refused_naming_the_key(node, message):
+    with pytest.raises(ValueError, match=message):
+        Stage2Config.from_dict(node)
+
+
+def test_gspi_run_checks_stage2_at_start_up():
+    from gspi.run.config_check import check_run_config
+
+    with pytest.raises(ValueError, match=r"stage2\.train\.lr='fast'"):
+        check_run_config({"split": "test", "data_dir": "d", "out": "o",
+                          "stage2": {"train": {"lr": "fast"}}})
+
+
+def test_derived_keys_are_rcw_fields_and_disjoint_from_the_sizes():
+    from dataclasses import fields
+
+    from gspi.stage2.model import RCWConfig
+    names = {f.name for f in fields(RCWConfig)}
+    assert set(DERIVED_MODEL_KEYS) <= names and set(MODEL_KEYS) == names - set(DERIVED_MODEL_KEYS)
+
+
+def test_an_older_checkpoint_config_is_completed_on_load(tmp_path):
+    """A checkpoint saved before a key existed (here: prediction, min_lr_ratio, log_every)
+    loads with that key's default, so no reader needs a .get(key, default)."""
+    from gspi.stage2.checkpoint import load_stage2_checkpoint
+
+    ckpt = torch.load(ROOT / "checkpoints" / "stage2_small.pt", weights_only=False)
+    stage2 = ckpt["config"]["stage2"]
+    del stage2["train"]["min_lr_ratio"], stage2["train"]["log_every"], stage2["eval"]
+    torch.save(ckpt, tmp_path / "old.pt")
+    _, cfg = load_stage2_checkpoint(tmp_path / "old.pt")
+    assert cfg["stage2"]["train"]["min_lr_ratio"] == 0.1 and cfg["stage2"]["train"]["log_every"] == 100
+    assert cfg["stage2"]["eval"]["num_steps"] == 50
+    assert cfg["stage2"]["diffusion"]["prediction"] == "x0"  # what it was saved with is kept
+
+
+def test_a_checkpoint_with_an_invalid_stored_config_names_the_file(tmp_path):
+    from gspi.stage2.checkpoint import CheckpointError, load_stage2_checkpoint
+
+    ckpt = torch.load(ROOT / "checkpoints" / "stage2_small.pt", weights_only=False)
+    ckpt["config"]["stage2"]["train"]["no_such_key"] = 1
+    torch.save(ckpt, tmp_path / "bad.pt")
+    with pytest.raises(CheckpointError, match=r"bad\.pt.*stage2\.train\.no_such_key"):
+        load_stage2_checkpoint(tmp_path / "bad.pt")
