@@ -21,7 +21,7 @@ from gspi.run.record import config_hash
 log = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parents[2]
 # Keys of `stage2` that do not change the trained weights.
-NOT_TRAINING = ("eval", "inference", "checkpoint")
+NOT_TRAINING = ("eval", "inference", "checkpoint", "validate")
 
 
 def resolve_path(path: str | Path) -> Path:

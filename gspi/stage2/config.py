@@ -23,6 +23,7 @@ from gspi.stage2.data import LOCAL_CONDITIONS, PointDataConfig
 from gspi.stage2.encoders import PriorConfig
 from gspi.stage2.infer import InferenceConfig
 from gspi.stage2.model import RCWConfig
+from gspi.stage2.validate import ValidationConfig
 from gspi.strict_config import dataclass_from_dict
 
 # RCWConfig fields that the rest of the config decides (rcw_config in gspi/stage2/train.py)
@@ -97,6 +98,7 @@ class Stage2Config:
     checkpoint: Optional[str] = None  # gspi-run: a trained model; null = train this config
     inference: InferenceConfig = field(default_factory=InferenceConfig)
     eval: PointsEvalConfig = field(default_factory=PointsEvalConfig)
+    validate: ValidationConfig = field(default_factory=ValidationConfig)
 
     def __post_init__(self) -> None:
         if self.data.local_condition not in LOCAL_CONDITIONS:

@@ -97,6 +97,7 @@ class TrainState:
                                            betas=tuple(train["betas"]), weight_decay=float(train["weight_decay"]))
         self.step = 0
         self.elapsed_s = 0.0
+        self.best: dict = {}  # {"step", "score"} of the best validation so far (best.pt)
         self.data_rng = np.random.default_rng([int(cfg["seed"]), 1])
         self.loss_generator = torch.Generator().manual_seed(int(cfg["seed"]) + 2)
 
@@ -104,7 +105,7 @@ class TrainState:
         return {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": self.step,
                 "rcw_config": rcw_config_dict(self.model.config), "config": dict(cfg),
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
-                "optimizer": self.optimizer.state_dict(), "elapsed_s": self.elapsed_s,
+                "optimizer": self.optimizer.state_dict(), "elapsed_s": self.elapsed_s, "best": self.best,
                 "rng": {"numpy": self.data_rng.bit_generator.state, "loss": self.loss_generator.get_state(),
                         "torch": torch.get_rng_state()}}
 
@@ -121,6 +122,7 @@ class TrainState:
         load_weights(self.ema, ckpt["ema"], path, "EMA")
         self.optimizer.load_state_dict(ckpt["optimizer"])
         self.step, self.elapsed_s = int(ckpt["step"]), float(ckpt.get("elapsed_s", 0.0))
+        self.best = dict(ckpt.get("best") or {})  # absent in checkpoints written before validation
         self.data_rng.bit_generator.state = ckpt["rng"]["numpy"]
         self.loss_generator.set_state(ckpt["rng"]["loss"])
         torch.set_rng_state(ckpt["rng"]["torch"])
@@ -164,6 +166,32 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
     return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
 
 
+def make_validator(cfg: Mapping[str, Any], encoder, data_cfg: PointDataConfig):
+    """The run's Validator, or None when ``stage2.validate.every`` is null."""
+    from gspi.stage2.validate import Validator, validation_config
+
+    vcfg = validation_config(cfg["stage2"])
+    return None if vcfg.every is None else Validator(vcfg, load_split(cfg, vcfg.split, encoder), data_cfg)
+
+
+def validate(state: TrainState, validator, cfg: Mapping[str, Any], out_dir: Path, metrics) -> dict:
+    """Scores the EMA weights, logs the scores at this step; a new best is written as best.pt
+    (EMA-only, loadable wherever a Stage II checkpoint is)."""
+    from gspi.stage2.validate import SCORE_KEY
+
+    t0 = time.perf_counter()
+    scores = validator.score(state.ema)
+    metrics.log(state.step, {**scores, "stage2/val/seconds": time.perf_counter() - t0})
+    if not state.best or scores[SCORE_KEY] > state.best["score"]:
+        state.best = {"step": state.step, "score": scores[SCORE_KEY]}
+        full = state.state_dict(cfg)
+        keep = ("format", "version", "step", "rcw_config", "config", "elapsed_s", "best")
+        save_atomic({**{k: full[k] for k in keep}, "ema": full["ema"], "weights": "ema"}, out_dir / "best.pt")
+    log.info("step %d  validation avg PSNR %.2f dB (best %.2f at step %d)", state.step, scores[SCORE_KEY],
+             state.best["score"], state.best["step"])
+    return scores
+
+
 def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None,
           stop_after_minutes: Optional[float] = None, dist: DistContext = DistContext()) -> dict:
     """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``.
@@ -185,6 +213,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     encoder = build_encoder(stage2["prior"])
     scenes = load_split(cfg, "train", encoder)
     data_cfg = PointDataConfig.from_mapping(stage2["data"])
+    validator = make_validator(cfg, encoder, data_cfg) if dist.is_main else None
     state = TrainState(cfg, rcw_config(stage2, encoder.feature_dim))
     if dist.device.type != "cpu":
         state.model.to(dist.device), state.ema.to(dist.device)
@@ -212,7 +241,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"])).to(dist.device)
     total, every = int(train_cfg["steps"]), int(train_cfg["checkpoint_every"])
     log_every = int(train_cfg["log_every"])
-    start_step, t0 = state.step, time.perf_counter()
+    start_step, t0, validated_at = state.step, time.perf_counter(), None
     end = total if stop_at is None else min(total, int(stop_at))
     deadline = None if stop_after_minutes is None else t0 + 60.0 * float(stop_after_minutes)
     while state.step < end and (deadline is None or not dist.any(time.perf_counter() >= deadline)):
@@ -221,11 +250,16 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         metrics.log(state.step, values)
         if state.step % log_every == 0:
             log.info("step %d  loss %.4f  lr %.2e", state.step, values[LOSS_KEY], values["stage2/train/lr"])
+        if validator is not None and validator.due(state.step, end):
+            validate(state, validator, cfg, out_dir, metrics)
+            validated_at = state.step
         if state.step % every == 0 and state.step < end:
             state.elapsed_s += time.perf_counter() - t0
             t0 = time.perf_counter()
             if dist.is_main:
                 save_checkpoint(state, cfg, out_dir)
+    if validator is not None and state.step > start_step and validated_at != state.step:
+        validate(state, validator, cfg, out_dir, metrics)  # stopped early (stop_after_minutes)
     state.elapsed_s += time.perf_counter() - t0
     if dist.is_main and (state.step > start_step or not ckpt_path.is_file()):
         save_checkpoint(state, cfg, out_dir)
@@ -237,4 +271,5 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     return {"steps": state.step, "resumed_from": start_step, "wall_time_s": round(state.elapsed_s, 2),
             "final_loss": float(losses[-100:].mean()) if len(losses) else None,
             "parameters": count_parameters(state.model), "seed": int(cfg["seed"]),
-            "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim}
+            "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim,
+            "best_validation": state.best or None}

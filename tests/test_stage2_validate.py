@@ -1,0 +1,67 @@
+"""Validation during Stage II training (gspi/stage2/validate.py): scores in metrics.jsonl, the
+best EMA weights as best.pt, and training unchanged by it (tiny sizes, 1 thread)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from gspi.stage2.checkpoint import load_stage2_checkpoint
+from gspi.stage2.train import train
+from gspi.stage2.train_log import JsonlMetrics
+from gspi.stage2.validate import SCORE_KEY
+from tests.test_stage2_train import dataset, tiny_cfg  # noqa: F401  (fixture)
+
+VALIDATE = ("stage2.validate.every=4", "stage2.validate.split=test", "stage2.validate.num_steps=2",
+            "stage2.validate.max_points=300")
+
+
+@pytest.fixture(scope="module")
+def runs(dataset, tmp_path_factory):  # noqa: F811
+    root = tmp_path_factory.mktemp("s2val")
+    plain, checked = root / "plain", root / "checked"
+    train(tiny_cfg(dataset, plain), plain)
+    stats = train(tiny_cfg(dataset, checked, *VALIDATE), checked)
+    return plain, checked, stats
+
+
+def test_validation_does_not_change_training(runs):
+    plain, checked, _ = runs
+    a = torch.load(plain / "checkpoint.pt", weights_only=True)
+    b = torch.load(checked / "checkpoint.pt", weights_only=True)
+    for key in ("model", "ema"):
+        for name, value in a[key].items():
+            assert torch.equal(value, b[key][name]), f"{key}.{name} differs with validation on"
+
+
+def test_scores_are_logged_at_the_due_steps_and_best_is_kept(runs):
+    _, checked, stats = runs
+    steps, scores = JsonlMetrics(checked / "metrics.jsonl").series(SCORE_KEY)
+    assert steps.tolist() == [4, 8, 10]  # every 4 steps and the last of 10
+    assert np.isfinite(scores).all() and (scores > 0).all()
+    best = int(np.argmax(scores))
+    assert stats["best_validation"] == {"step": int(steps[best]), "score": pytest.approx(scores[best])}
+    model, cfg = load_stage2_checkpoint(checked / "best.pt")
+    saved = torch.load(checked / "best.pt", weights_only=True)
+    assert saved["step"] == steps[best] and "optimizer" not in saved and not model.training
+    assert cfg["stage2"]["validate"]["every"] == 4
+
+
+def test_validation_scores_are_reproducible(dataset, runs, tmp_path):  # noqa: F811
+    """A resumed run logs the same validation scores as an uninterrupted one."""
+    _, checked, _ = runs
+    cfg = tiny_cfg(dataset, tmp_path, *VALIDATE)
+    train(cfg, tmp_path, stop_at=6)  # validates at 4 and, stopping, at 6
+    train(cfg, tmp_path)
+    want = JsonlMetrics(checked / "metrics.jsonl").series(SCORE_KEY)
+    got = JsonlMetrics(tmp_path / "metrics.jsonl").series(SCORE_KEY)
+    # the resumed file keeps step 6's extra validation (logged before the checkpoint at 6)
+    keep = got[0] != 6
+    assert got[0][keep].tolist() == want[0].tolist()
+    np.testing.assert_allclose(got[1][keep], want[1], rtol=0, atol=1e-9)
+
+
+def test_an_empty_validation_split_is_refused(dataset, tmp_path):  # noqa: F811
+    cfg = tiny_cfg(dataset, tmp_path, "stage2.validate.every=2", "stage2.validate.split=val")
+    with pytest.raises(ValueError, match="split 'val' is empty"):
+        train(cfg, tmp_path)
