@@ -178,3 +178,28 @@ def test_run_smoke_writes_run_files(dataset, tmp_path):
         assert all(np.isfinite(v) for ch in method.values() for v in ch.values())
     assert "No decomposition" in (tmp_path / "eval_points" / "table.md").read_text()
     assert stats["eval_points"]["split"] == "test"
+
+
+def test_cpu_time_budget_counts_process_cpu_not_wall_time(monkeypatch):
+    """stop_after_cpu_minutes: a budget that a busy machine does not shrink (wall time passes,
+    CPU time does not)."""
+    import gspi.stage2.train as train_module
+
+    clock = {"wall": 0.0, "cpu": 0.0}
+    monkeypatch.setattr(train_module.time, "perf_counter", lambda: clock["wall"])
+    monkeypatch.setattr(train_module.time, "process_time", lambda: clock["cpu"])
+    budget = train_module.Budget(None, 1.0)
+    clock["wall"] = 3600.0           # an hour of waiting for the cores
+    assert not budget.spent()
+    clock["cpu"] = 60.0               # one minute of this process's CPU time
+    assert budget.spent()
+    wall = train_module.Budget(2.0, None)
+    clock["wall"] += 119.0
+    assert not wall.spent()
+    clock["wall"] += 1.0
+    assert wall.spent()
+
+
+def test_a_spent_cpu_budget_stops_before_the_first_step(dataset, tmp_path):
+    stats = train(tiny_cfg(dataset, tmp_path), tmp_path, stop_after_cpu_minutes=0.0)
+    assert stats["steps"] == 0 and (tmp_path / "checkpoint.pt").is_file()

@@ -64,7 +64,8 @@ def run(cfg: DictConfig) -> dict:
     if dist.is_main:
         (out / "stats.json").unlink(missing_ok=True)
     stats = train(plain, out, stop_at=plain["stage2"]["train"]["stop_at"],
-                  stop_after_minutes=plain["stage2"]["train"]["stop_after_minutes"], dist=dist)
+                  stop_after_minutes=plain["stage2"]["train"]["stop_after_minutes"],
+                  stop_after_cpu_minutes=plain["stage2"]["train"]["stop_after_cpu_minutes"], dist=dist)
     if not dist.is_main:  # rank 0 evaluates and writes the record
         shutdown(dist)
         return stats

@@ -58,6 +58,7 @@ class TrainConfig:
     ema_decay: float = 0.9999
     stop_at: Optional[int] = None     # checkpoint and stop after this step (resumable)
     stop_after_minutes: Optional[float] = None  # the same after this many wall-clock minutes
+    stop_after_cpu_minutes: Optional[float] = None  # ... or this many minutes of process CPU time
     init_from: Optional[str] = None   # fine-tune from another Stage II checkpoint's EMA weights
     checkpoint_every: int = 5000
     log_every: int = 100
@@ -66,7 +67,8 @@ class TrainConfig:
                               "min_lr_ratio": (0.0, 1.0), "warmup_steps": (0, None),
                               "weight_decay": (0.0, None), "grad_clip": (0.0, None),
                               "ema_decay": (0.0, 1.0), "stop_at": (0, None),
-                              "stop_after_minutes": (0.0, None), "checkpoint_every": (1, None),
+                              "stop_after_minutes": (0.0, None), "stop_after_cpu_minutes": (0.0, None),
+                              "checkpoint_every": (1, None),
                               "log_every": (1, None)}
 
     def __post_init__(self) -> None:

@@ -166,12 +166,27 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
     return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
 
 
+class Budget:
+    """Wall-clock and process-CPU-time limits of one run (None = no limit)."""
+
+    def __init__(self, wall_minutes: Optional[float], cpu_minutes: Optional[float]):
+        self.wall_end = None if wall_minutes is None else time.perf_counter() + 60.0 * float(wall_minutes)
+        self.cpu_end = None if cpu_minutes is None else time.process_time() + 60.0 * float(cpu_minutes)
+
+    def spent(self) -> bool:
+        return (self.wall_end is not None and time.perf_counter() >= self.wall_end) or \
+            (self.cpu_end is not None and time.process_time() >= self.cpu_end)
+
+
 def make_validator(cfg: Mapping[str, Any], encoder, data_cfg: PointDataConfig):
     """The run's Validator, or None when ``stage2.validate.every`` is null."""
     from gspi.stage2.validate import Validator, validation_config
 
     vcfg = validation_config(cfg["stage2"])
-    return None if vcfg.every is None else Validator(vcfg, load_split(cfg, vcfg.split, encoder), data_cfg)
+    if vcfg.every is None:
+        return None
+    source = {**cfg, "data_dir": vcfg.data} if vcfg.data else cfg
+    return Validator(vcfg, load_split(source, vcfg.split, encoder), data_cfg)
 
 
 def validate(state: TrainState, validator, cfg: Mapping[str, Any], out_dir: Path, metrics) -> dict:
@@ -193,7 +208,8 @@ def validate(state: TrainState, validator, cfg: Mapping[str, Any], out_dir: Path
 
 
 def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None,
-          stop_after_minutes: Optional[float] = None, dist: DistContext = DistContext()) -> dict:
+          stop_after_minutes: Optional[float] = None, stop_after_cpu_minutes: Optional[float] = None,
+          dist: DistContext = DistContext()) -> dict:
     """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``.
 
     Writes ``checkpoint.pt`` (every ``checkpoint_every`` steps and at the end),
@@ -204,6 +220,9 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             from; the schedule still follows ``steps``).
         stop_after_minutes: the same, once this run has trained this many wall-clock minutes
             (a CPU budget; chain runs through the exact resume).
+        stop_after_cpu_minutes: the same after this many minutes of this process's CPU time
+            (all its threads): a budget that other jobs on the machine do not shrink, so runs
+            compared "for the same CPU time" are, whatever else ran beside them.
         dist: this process's rank, world size and device (gspi.stage2.distributed); rank 0
             alone writes. The default is one CPU process, the plain run.
     """
@@ -243,8 +262,8 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     log_every = int(train_cfg["log_every"])
     start_step, t0, validated_at = state.step, time.perf_counter(), None
     end = total if stop_at is None else min(total, int(stop_at))
-    deadline = None if stop_after_minutes is None else t0 + 60.0 * float(stop_after_minutes)
-    while state.step < end and (deadline is None or not dist.any(time.perf_counter() >= deadline)):
+    budget = Budget(stop_after_minutes, stop_after_cpu_minutes)
+    while state.step < end and not dist.any(budget.spent()):
         f0, inputs = dist.shard(*sample_batch(scenes, data_cfg, int(train_cfg["batch_size"]), state.data_rng))
         values = train_step(state, f0, inputs, cfg, alphas_cumprod, dist)
         metrics.log(state.step, values)

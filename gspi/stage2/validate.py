@@ -29,7 +29,8 @@ class ValidationConfig:
     """``stage2.validate``."""
 
     every: Optional[int] = None        # steps between validations (and at the end); null = off
-    split: str = "val"                 # scenes of the training dataset scored
+    data: Optional[str] = None         # dataset of the scored scenes; null = the training dataset
+    split: str = "val"                 # its split scored
     num_steps: int = 10                # DDIM steps (Table 2 proper: 50)
     max_points: Optional[int] = 20000  # per scene: seeded subset + 1-NN fill; null = every point
     seed: int = 0
