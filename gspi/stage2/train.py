@@ -173,6 +173,11 @@ class Budget:
         self.wall_end = None if wall_minutes is None else time.perf_counter() + 60.0 * float(wall_minutes)
         self.cpu_end = None if cpu_minutes is None else time.process_time() + 60.0 * float(cpu_minutes)
 
+    def exclude(self, cpu_s: float, wall_s: float) -> None:
+        """Time spent on something else than training (validation) does not count."""
+        self.wall_end = None if self.wall_end is None else self.wall_end + wall_s
+        self.cpu_end = None if self.cpu_end is None else self.cpu_end + cpu_s
+
     def spent(self) -> bool:
         return (self.wall_end is not None and time.perf_counter() >= self.wall_end) or \
             (self.cpu_end is not None and time.process_time() >= self.cpu_end)
@@ -270,7 +275,9 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         if state.step % log_every == 0:
             log.info("step %d  loss %.4f  lr %.2e", state.step, values[LOSS_KEY], values["stage2/train/lr"])
         if validator is not None and validator.due(state.step, end):
+            c0, w0 = time.process_time(), time.perf_counter()
             validate(state, validator, cfg, out_dir, metrics)
+            budget.exclude(time.process_time() - c0, time.perf_counter() - w0)
             validated_at = state.step
         if state.step % every == 0 and state.step < end:
             state.elapsed_s += time.perf_counter() - t0
