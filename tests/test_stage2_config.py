@@ -22,7 +22,7 @@ def test_default_yaml_equals_the_dataclass_defaults():
     assert composed() == complete_stage2({})
 
 
-@pytest.mark.parametrize("overrides", [["stage2=cpu_small"], ["stage2=tiny"], ["stage2=cpu_pool"],
+@pytest.mark.parametrize("overrides", [["stage2=cpu_small"], ["stage2=tiny"], ["stage2=cpu_pool"], ["stage2=capacity_l"],
                                        ["ablation=a1_no_global_prior"], ["ablation=a5_multiview_injection"],
                                        ["ablation=a4_npts_1024_nlat_384"]])
 def test_every_shipped_stage2_config_is_complete_and_valid(overrides):
