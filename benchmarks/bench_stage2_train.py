@@ -8,12 +8,17 @@ is the model's compute; ``--data`` also times ``sample_batch`` on a dataset's tr
     python -m benchmarks.bench_stage2_train                       # threads {1, 2} x batch {8, 32}
     python -m benchmarks.bench_stage2_train --settings 1x8 2x32 --compile
     python -m benchmarks.bench_stage2_train --data ~/.cache/gspi/stage2_pool
+    python -m benchmarks.bench_stage2_train --settings 1x32 2x32 2px1x32   # + data-parallel
 
-A setting ``TxB`` = T torch threads, batch B. Medians over ``--repeats`` steps after a warm-up.
+A setting ``TxB`` = T torch threads, global batch B; ``PpxTxB`` = P data-parallel processes
+(``gspi.stage2.distributed`` on gloo, as ``torchrun --nproc_per_node=P`` runs gspi-train) of T
+threads each, global batch B. Medians over ``--repeats`` steps after a warm-up.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import socket
 import time
 from pathlib import Path
 
@@ -67,6 +72,43 @@ def time_setting(threads: int, batch: int, *, repeats: int, compile_model: bool)
             "steps_per_s": 1 / sec, "points_per_s": batch * n / sec, "first_step_s": first}
 
 
+def _ddp_worker(rank: int, world: int, port: int, threads: int, batch: int, repeats: int, queue) -> None:
+    import torch.distributed as dist
+
+    from gspi.stage2.distributed import DistContext
+
+    torch.set_num_threads(threads)
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    dist.init_process_group("gloo", rank=rank, world_size=world)
+    ctx = DistContext(rank=rank, world_size=world)
+    cfg = train_config([f"stage2.train.batch_size={batch}"])
+    state = TrainState(cfg, rcw_config(cfg["stage2"], PRIOR_DIM))
+    f0, inputs = ctx.shard(*synthetic_batch(batch, int(cfg["stage2"]["data"]["num_points"]),
+                                            state.model.config.local_cond_dim))
+    alphas = cosine_alphas_cumprod(int(cfg["stage2"]["diffusion"]["num_train_timesteps"]))
+    train_step(state, f0, inputs, cfg, alphas, ctx)      # warm-up
+    sec = median_seconds(lambda: train_step(state, f0, inputs, cfg, alphas, ctx), repeats=repeats, warmup=0)
+    if rank == 0:
+        queue.put(sec)
+    dist.destroy_process_group()
+
+
+def time_ddp(procs: int, threads: int, batch: int, *, repeats: int) -> dict:
+    """Global points/s of ``procs`` gloo processes sharing the global batch (fork start)."""
+    import torch.multiprocessing as mp
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    queue = mp.get_context("fork").SimpleQueue()
+    mp.start_processes(_ddp_worker, args=(procs, port, threads, batch, repeats, queue), nprocs=procs,
+                       join=True, start_method="fork")
+    sec = queue.get()
+    n = int(train_config([])["stage2"]["data"]["num_points"])
+    return {"threads": threads, "procs": procs, "batch": batch, "compile": False, "s_per_step": sec,
+            "steps_per_s": 1 / sec, "points_per_s": batch * n / sec, "first_step_s": float("nan")}
+
+
 def time_sampling(data_dir: str, batch: int, repeats: int) -> float:
     from gspi.stage2.data import PointDataConfig, sample_batch
     from gspi.stage2.encoders import build_encoder
@@ -77,6 +119,21 @@ def time_sampling(data_dir: str, batch: int, repeats: int) -> float:
     data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
     rng = np.random.default_rng(0)
     return median_seconds(lambda: sample_batch(scenes, data_cfg, batch, rng), repeats=repeats)
+
+
+def parse_setting(text: str) -> tuple[int, int, int]:
+    """"TxB" -> (1, T, B); "PpxTxB" -> (P, T, B)."""
+    procs = 1
+    if "p" in text:
+        head, text = text.split("px", 1)
+        procs = int(head)
+    threads, batch = (int(x) for x in text.split("x"))
+    return procs, threads, batch
+
+
+def label(r: dict) -> str:
+    procs = f"{r['procs']}px" if r.get("procs", 1) > 1 else ""
+    return f"{procs}{r['threads']}x{r['batch']}{' compiled' if r['compile'] else ''}"
 
 
 def main() -> None:
@@ -90,17 +147,18 @@ def main() -> None:
     print(f"machine: {machine()}")
     rows = []
     for setting in args.settings:
-        threads, batch = (int(x) for x in setting.split("x"))
-        for compiled in ([False, True] if args.compile else [False]):
-            r = time_setting(threads, batch, repeats=args.repeats, compile_model=compiled)
-            rows.append(r)
-            print(f"threads {threads} batch {batch:3d} compile {compiled!s:5}: {r['s_per_step']:.3f} s/step, "
-                  f"{r['steps_per_s']:.2f} steps/s, {r['points_per_s']:,.0f} points/s "
-                  f"(first step {r['first_step_s']:.1f} s)")
+        procs, threads, batch = parse_setting(setting)
+        if procs > 1:
+            rows.append(time_ddp(procs, threads, batch, repeats=args.repeats))
+        else:
+            rows += [time_setting(threads, batch, repeats=args.repeats, compile_model=c)
+                     for c in ([False, True] if args.compile else [False])]
+    for r in rows:
+        print(f"{label(r):>14}: {r['s_per_step']:.3f} s/step, {r['steps_per_s']:.2f} steps/s, "
+              f"{r['points_per_s']:,.0f} points/s (first step {r['first_step_s']:.1f} s)")
     base = rows[0]["points_per_s"]
     for r in rows[1:]:
-        print(f"  {r['threads']}x{r['batch']}{' compiled' if r['compile'] else ''}: "
-              f"{r['points_per_s'] / base:.2f}x the points/s of {rows[0]['threads']}x{rows[0]['batch']}")
+        print(f"  {label(r)}: {r['points_per_s'] / base:.2f}x the points/s of {label(rows[0])}")
     if args.data:
         for batch in sorted({r["batch"] for r in rows}):
             print(f"sample_batch (batch {batch}): {time_sampling(args.data, batch, args.repeats):.3f} s")
