@@ -91,3 +91,15 @@ def test_sampling_on_the_cpu_device_is_the_old_path_and_chunk_free():
     small = predict_point_pbr(model, xyz, cond, None, num_steps=3, write_chunk=64)
     assert torch.equal(old, cpu)  # device=cpu: the same numbers as before
     assert torch.allclose(old, small, atol=1e-6)  # a halved chunk does not change the result
+
+
+def test_gspi_and_eval_share_one_resolver():
+    """gspi-eval (eval/, which never imports gspi) and the gspi commands accept the same values
+    and fail alike: gspi.device is eval.device under its gspi name, not a copy that could drift."""
+    import eval.device
+    import gspi.device
+
+    assert gspi.device.resolve_device is eval.device.resolve_device
+    assert gspi.device.DeviceError is eval.device.DeviceError and issubclass(DeviceError, ValueError)
+    assert eval.device.resolve_device("auto") == resolve_device("auto")
+    assert eval.device.resolve_device(" CPU ") == torch.device("cpu")
