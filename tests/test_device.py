@@ -160,3 +160,19 @@ def test_gspi_run_scores_on_the_runs_device(tmp_path, monkeypatch):
     with pytest.raises(_Stop):
         evaluate_predictions({"eval": protocol, "device": "auto"}, tmp_path, tmp_path, "m")
     assert seen["device"] == resolve_device("auto")
+
+
+@no_cuda
+@pytest.mark.parametrize("mode", [[], ["import.src=nerf/lego"]])
+def test_data_device_cuda_fails_at_start_up_before_writing(tmp_path, mode):
+    """gspi-data, whatever the mode: refused before the output folder is made."""
+    from hydra import compose, initialize_config_dir
+
+    from gspi.cli.data import CONF_DIR, alias_preset, run
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose("gspi_data", overrides=alias_preset(["preset=tiny", f"out={tmp_path / 'd'}",
+                                                           "device=cuda", *mode]))
+    with pytest.raises(DeviceError, match=r"device=cuda.*not available"):
+        run(cfg)
+    assert not (tmp_path / "d").exists()
