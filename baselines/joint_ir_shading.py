@@ -18,10 +18,9 @@ the result equals ``split_sum`` called with the raw map.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -59,9 +58,8 @@ class PrefilterOperators:
         that :func:`prefilter_learnable` does not copy them at every step."""
         def move(op: tuple[Tensor, tuple[int, int]]) -> tuple[Tensor, tuple[int, int]]:
             return op[0].to(device), op[1]
-        return dataclasses.replace(self, irradiance=move(self.irradiance),
-                                   specular=tuple(move(op) for op in self.specular),
-                                   lut=self.lut.to(device))
+        return replace(self, irradiance=move(self.irradiance),
+                       specular=tuple(move(op) for op in self.specular), lut=self.lut.to(device))
 
 
 def _operator_matrix(height: int, width: int, fn) -> tuple[Tensor, tuple[int, int]]:

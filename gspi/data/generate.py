@@ -269,16 +269,16 @@ def _render_recipes(out_dir: Path, recipes: list[dict], cfg: BenchmarkConfig, *,
     try:
         env_paths = write_environments(scratch, needed, cfg)
         env_seconds = time.perf_counter() - start
-        cfg_dict, device = asdict(cfg), str(torch.device(device))
+        cfg_dict, device_name = asdict(cfg), str(torch.device(device))
         if cfg.workers > 1:
             ctx = multiprocessing.get_context("spawn")
             with concurrent.futures.ProcessPoolExecutor(
                     cfg.workers, mp_context=ctx, initializer=_init_worker,
-                    initargs=(cfg_dict, env_paths, device)) as pool:
+                    initargs=(cfg_dict, env_paths, device_name)) as pool:
                 stats = list(pool.map(_make_scene, recipes, [str(out_dir)] * len(recipes),
                                       [seed] * len(recipes)))
         else:
-            _init_worker(cfg_dict, env_paths, device)
+            _init_worker(cfg_dict, env_paths, device_name)
             stats = [_make_scene(r, str(out_dir), seed) for r in recipes]
     finally:
         torch.set_num_threads(threads)
