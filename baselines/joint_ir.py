@@ -12,6 +12,11 @@ The class of method the paper argues against, run on the same 2DGS asset as GS-P
 4. render the learned maps at the scene's ``test`` views and write them in the canonical
    layout (albedo sRGB-encoded, 16-bit PNGs).
 
+Device: ``predict_scene(..., device=)`` (gspi-run's ``device=``) moves the asset and the
+input views there; weights, shading, the optimisation and the test renders run on it (the
+view order is still drawn by a CPU generator: the same order on every device) and the maps
+come back to the CPU at the write. On the CPU this is the code path of before.
+
 Why a low-resolution lat-long map rather than SH: the split-sum shader needs prefiltered
 levels down to roughness 0.1, which low-order SH cannot represent, and a lat-long map
 goes through the evaluator's own prefiltering operators exactly (linear, precomputed).
@@ -145,6 +150,7 @@ def _union_crop(masks: Tensor, margin: int) -> tuple[slice, slice]:
 
 
 def _prepare_views(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig) -> list[_ViewData]:
+    """Every view's frozen weights, directions, display-space target and crop (views' device)."""
     weights = [compositing_weights(asset, views.viewmats[i], views.Ks[i], views.width, views.height)
                for i in range(views.num_views)]
     footprints = torch.stack([w.to_image(torch.ones_like(w.alpha)[:, None])[..., 0] > 0
@@ -152,8 +158,8 @@ def _prepare_views(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig) ->
     crop = _union_crop(footprints | views.masks, CROP_MARGIN)
     out = []
     for i, w in enumerate(weights):
-        dirs = view_directions(views.Ks[i].numpy(), views.viewmats[i].numpy(), views.height,
-                               views.width).reshape(-1, 3)[w.pixels]
+        dirs = view_directions(views.Ks[i].cpu().numpy(), views.viewmats[i].cpu().numpy(), views.height,
+                               views.width).reshape(-1, 3).to(w.pixels.device)[w.pixels]
         silhouette = w.to_image((w.alpha > cfg.silhouette_alpha)[:, None].float())[..., 0] > 0
         target = display(views.images[i], mode=cfg.tonemap).clamp(0, 1)
         out.append(_ViewData(w, dirs, target[crop], (silhouette & views.masks[i])[crop], crop))
@@ -164,7 +170,7 @@ def _initial_env(views: SceneViews, cfg: JointIRConfig) -> Tensor:
     """Constant log radiance explaining the mean foreground radiance with albedo init_albedo."""
     mean_rad = views.images[views.masks].mean().clamp_min(1e-3)
     level = float(mean_rad) / cfg.init_albedo
-    return torch.full((cfg.env_height, 2 * cfg.env_height, 3), math.log(level))
+    return torch.full((cfg.env_height, 2 * cfg.env_height, 3), math.log(level), device=views.images.device)
 
 
 def _render_batch(batch: list[_ViewData], features: Tensor, env: Tensor,
@@ -220,7 +226,8 @@ def fit_materials(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig, *,
 
     Args:
         asset: The 2DGS asset (N surfels); its geometry and opacities stay fixed.
-        views: Input views (linear HDR images, masks, cameras).
+        views: Input views (linear HDR images, masks, cameras), on the asset's device: the
+            optimisation runs there.
         cfg: :class:`JointIRConfig`.
         progress: Log the loss every ``cfg.log_every`` iterations at INFO level.
 
@@ -233,14 +240,15 @@ def fit_materials(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig, *,
     gen = torch.Generator().manual_seed(cfg.seed)
     t0 = time.perf_counter()
     asset = asset.detach()
-    ops = prefilter_operators(cfg.env_height, 2 * cfg.env_height)
+    device = views.images.device
+    ops = prefilter_operators(cfg.env_height, 2 * cfg.env_height).to(device)
     data = _prepare_views(asset, views, cfg)
     t_prep = time.perf_counter() - t0
     n = asset.num_gaussians
     params = {
-        "albedo": torch.full((n, 3), _logit(cfg.init_albedo)),
-        "roughness": torch.full((n, 1), _logit(cfg.init_roughness)),
-        "metallic": torch.full((n, 1), _logit(cfg.init_metallic)),
+        "albedo": torch.full((n, 3), _logit(cfg.init_albedo), device=device),
+        "roughness": torch.full((n, 1), _logit(cfg.init_roughness), device=device),
+        "metallic": torch.full((n, 1), _logit(cfg.init_metallic), device=device),
         "log_env": _initial_env(views, cfg),
     }
     lrs = {"albedo": cfg.lr_albedo, "roughness": cfg.lr_roughness, "metallic": cfg.lr_metallic,
@@ -283,20 +291,22 @@ def write_test_maps(scene: Scene, fitted: Gaussians2D, out_scene_dir: Path, *,
     """Renders the learned maps at every ``test`` view and writes them (canonical layout).
 
     Maps are un-premultiplied (composited value / alpha) inside the rendered silhouette
-    (``alpha > silhouette_alpha``) and 0 outside; albedo is sRGB-encoded.
+    (``alpha > silhouette_alpha``) and 0 outside; albedo is sRGB-encoded. Rendered on the
+    device of ``fitted``, written from the CPU.
 
     Returns:
         The number of views written.
     """
     views = scene.split_views("test")
+    device = fitted.means.device
     for v in views:
-        viewmat = torch.as_tensor(v.w2c, dtype=torch.float32)[None]
-        K = torch.as_tensor(v.K, dtype=torch.float32)[None]
+        viewmat = torch.as_tensor(v.w2c, dtype=torch.float32, device=device)[None]
+        K = torch.as_tensor(v.K, dtype=torch.float32, device=device)[None]
         with torch.no_grad():
             out = render_gaussians(fitted, viewmat, K, scene.width, scene.height, with_pbr=True)
         alpha = out.alpha[0]
         inside = alpha > silhouette_alpha
-        maps = torch.where(inside, out.features[0] / alpha.clamp_min(1e-8), 0.0).clamp(0, 1)
+        maps = torch.where(inside, out.features[0] / alpha.clamp_min(1e-8), 0.0).clamp(0, 1).cpu()
         vdir = Path(out_scene_dir) / "test" / v.id
         write_material(vdir, "albedo", linear_to_srgb(maps[..., :3]).numpy())
         write_material(vdir, "roughness", maps[..., 3:4].numpy())
@@ -305,7 +315,7 @@ def write_test_maps(scene: Scene, fitted: Gaussians2D, out_scene_dir: Path, *,
 
 
 def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Mapping, *,
-                  progress: bool = False) -> dict:
+                  progress: bool = False, device: torch.device | str = "cpu") -> dict:
     """Runs the joint inverse-rendering baseline on one scene.
 
     Args:
@@ -314,6 +324,7 @@ def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Ma
         out_scene_dir: ``<pred>/<scene name>``; ``test/<view id>/*.png`` are written there.
         cfg: ``conf/method/joint_ir.yaml`` contents (:class:`JointIRConfig` keys).
         progress: Log the optimisation.
+        device: Where it runs (module docstring); the run's resolved ``device``.
 
     Returns:
         Stats: ``material_s`` (wall seconds: loading, optimisation and writing),
@@ -327,8 +338,9 @@ def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Ma
     """
     options = JointIRConfig.from_mapping(cfg)
     t0, cpu0 = time.perf_counter(), time.process_time()
-    views = resize_views(load_scene_views(scene, "train"), options.image_size)
-    fitted, env, stats = fit_materials(asset, views, options, progress=progress)
+    device = torch.device(device)
+    views = resize_views(load_scene_views(scene, "train").to(device), options.image_size)
+    fitted, env, stats = fit_materials(asset.to(device), views, options, progress=progress)
     written = write_test_maps(scene, fitted, Path(out_scene_dir),
                               silhouette_alpha=options.silhouette_alpha)
     material_s = time.perf_counter() - t0

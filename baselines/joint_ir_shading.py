@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -52,6 +52,14 @@ class PrefilterOperators:
     specular: tuple[tuple[Tensor, tuple[int, int]], ...]
     level_roughness: tuple[float, ...]
     lut: Tensor
+
+    def to(self, device) -> "PrefilterOperators":
+        """The same operators with every matrix on ``device`` (no copy where already there), so
+        that :func:`prefilter_learnable` does not copy them at every step."""
+        def move(op: tuple[Tensor, tuple[int, int]]) -> tuple[Tensor, tuple[int, int]]:
+            return op[0].to(device), op[1]
+        return replace(self, irradiance=move(self.irradiance),
+                       specular=tuple(move(op) for op in self.specular), lut=self.lut.to(device))
 
 
 def _operator_matrix(height: int, width: int, fn) -> tuple[Tensor, tuple[int, int]]:

@@ -116,10 +116,11 @@ def observed_albedo(asset: Gaussians2D, w2c: np.ndarray, K: np.ndarray, width: i
         silhouette_alpha: Pixels with accumulated opacity above it are the object.
 
     Returns:
-        ``(albedo_srgb [H, W, 3] in [0, 1], silhouette [H, W] bool)``; albedo is 0 outside.
+        ``(albedo_srgb [H, W, 3] in [0, 1], silhouette [H, W] bool)``, on the asset's device;
+        albedo is 0 outside.
     """
-    viewmat = torch.as_tensor(w2c, dtype=torch.float32)[None]
-    Ks = torch.as_tensor(K, dtype=torch.float32)[None]
+    viewmat = torch.as_tensor(w2c, dtype=torch.float32, device=asset.means.device)[None]
+    Ks = torch.as_tensor(K, dtype=torch.float32, device=asset.means.device)[None]
     with torch.no_grad():
         out = render_gaussians(asset, viewmat, Ks, width, height)
     alpha = out.alpha[0]
@@ -129,7 +130,8 @@ def observed_albedo(asset: Gaussians2D, w2c: np.ndarray, K: np.ndarray, width: i
 
 
 def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Mapping, *,
-                  constants: dict[str, float], progress: bool = False) -> dict:
+                  constants: dict[str, float], progress: bool = False,
+                  device: torch.device | str = "cpu") -> dict:
     """Writes ``<out_scene_dir>/test/<view id>/{albedo,roughness,metallic}.png``.
 
     Args:
@@ -139,6 +141,7 @@ def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Ma
         cfg: ``conf/method/no_decomposition.yaml`` contents (``silhouette_alpha``).
         constants: :func:`fit_constants` output.
         progress: Unused (the method is a few renders); kept for the runner's interface.
+        device: Where the asset is rendered (the run's ``device``); maps are written from the CPU.
 
     Returns:
         ``{"material_s": wall seconds, "material_cpu_s": process CPU seconds,
@@ -149,14 +152,14 @@ def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Ma
             raise ValueError(f"constants must hold 'roughness' and 'metallic', got {sorted(constants)}")
     silhouette_alpha = float(dict(cfg or {}).get("silhouette_alpha", DEFAULT_SILHOUETTE_ALPHA))
     t0, cpu0 = time.perf_counter(), time.process_time()
-    views = scene.split_views("test")
+    views, asset = scene.split_views("test"), asset.to(device)
     for v in views:
         albedo, inside = observed_albedo(asset, v.w2c, v.K, scene.width, scene.height,
                                          silhouette_alpha=silhouette_alpha)
         vdir = Path(out_scene_dir) / "test" / v.id
-        write_material(vdir, "albedo", albedo.numpy())
+        write_material(vdir, "albedo", albedo.cpu().numpy())
         for key in ("roughness", "metallic"):
-            write_material(vdir, key, np.where(inside.numpy(), constants[key], 0.0)[..., None])
+            write_material(vdir, key, np.where(inside.cpu().numpy(), constants[key], 0.0)[..., None])
     return {"material_s": time.perf_counter() - t0, "material_cpu_s": time.process_time() - cpu0,
             "test_views": len(views),
             "roughness": constants["roughness"], "metallic": constants["metallic"]}

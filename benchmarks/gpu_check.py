@@ -13,7 +13,11 @@ every step, so a killed run keeps what finished):
 5. ``paper_scene``: one scene at 512 px, 32 views, whole cloud, 50 DDIM steps, 500 Stage III
    iterations, ``stage2=default`` (untrained: 2 steps), ``recon=default``: wall time and peak GPU
    memory of every stage (meta.json).
-6. ``stage2_train_burst``: Stage II training on the data generated in step 2 with the time
+6. ``data_eval_cuda``: gspi-data on the CPU and with ``device=cuda`` (same seed): time, mask
+   agreement and map differences; then gspi-eval of the CUDA dataset against the CPU one with
+   ``device=cpu`` and ``device=cuda``: the scores within ``E2E_RTOL`` (the ``device=`` of
+   gspi-data and gspi-eval, issue #16; gspi-run's eval on CUDA is also in step 2).
+7. ``stage2_train_burst``: Stage II training on the data generated in step 2 with the time
    left; saves the checkpoint (EMA-only into OUT when small enough, else its size and hash).
 
 A step starts only when the budget left covers its estimate; else it is recorded as skipped.
@@ -40,12 +44,20 @@ log = logging.getLogger("gpu_check")
 E2E_RTOL = 0.02  # metrics of the CUDA run within 2 % of the CPU run (other rasterizer: gsplat)
 GPU_TEST_FILES = ["tests/test_rasterize.py"]  # the @pytest.mark.gpu tests (gsplat vs torch)
 PAPER = {"image_size": 512, "num_views": 32, "ddim_steps": 50, "stage3_iterations": 500,
-         "sampling_points": 50_000, "throughput_steps": 10, "train_batch": 8, "budget_s": 480}
+         "sampling_points": 50_000, "throughput_steps": 10, "train_batch": 8, "budget_s": 480,
+         "data_image_size": 64}
 SMOKE = {"image_size": 32, "num_views": 32, "ddim_steps": 2, "stage3_iterations": 4,
-         "sampling_points": 300, "throughput_steps": 2, "train_batch": 2, "budget_s": 600}
+         "sampling_points": 300, "throughput_steps": 2, "train_batch": 2, "budget_s": 600,
+         "data_image_size": 32}
 # step -> seconds it needs at least (paper size on one H100/H200, gsplat's compile included)
 ESTIMATE_S = {"gpu_tests": 120, "e2e_tiny": 90, "stage2_train_throughput": 30,
-              "stage2_sampling_linearity": 40, "paper_scene": 150, "stage2_train_burst": 20}
+              "stage2_sampling_linearity": 40, "paper_scene": 150, "data_eval_cuda": 40,
+              "stage2_train_burst": 20}
+# data_eval_cuda: one training and one test scene, two test views, one relight environment
+DATA_CHECK = ["preset=tiny", "seed=0", "data.num_train_scenes=1", "data.num_val_scenes=0",
+              "data.num_test_scenes=1", "data.num_test_views=2", "data.num_val_views=0",
+              "data.num_relight_envs=1", "data.contact_sheets=false"]
+MAP_FILES = ("mask.png", "albedo.png", "roughness.png", "metallic.png", "normal.exr", "depth.exr", "rgb.exr")
 TINY_EXTRA = ["stage2.prior.alexnet.input_size=64"]  # the tests' tiny prior (tests/test_stage2_train.py)
 PAPER_FIGURES = {"material_min_per_scene": 5.4, "stage2_s_50_ddim": 18.0, "end_to_end_min_512px": 10.4}
 
@@ -293,11 +305,82 @@ def step_stage2_train_burst(ctx: dict) -> dict:
             f"not copied (> {ctx['max_file_mb']} MB): {ema}"}
 
 
+def _gspi_data(ctx: dict, name: str, device: str) -> dict:
+    """gspi-data (in-process, as the CLI composes it) of the DATA_CHECK dataset on ``device``."""
+    from gspi.cli.data import alias_preset, run as data_run
+    from hydra import compose, initialize_config_dir
+
+    out = ctx["work"] / name
+    overrides = [*DATA_CHECK, f"out={out}", f"device={device}", f"data.image_size={int(ctx['sizes']['data_image_size'])}"]
+    t0 = time.perf_counter()
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        data_run(compose("gspi_data", overrides=alias_preset(overrides)))
+    _sync(torch.device(device))
+    return {"out": out, "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def _dataset_files(root: Path) -> list[str]:
+    return sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and ".hydra" not in p.parts)
+
+
+def _dataset_difference(a: Path, b: Path) -> dict:
+    """Two datasets of the same config: same files? per map file the largest and the mean
+    absolute difference over every view; the fraction of mask pixels that agree."""
+    from eval.layout import read_scene, read_splits, read_view_file
+
+    diffs = {f: [] for f in MAP_FILES}
+    for name in sorted(n for names in read_splits(a).values() for n in names):
+        scene = read_scene(a / name)
+        for split, views in scene.views.items():
+            for v in views:
+                for f in MAP_FILES:
+                    x, y = (read_view_file(root / name / split / v.id, f) for root in (a, b))
+                    diffs[f].append(np.abs(x.astype(np.float64) - y))
+    report = {"same_files": _dataset_files(a) == _dataset_files(b),
+              "mask_agreement": float(np.mean(np.concatenate([d.ravel() for d in diffs["mask.png"]]) == 0))}
+    for f, ds in diffs.items():
+        flat = np.concatenate([d.ravel() for d in ds])
+        report[f] = {"max_abs": float(flat.max()), "mean_abs": float(flat.mean())}
+    return report
+
+
+def _eval_numbers(gt: Path, pred: Path, device: str) -> dict:
+    """gspi-eval's summary of ``pred`` against ``gt`` (default protocol) on ``device``, as leaves."""
+    from eval.config import ProtocolConfig
+    from eval.evaluate import evaluate
+    from omegaconf import OmegaConf
+
+    result = evaluate(gt, pred, OmegaConf.structured(ProtocolConfig), device=torch.device(device))
+    return _leaves(result.summary, "")
+
+
+def step_data_eval_cuda(ctx: dict) -> dict:
+    cpu = _gspi_data(ctx, "data_cpu", "cpu")
+    report = {"image_size": int(ctx["sizes"]["data_image_size"]), "data_cpu_seconds": cpu["seconds"]}
+    if ctx["device"].type != "cuda":
+        t0 = time.perf_counter()
+        report["eval_cpu"] = _eval_numbers(cpu["out"], cpu["out"], "cpu")  # the oracle, on the CPU
+        report.update(eval_cpu_seconds=round(time.perf_counter() - t0, 2), cuda={"skipped": "no CUDA"})
+        return report
+    cuda = _gspi_data(ctx, "data_cuda", "cuda")
+    report.update(data_cuda_seconds=cuda["seconds"], data_difference=_dataset_difference(cpu["out"], cuda["out"]))
+    for device in ("cpu", "cuda"):
+        t0 = time.perf_counter()
+        report[f"eval_{device}"] = _eval_numbers(cpu["out"], cuda["out"], device)  # CUDA data scored against CPU GT
+        _sync(torch.device(device))
+        report[f"eval_{device}_seconds"] = round(time.perf_counter() - t0, 2)
+    a, b = report["eval_cpu"], report["eval_cuda"]
+    diffs = {k: (a[k], b[k]) for k in sorted(set(a) & set(b))
+             if not np.isclose(a[k], b[k], rtol=E2E_RTOL, atol=1e-3)}
+    report.update(rtol=E2E_RTOL, compared=len(set(a) & set(b)), outside_tolerance=diffs, ok=not diffs)
+    return report
+
+
 STEPS: list[tuple[str, Callable[[dict], dict]]] = [
     ("gpu_tests", step_gpu_tests), ("e2e_tiny", step_e2e_tiny),
     ("stage2_train_throughput", step_stage2_train_throughput),
     ("stage2_sampling_linearity", step_stage2_sampling_linearity), ("paper_scene", step_paper_scene),
-    ("stage2_train_burst", step_stage2_train_burst)]
+    ("data_eval_cuda", step_data_eval_cuda), ("stage2_train_burst", step_stage2_train_burst)]
 
 
 def environment(device: torch.device) -> dict:

@@ -5,6 +5,7 @@
     gspi-eval gt=... pred=... out=... eval.albedo_alignment=lstsq eval.lpips.mode=composite
     gspi-eval gt=... pred=... out=... eval=stanford_orb               # a preset: stanford_orb,
                                                       # tensoir, gs_ir, paper, aligned_clamp
+    gspi-eval gt=... pred=... out=... device=auto     # score on CUDA when present (default cpu)
 
 Paths may hold any character: `pred=runs/method=gspi/predictions` (a sweep's job folder),
 spaces, quotes, commas or non-ASCII are quoted for Hydra's grammar (eval/argv.py); in a
@@ -22,6 +23,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from eval.config import CONF_DIR, register_configs, validate_protocol
+from eval.device import resolve_device
 from eval.evaluate import evaluate
 from eval.report import clear_result, format_summary, write_result
 
@@ -31,9 +33,10 @@ log = logging.getLogger(__name__)
 def run(cfg: DictConfig) -> dict:
     """Evaluate `cfg.pred` against `cfg.gt` under protocol `cfg.eval`; returns the summary."""
     validate_protocol(cfg.eval)
+    device = resolve_device(cfg.get("device", "cpu"))  # device=cuda without CUDA fails here
     clear_result(Path(cfg.out))  # an old summary.json must not outlive this run's .hydra/
     result = evaluate(Path(cfg.gt), Path(cfg.pred), cfg.eval, method=cfg.get("method_name"),
-                      progress=bool(cfg.get("progress", True)))
+                      progress=bool(cfg.get("progress", True)), device=device)
     write_result(Path(cfg.out), result, OmegaConf.to_container(cfg.eval, resolve=True))
     text = format_summary(result)
     print(text)

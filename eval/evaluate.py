@@ -3,6 +3,11 @@
 `evaluate(gt_root, pred_root, protocol)` walks every scene present in the prediction folder,
 every view of the protocol's split and every channel, and returns per-view rows plus the
 summary (mean over images) and run information. Nothing here knows how predictions were made.
+
+Device (``device=``, gspi-eval's ``device=auto|cpu|cuda``): files are read on the CPU and their
+tensors moved to the device, where the environments are prefiltered and the relighting, SSIM
+and LPIPS run; scores come back as Python floats. On the CPU (the default) this is the code
+path of before, bit for bit.
 """
 from __future__ import annotations
 
@@ -79,27 +84,30 @@ def expected_scenes(gt_root: Path, present: list[str], gt_scenes: dict[str, Path
     return sorted({n for names in splits.values() if set(names) & set(present) for n in names} & set(gt_scenes))
 
 
-def _tensor(arr: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(arr))
+CPU = torch.device("cpu")
 
 
-def _load_gt_view(scene: Scene, view) -> dict:
+def _tensor(arr: np.ndarray, device: torch.device = CPU) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(arr)).to(device)
+
+
+def _load_gt_view(scene: Scene, view, device: torch.device = CPU) -> dict:
     vdir = scene.view_dir(view.split, view.id)
     size = (scene.height, scene.width)
-    out = {name: _tensor(read_view_file(vdir, f"{name}.png", size)) for name in MATERIAL_CHANNELS}
-    out["normal"] = _tensor(read_view_file(vdir, "normal.exr", size))
-    out["mask"] = _tensor(read_view_file(vdir, "mask.png", size))[..., 0] > 0.5
+    out = {name: _tensor(read_view_file(vdir, f"{name}.png", size), device) for name in MATERIAL_CHANNELS}
+    out["normal"] = _tensor(read_view_file(vdir, "normal.exr", size), device)
+    out["mask"] = _tensor(read_view_file(vdir, "mask.png", size), device)[..., 0] > 0.5
     if not out["mask"].any():
         raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
     for name, t in out.items():
         if t.shape[:2] != (scene.height, scene.width):
             raise LayoutError(f"{vdir}/{name}: size {tuple(t.shape[:2])} != scene "
                               f"{scene.height}x{scene.width} in scene.json")
-    out["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width)
+    out["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width).to(device)
     return out
 
 
-def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
+def _load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device = CPU) -> dict:
     out = {}
     for name in MATERIAL_CHANNELS:
         path = pred_dir / material_file(name)
@@ -107,7 +115,7 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
             arr = read_view_file(pred_dir, material_file(name), shape)
             if arr.shape[:2] != shape:
                 raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
-            out[name] = _tensor(arr)
+            out[name] = _tensor(arr, device)
     return out
 
 
@@ -139,23 +147,25 @@ def _named(where: Path, score, *args) -> dict:
 
 
 class EnvironmentCache:
-    """Prefiltered environments, one per EXR file, built on first use."""
+    """Prefiltered environments, one per EXR file, built on first use on ``device``."""
 
-    def __init__(self):
+    def __init__(self, device: torch.device = CPU):
         self._envs: dict[Path, object] = {}
+        self.device = torch.device(device)
 
     def get(self, path: Path):
         if path not in self._envs:
             from eval.relight import prefilter_environment
-            self._envs[path] = prefilter_environment(_tensor(read_exr(path)))
+            self._envs[path] = prefilter_environment(_tensor(read_exr(path), self.device))
         return self._envs[path]
 
 
 def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: EnvironmentCache
                    ) -> tuple[list[dict], list[dict]]:
-    """Rows for one scene and the list of missing (view, channel) entries."""
+    """Rows for one scene and the list of missing (view, channel) entries; the tensors live
+    on ``envs.device``."""
     views = scene.split_views(protocol.split)
-    gt = {v.id: _load_gt_view(scene, v) for v in views}
+    gt = {v.id: _load_gt_view(scene, v, envs.device) for v in views}
     for v in views:
         gt[v.id]["mask"] = _scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol)
     metal = protocol.metallic.extra_metrics and has_metal(
@@ -164,7 +174,7 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
     preds, missing = {}, []
     for v in views:
         pdir = pred_scene / protocol.split / v.id
-        preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width)) if pdir.is_dir() else {}
+        preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width), envs.device) if pdir.is_dir() else {}
     modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
     for v in views:
         for c in modelled:
@@ -204,8 +214,9 @@ def _relight_rows(scene, view, g, p, protocol, net, envs) -> list[dict]:
     cfg = protocol.relight
     h, w = g["mask"].shape
     albedo = p["albedo_aligned"] if cfg.apply_albedo_alignment else p["albedo"]
-    rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness)))
-    metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic)))
+    fill = dict(device=g["mask"].device)
+    rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness), **fill))
+    metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic), **fill))
     rows = []
     for env_name in (cfg.envs or scene.relight_envs):
         env = envs.get(scene.envmap_path(env_name))
@@ -253,17 +264,25 @@ def _mean_runtime(metas: list[dict], key: str) -> float | None:
 
 
 def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
-             method: str | None = None, progress: bool = False) -> EvalResult:
-    """Evaluate every scene present in `pred_root` (docs/PROTOCOL.md)."""
+             method: str | None = None, progress: bool = False,
+             device: torch.device | str = CPU) -> EvalResult:
+    """Evaluate every scene present in `pred_root` (docs/PROTOCOL.md).
+
+    Args:
+        net: the LPIPS network (loaded on ``device`` when None; one passed in runs where it is).
+        device: where the scoring computes (module docstring); resolved by the caller
+            (eval.device.resolve_device).
+    """
+    device = torch.device(device)
     gt_scenes = find_scenes(Path(gt_root))
     names = scenes_in_prediction(Path(pred_root), gt_scenes)
     if net is None and "lpips" in METRICS:
         from eval.lpips_net import load_lpips
-        net = load_lpips(net=protocol.lpips.net, version=str(protocol.lpips.version))
+        net = load_lpips(net=protocol.lpips.net, version=str(protocol.lpips.version), device=device)
     if getattr(net, "net_name", protocol.lpips.net) != protocol.lpips.net:
         raise ValueError(f"the LPIPS network passed in is {net.net_name!r} but the protocol "
                          f"asks for eval.lpips.net={protocol.lpips.net!r}")
-    envs, rows, missing, metas = EnvironmentCache(), [], [], []
+    envs, rows, missing, metas = EnvironmentCache(device), [], [], []
     iterator = names
     if progress:
         from tqdm import tqdm
@@ -289,7 +308,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         "protocol": {"name": protocol.name, "version": int(protocol.version),
                      "hash": protocol_hash(protocol_dict(protocol))},
         "protocol_config": protocol_dict(protocol),
-        "data": str(Path(gt_root).resolve()), "counts": image_counts(rows),
+        "data": str(Path(gt_root).resolve()), "device": str(device), "counts": image_counts(rows),
         "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
         "runtime_min": {"material": _mean_runtime(metas, "material"),
                         "end_to_end": _mean_runtime(metas, "end_to_end")},

@@ -112,7 +112,7 @@ def erode_mask(mask: Tensor, radius_px: int) -> Tensor:
     if radius_px == 0:
         return mask.bool() if mask.dtype == torch.bool else mask > 0.5
     x = (mask > 0.5).double()[None, None] if mask.dtype != torch.bool else mask.double()[None, None]
-    kernel = torch.ones(2 * radius_px + 1, 2 * radius_px + 1, dtype=torch.float64)
+    kernel = torch.ones(2 * radius_px + 1, 2 * radius_px + 1, dtype=torch.float64, device=x.device)
     return kornia.morphology.erosion(x, kernel)[0, 0] > 0.5
 
 
@@ -239,4 +239,4 @@ def masked_lpips(pred: Tensor, gt: Tensor, mask: Tensor, *, net=None, mode: str 
         if mode == "composite":
             return float(net(x, y).reshape(()))
         dist = net(x, y, spatial=True)[0, 0].cpu().double()  # [H, W]
-    return float(dist[mask].mean())
+    return float(dist[mask.cpu()].mean())

@@ -27,22 +27,23 @@ def fit_albedo_scale(pred_srgb: list[Tensor], gt_srgb: list[Tensor], masks: list
             median of gt / max(pred, 1e-6) (TensoIR `compute_rescale_ratio`, GS-IR, IRGS mode 2;
             torch.median: the lower middle value for an even count, as in TensoIR).
     Returns:
-        [3] scale (linear space).
+        [3] scale (linear space), on the masks' device.
     """
     mode = ALIGNMENT_ALIASES.get(mode, mode)
+    ones = dict(dtype=torch.float64, device=masks[0].device if masks else None)
     if mode == "none":
-        return torch.ones(3, dtype=torch.float64)
+        return torch.ones(3, **ones)
     p = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(pred_srgb, masks)])  # [P, 3]
     g = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(gt_srgb, masks)])
     if p.shape[0] == 0:
-        return torch.ones(3, dtype=torch.float64)
+        return torch.ones(3, **ones)
     if mode == "scale":
         den = (p * p).sum()
-        s = (p * g).sum() / den if den > 0 else torch.tensor(1.0, dtype=torch.float64)
+        s = (p * g).sum() / den if den > 0 else torch.tensor(1.0, **ones)
         return s.expand(3).clone()
     if mode == "lstsq":
         den = (p * p).sum(0)
-        return torch.where(den > 0, (p * g).sum(0) / den.clamp_min(1e-30), torch.ones(3).double())
+        return torch.where(den > 0, (p * g).sum(0) / den.clamp_min(1e-30), torch.ones(3, **ones))
     if mode == "median_ratio":
         return (g / p.clamp_min(MEDIAN_EPS)).median(dim=0).values
     raise ValueError(f"unknown albedo alignment {mode!r}; allowed: none, scale, lstsq, "

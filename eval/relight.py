@@ -74,6 +74,12 @@ class PrefilteredEnvironment:
     level_roughness: tuple
     lut: torch.Tensor
 
+    def to(self, device) -> "PrefilteredEnvironment":
+        """The same environment with every tensor on ``device`` (no copy where already there)."""
+        return dataclasses.replace(self, irradiance=self.irradiance.to(device),
+                                   specular=tuple(m.to(device) for m in self.specular),
+                                   lut=self.lut.to(device))
+
 
 def _check_envmap(envmap) -> None:
     if not isinstance(envmap, torch.Tensor):

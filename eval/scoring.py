@@ -53,7 +53,7 @@ def relit_scale(out_linear: Tensor, ref_linear: Tensor, mask: Tensor) -> Tensor:
     p, g = out_linear.double()[mask], ref_linear.double().clamp_min(0.0)[mask]
     den = (p * p).sum(0)
     return torch.where(den > SCALE_EPS, (p * g).sum(0) / den.clamp_min(1e-30),
-                       torch.ones(3, dtype=torch.float64))
+                       torch.ones(3, dtype=torch.float64, device=den.device))
 
 
 def psnr_hdr(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg, psnr_cfg

@@ -181,6 +181,53 @@ def test_joint_ir_without_train_views_is_an_error(tmp_path):
                                {"iterations": 1, "env_height": 8})
 
 
+# ---------------------------------------------------------------- device (gspi-run device=)
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*.png"))}
+
+
+def test_joint_ir_device_auto_writes_the_cpu_files_here(tmp_path):
+    """device=auto is the CPU here: the same PNGs, byte for byte, as the default."""
+    from gspi.device import resolve_device
+
+    if torch.cuda.is_available():
+        pytest.skip("CUDA is present: auto runs there")
+    asset = surfel_sphere(200)
+    scene = _synthetic_scene(tmp_path, asset)
+    cfg = {"iterations": 2, "env_height": 8}
+    joint_ir.predict_scene(scene, asset, tmp_path / "cpu", cfg)
+    joint_ir.predict_scene(scene, asset, tmp_path / "auto", cfg, device=resolve_device("auto"))
+    assert _files(tmp_path / "cpu") == _files(tmp_path / "auto") and len(_files(tmp_path / "cpu")) == 6
+
+
+class _Reached(Exception):
+    pass
+
+
+def test_joint_ir_optimises_on_the_device_asked_for(tmp_path, monkeypatch):
+    """The asset and the input views reach the optimisation on `device` (torch's meta device
+    stands in for CUDA), and the prefiltering operators move there once, not at every step."""
+    meta = torch.device("meta")
+    seen = {}
+
+    def fake_fit(asset, views, cfg, progress=False):
+        seen.update(asset=asset.means.device, views={views.images.device, views.masks.device,
+                                                     views.viewmats.device, views.Ks.device})
+        raise _Reached
+
+    monkeypatch.setattr(joint_ir, "fit_materials", fake_fit)
+    scene = make_scene(tmp_path, "s", size=16, num_train=2, num_test=1)
+    with pytest.raises(_Reached):
+        joint_ir.predict_scene(scene, surfel_sphere(50), tmp_path / "pred", {"env_height": 8}, device=meta)
+    assert seen == {"asset": meta, "views": {meta}}
+    ops = prefilter_operators(4, 8).to(meta)
+    assert {ops.irradiance[0].device, ops.lut.device, *(m.device for m, _ in ops.specular)} == {meta}
+    from baselines.joint_ir_shading import prefilter_learnable
+
+    pre = prefilter_learnable(torch.ones(4, 8, 3, device=meta), ops)
+    assert {pre.irradiance.device, pre.lut.device, *(m.device for m in pre.specular)} == {meta}
+
+
 # ---------------------------------------------------------------- configs
 def test_method_configs_are_complete_and_known():
     cfg = yaml.safe_load((CONF / "joint_ir.yaml").read_text())

@@ -144,6 +144,16 @@ def test_same_seed_gives_identical_files(dataset, tmp_path):
     assert a == b
 
 
+def test_device_auto_is_the_cpu_here_byte_for_byte(dataset, tmp_path):
+    """gspi-data device=auto on a machine without CUDA: the files of the default (device=cpu)."""
+    if torch.cuda.is_available():
+        pytest.skip("CUDA is present: auto renders there (not byte-identical to the CPU)")
+    out, _ = dataset
+    again = tmp_path / "auto"
+    assert run(make_config(again, extra=["device=auto"]))["device"] == "cpu"
+    assert file_hashes(again) == file_hashes(out)
+
+
 def test_other_seed_gives_other_scenes(tmp_path):
     from gspi.data.generate import scene_recipes
     from gspi.cli.data import benchmark_config

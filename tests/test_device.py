@@ -91,3 +91,88 @@ def test_sampling_on_the_cpu_device_is_the_old_path_and_chunk_free():
     small = predict_point_pbr(model, xyz, cond, None, num_steps=3, write_chunk=64)
     assert torch.equal(old, cpu)  # device=cpu: the same numbers as before
     assert torch.allclose(old, small, atol=1e-6)  # a halved chunk does not change the result
+
+
+def test_gspi_and_eval_share_one_resolver():
+    """gspi-eval (eval/, which never imports gspi) and the gspi commands accept the same values
+    and fail alike: gspi.device is eval.device under its gspi name, not a copy that could drift."""
+    import eval.device
+    import gspi.device
+
+    assert gspi.device.resolve_device is eval.device.resolve_device
+    assert gspi.device.DeviceError is eval.device.DeviceError and issubclass(DeviceError, ValueError)
+    assert eval.device.resolve_device("auto") == resolve_device("auto")
+    assert eval.device.resolve_device(" CPU ") == torch.device("cpu")
+
+
+def _eval_cfg(tmp_path, device):
+    from hydra import compose, initialize_config_dir
+
+    from eval.config import CONF_DIR
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose("gspi_eval", overrides=[f"gt={tmp_path}", f"pred={tmp_path}", f"out={tmp_path / 'ev'}",
+                                               f"device={device}", "progress=false"])
+
+
+@no_cuda
+def test_eval_device_cuda_fails_at_start_up_before_writing(tmp_path):
+    from eval.cli import run
+
+    (tmp_path / "ev").mkdir()
+    (tmp_path / "ev" / "summary.json").write_text("{}")
+    with pytest.raises(DeviceError, match=r"device=cuda.*not available"):
+        run(_eval_cfg(tmp_path, "cuda"))
+    assert (tmp_path / "ev" / "summary.json").is_file()  # refused before clearing the old result
+
+
+class _Stop(Exception):
+    pass
+
+
+def _capture_device(seen: dict):
+    def fake_evaluate(*args, device=None, **kwargs):
+        seen["device"] = device
+        raise _Stop
+    return fake_evaluate
+
+
+def test_gspi_eval_passes_the_resolved_device(tmp_path, monkeypatch):
+    import eval.cli
+
+    seen = {}
+    monkeypatch.setattr(eval.cli, "evaluate", _capture_device(seen))
+    with pytest.raises(_Stop):
+        eval.cli.run(_eval_cfg(tmp_path, "auto"))
+    assert seen["device"] == resolve_device("auto")
+
+
+def test_gspi_run_scores_on_the_runs_device(tmp_path, monkeypatch):
+    from omegaconf import OmegaConf
+
+    import eval.evaluate
+    from eval.config import ProtocolConfig
+    from gspi.run.runner import evaluate_predictions
+
+    seen = {}
+    monkeypatch.setattr(eval.evaluate, "evaluate", _capture_device(seen))
+    protocol = OmegaConf.to_container(OmegaConf.structured(ProtocolConfig))
+    with pytest.raises(_Stop):
+        evaluate_predictions({"eval": protocol, "device": "auto"}, tmp_path, tmp_path, "m")
+    assert seen["device"] == resolve_device("auto")
+
+
+@no_cuda
+@pytest.mark.parametrize("mode", [[], ["import.src=nerf/lego"]])
+def test_data_device_cuda_fails_at_start_up_before_writing(tmp_path, mode):
+    """gspi-data, whatever the mode: refused before the output folder is made."""
+    from hydra import compose, initialize_config_dir
+
+    from gspi.cli.data import CONF_DIR, alias_preset, run
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose("gspi_data", overrides=alias_preset(["preset=tiny", f"out={tmp_path / 'd'}",
+                                                           "device=cuda", *mode]))
+    with pytest.raises(DeviceError, match=r"device=cuda.*not available"):
+        run(cfg)
+    assert not (tmp_path / "d").exists()

@@ -197,3 +197,40 @@ def test_mask_erosion_scores_fewer_pixels(sphere_dataset, tmp_path, lpips_net):
 def test_a_network_other_than_the_protocols_is_refused(sphere_dataset, lpips_net):
     with pytest.raises(ValueError, match="eval.lpips.net='vgg'"):
         evaluate(sphere_dataset, sphere_dataset, protocol(**{"lpips.net": "vgg"}), net=lpips_net)
+
+
+def test_device_auto_scores_like_cpu_here(sphere_dataset, tmp_path, lpips_net):
+    """device=auto is the CPU here: the same rows, to the bit, as the default (the CPU path of
+    before), with the device-touched steps on: lstsq alignment, relight fills, scale fit, erosion."""
+    import torch
+
+    from eval.device import resolve_device
+
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", albedo_scale=0.7, channels=("albedo", "roughness"))
+    prot = protocol(albedo_alignment="lstsq", mask_erosion_px=1, **{"relight.scale_fit": "lstsq",
+                                                                    "relight.psnr_hdr": True})
+    before = evaluate(sphere_dataset, pred, prot, net=lpips_net)
+    auto = evaluate(sphere_dataset, pred, prot, net=lpips_net, device=resolve_device("auto"))
+    assert auto.rows == before.rows and auto.summary == before.summary
+    assert auto.info["device"] == before.info["device"] == str(torch.device("cuda" if torch.cuda.is_available() else "cpu"))
+
+
+def test_what_evaluate_reads_lands_on_the_requested_device(sphere_dataset):
+    """Torch's meta device stands in for CUDA: a CPU tensor mixed into its arithmetic raises, so
+    these pass only if the maps, the prefiltered environments and the protocol's constants are
+    all made on the device asked for."""
+    import torch
+
+    from eval.evaluate import EnvironmentCache, _load_pred_view
+    from eval.metrics import erode_mask
+    from eval.protocol import fit_albedo_scale
+
+    meta = torch.device("meta")
+    scene = read_scene(sphere_dataset / "sphere_0")
+    pre = EnvironmentCache(meta).get(scene.envmap_path(scene.relight_envs[0]))
+    assert {t.device for t in (pre.irradiance, pre.lut, *pre.specular)} == {meta}
+    maps = _load_pred_view(scene.view_dir("test", "000"), (scene.height, scene.width), meta)
+    assert set(maps) == {"albedo", "roughness", "metallic"} and {t.device for t in maps.values()} == {meta}
+    mask = torch.ones(scene.height, scene.width, dtype=torch.bool, device=meta)
+    assert erode_mask(mask, 2).device == meta
+    assert fit_albedo_scale([maps["albedo"]], [maps["albedo"]], [mask], "none").device == meta

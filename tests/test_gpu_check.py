@@ -21,6 +21,8 @@ def test_smoke_runs_every_step_and_writes_one_json(tmp_path):
     assert e2e["cpu"]["status"] == "complete" and "eval.albedo.psnr" in e2e["cpu"]["numbers"]
     assert saved["steps"]["stage2_train_throughput"]["points_per_s"] > 0
     assert saved["steps"]["stage2_sampling_linearity"]["ratio_10N_over_N"] > 0
+    data_eval = saved["steps"]["data_eval_cuda"]  # the CPU half: gspi-data, then its own oracle
+    assert data_eval["eval_cpu"]["albedo.psnr"] > 100 and data_eval["cuda"] == {"skipped": "no CUDA"}
     stages = saved["steps"]["paper_scene"]["stages"]
     assert {"recon", "stage1", "stage2", "stage3"} <= set(stages)
     burst = saved["steps"]["stage2_train_burst"]

@@ -21,7 +21,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "eval": (),
     "gspi": (),  # gspi/__init__.py
     "gspi.strict_config": (),
-    "gspi.device": (),  # device=auto|cpu|cuda, resolved once (issue #16)
+    "gspi.device": ("eval",),  # device=auto|cpu|cuda (issue #16): re-exports eval.device
     "gspi.stage_clock": (),
     "gspi.data": ("eval", "gspi.strict_config"),
     "gspi.gaussians": ("eval", "gspi.data"),

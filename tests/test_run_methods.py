@@ -77,3 +77,22 @@ def test_external_systems_and_their_adapters_come_from_the_method_files():
     for not_external in ("gspi", "no_decomposition", "nope"):
         with pytest.raises(ValueError, match="unknown system"):
             load_method_config(not_external)
+
+
+def test_inhouse_baselines_get_the_runs_device(monkeypatch):
+    """gspi-run method=joint_ir device=...: the baseline is called with the run's resolved device."""
+    import torch
+
+    from gspi.device import resolve_device
+    from gspi.stage_clock import StageClock
+
+    method = build_method(method_cfg("joint_ir"), {"data_dir": ".", "device": "auto"}, Path("."))
+    seen = {}
+
+    def fake_predict_scene(*args, device, **kwargs):
+        seen["device"] = device
+        return {}
+
+    monkeypatch.setattr(method.module, "predict_scene", fake_predict_scene)
+    method.predict(None, Path("."), asset=None, clock=StageClock("s"), work_dir=Path("."), split="test")
+    assert seen["device"] == resolve_device("auto") and isinstance(seen["device"], torch.device)

@@ -9,12 +9,19 @@ Examples:
     gspi-data export.src=data/tiny/s000_torus_metal out=exports/s000
     gspi-data import.glb=chair.glb out=data/mine preset=small      # glTF/GLB PBR object(s)
     gspi-data preset=small out=d data.relight_envs=polyhaven data.renderer=pathtraced
+    gspi-data preset=paper out=data/paper seed=0 device=auto     # render on CUDA when present
 
 `preset=<name>` is an alias of Hydra's config-group override `data=<name>` (conf/data/): Hydra
 cannot name a group differently from its folder, so `main` rewrites the argument before Hydra
 parses the command line. Config: conf/gspi_data.yaml. Output: `out` is also Hydra's run dir,
 so `<out>/.hydra/` records the composed config; the working directory never changes.
 Layout of the output: gspi.data.render_scene (per scene), gspi.data.generate (dataset).
+
+`device=auto|cpu|cuda` (default cpu) is resolved at start-up, whatever the mode (`cuda` without
+CUDA: one error naming the key). Procedural generation and the training pool render there
+(gspi.data.generate). On the CPU whatever the device: the import and export modes (file
+conversion; glb ray casting is trimesh/embree) and `data.renderer=pathtraced`'s input images
+(Mitsuba's scalar_rgb variant, gspi.data.pathtrace).
 """
 from __future__ import annotations
 
@@ -43,10 +50,27 @@ def benchmark_config(cfg: DictConfig):
                                                  "lattice": OmegaConf.to_container(cfg.lattice, resolve=True)}, "data")
 
 
+def command_mode(cfg: DictConfig) -> str:
+    """What a gspi-data command line asks for: import_glb | import | export | generate."""
+    imp, exp = cfg.get("import"), cfg.get("export")
+    if imp is not None and imp.get("glb") is not None:
+        return "import_glb"
+    if imp is not None and imp.src is not None:
+        return "import"
+    if exp is not None and exp.src is not None:
+        return "export"
+    return "generate"
+
+
 def run(cfg: DictConfig) -> dict:
     """Execute one gspi-data command; returns a summary dict (also logged)."""
-    out = Path(cfg.out)
-    if cfg.get("import") is not None and cfg["import"].get("glb") is not None:
+    from gspi.device import resolve_device
+
+    out, mode = Path(cfg.out), command_mode(cfg)
+    device = resolve_device(cfg.get("device", "cpu"))  # device=cuda without CUDA fails here
+    if device.type != "cpu" and mode != "generate":
+        log.info("device=%s: %s runs on the CPU (module docstring)", device, mode)
+    if mode == "import_glb":
         from gspi.data.glb_import import import_glb
 
         stats = import_glb(cfg["import"].glb, out, benchmark_config(cfg), seed=int(cfg.seed))
@@ -54,7 +78,7 @@ def run(cfg: DictConfig) -> dict:
         for s in stats["scenes"]:
             log.info("imported %s (%s) in %.1f s (input renderer %s: %.1f s)", s["name"],
                      s["split"], s["seconds"], cfg.data.renderer, s["retrace_seconds"])
-    elif cfg.get("import") is not None and cfg["import"].src is not None:
+    elif mode == "import":
         from gspi.data.nerf_synthetic import import_nerf_synthetic
         from gspi.data.generate import merge_splits
 
@@ -63,7 +87,7 @@ def run(cfg: DictConfig) -> dict:
         merge_splits(out, {"test": [scene.name]})
         result = {"mode": "import", "scene": str(scene.root),
                   "views": {s: len(v) for s, v in scene.views.items()}}
-    elif cfg.get("export") is not None and cfg.export.src is not None:
+    elif mode == "export":
         from gspi.data.nerf_synthetic import export_nerf_synthetic
 
         folder = export_nerf_synthetic(cfg.export.src, out, bits=int(cfg.export.bits))
@@ -73,10 +97,10 @@ def run(cfg: DictConfig) -> dict:
         from gspi.strict_config import check_value
 
         bench = benchmark_config(cfg)
-        stats = generate_dataset(out, bench, seed=check_value("seed", cfg.seed, int, lo=0))
-        result = {"mode": "generate", "preset": cfg.data.name, **stats}
-        log.info("generated %d scenes in %.1f s (%.0f rays/s end to end) -> %s",
-                 len(stats["scenes"]), stats["seconds"], stats["rays_per_s"], out)
+        stats = generate_dataset(out, bench, seed=check_value("seed", cfg.seed, int, lo=0), device=device)
+        result = {"mode": "generate", "preset": cfg.data.name, "device": str(device), **stats}
+        log.info("generated %d scenes on %s in %.1f s (%.0f rays/s end to end) -> %s",
+                 len(stats["scenes"]), device, stats["seconds"], stats["rays_per_s"], out)
         for s in stats["scenes"]:
             log.info("scene %s: %.1f s (input renderer %s: %.1f s)", s["name"], s["seconds"],
                      cfg.data.renderer, s["retrace_seconds"])

@@ -12,6 +12,14 @@ into the dataset, so they cannot break byte-identity.
 
 Parallelism: `workers` > 1 renders scenes in that many processes (each with `threads`
 torch threads); results do not depend on the assignment of scenes to workers.
+
+Device (`generate_dataset(..., device=)`, gspi-data's `device=auto|cpu|cuda`): scenes are traced
+and shaded there, environments prefiltered there, relit ground truth shaded there; the maps
+come back to the CPU at the write. With `workers` > 1 every worker process renders on that same
+device (spawned processes, one CUDA context each); the scene-to-worker assignment still does
+not matter. CPU (the default): the code path of before, byte-identical files. CUDA: not
+byte-identical to the CPU (float rounding; atomic adds in the per-pixel sums make repeated CUDA
+runs differ in the last bits too), and scene.json's `generator` records the device.
 """
 from __future__ import annotations
 
@@ -101,25 +109,28 @@ def scene_recipes(seed: int, cfg: BenchmarkConfig) -> list[dict]:
 _WORKER: dict = {}
 
 
-def _init_worker(cfg_dict: dict, env_paths: dict[str, str]) -> None:
-    """Per-process state: thread count and the prefiltered environments (built lazily)."""
+def _init_worker(cfg_dict: dict, env_paths: dict[str, str], device: str = "cpu") -> None:
+    """Per-process state: thread count, device and the prefiltered environments (built lazily)."""
     torch.set_num_threads(int(cfg_dict["threads"]))
     _WORKER.clear()
-    _WORKER.update(cfg=BenchmarkConfig(**cfg_dict), env_paths=env_paths, envs={}, pre={})
+    _WORKER.update(cfg=BenchmarkConfig(**cfg_dict), env_paths=env_paths, envs={}, pre={},
+                   device=torch.device(device))
 
 
 def _environment(name: str):
+    """(CPU map written into each scene, its prefiltered form on the worker's device)."""
     from eval.relight import prefilter_environment
 
     if name not in _WORKER["envs"]:
         env = load_environment(Path(_WORKER["env_paths"][name]))
         _WORKER["envs"][name] = env
-        _WORKER["pre"][name] = prefilter_environment(env)
+        _WORKER["pre"][name] = prefilter_environment(env.to(_WORKER["device"]))
     return _WORKER["envs"][name], _WORKER["pre"][name]
 
 
 def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
     cfg: BenchmarkConfig = _WORKER["cfg"]
+    device: torch.device = _WORKER["device"]
     names = [recipe["capture_env"], *recipe["relight_envs"]]
     envs, pre = {}, {}
     for n in names:
@@ -130,11 +141,14 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
              "preset": cfg.name, "supersample": cfg.supersample, "lattice": cfg.lattice}
     if cfg.renderer != "splitsum":  # recorded only when not the default (byte-identity)
         extra |= {"renderer": cfg.renderer, "pathtrace": dict(cfg.pathtrace)}
+    if device.type != "cpu":  # likewise: CPU datasets stay byte-identical to those of before
+        extra["device"] = device.type
     size = int(recipe.get("image_size", cfg.image_size))
     stats = generate_scene(recipe, Path(out_dir), envs=envs, prefiltered=pre,
                            width=size, height=size,
                            supersample=cfg.supersample, lattice=cfg.lattice, extra=extra,
-                           retrace=retracer(cfg.renderer, cfg.pathtrace, recipe=recipe))
+                           retrace=retracer(cfg.renderer, cfg.pathtrace, recipe=recipe),
+                           device=device)
     t0 = time.perf_counter()
     scene = read_scene(Path(out_dir) / recipe["name"])
     if cfg.point_clouds:
@@ -169,7 +183,8 @@ def write_environments(env_dir: Path, names: list[str], cfg: BenchmarkConfig) ->
 
 
 def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
-                     scratch_dir: str | Path | None = None) -> dict:
+                     scratch_dir: str | Path | None = None,
+                     device: torch.device | str = "cpu") -> dict:
     """Write the whole benchmark (see module docstring).
 
     Args:
@@ -177,6 +192,8 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
         cfg: sizes. seed: dataset seed (scenes, splits, views, jitter).
         scratch_dir: where the shared environment EXRs are rendered before being copied into
             each scene (default `<out>/.cache`, removed at the end).
+        device: where scenes render (module docstring); resolved by the caller
+            (gspi.device.resolve_device).
     Returns:
         {"out_dir", "splits", "scenes": [per-scene stats], "seconds", "rays", "rays_per_s",
          "env_seconds"}; with ``cfg.training_pool`` also "skipped" (scenes already complete).
@@ -188,7 +205,7 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
     # regeneration never leaves old splits beside new scenes (docs/RELIABILITY.md)
     (out_dir / "splits.json").unlink(missing_ok=True)
     if cfg.training_pool:
-        return generate_training_pool(out_dir, cfg, seed=seed, scratch_dir=scratch_dir)
+        return generate_training_pool(out_dir, cfg, seed=seed, scratch_dir=scratch_dir, device=device)
     recipes = scene_recipes(seed, cfg)
     splits = assign_splits([r["name"] for r in recipes], seed, num_train=cfg.num_train_scenes,
                            num_val=cfg.num_val_scenes, num_test=cfg.num_test_scenes,
@@ -200,13 +217,15 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
         splits = {k: (v if k in cfg.only_splits else []) for k, v in splits.items()}
         keep = {n for v in splits.values() for n in v}
         recipes = [r for r in recipes if r["name"] in keep]
-    stats, env_seconds = _render_recipes(out_dir, recipes, cfg, seed=seed, scratch_dir=scratch_dir)
+    stats, env_seconds = _render_recipes(out_dir, recipes, cfg, seed=seed, scratch_dir=scratch_dir,
+                                         device=device)
     write_json_atomic(out_dir / "splits.json", splits)
     return _summary(out_dir, splits, stats, start, env_seconds)
 
 
 def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
-                           scratch_dir: str | Path | None = None) -> dict:
+                           scratch_dir: str | Path | None = None,
+                           device: torch.device | str = "cpu") -> dict:
     """The Stage II training pool (gspi.data.training_pool): resumes, skips complete scenes."""
     from gspi.data.env_sets import environment_sets, is_default
     from gspi.data.training_pool import pending_recipes, pool_recipes, read_pool_done
@@ -220,7 +239,8 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
         names = sorted(environment_sets(cfg.capture_envs, cfg.relight_envs)[0])
         recipes = [{**r, "capture_env": names[r["index"] % len(names)]} for r in recipes]
     todo = pending_recipes(out_dir, recipes)
-    stats, env_seconds = _render_recipes(out_dir, todo, cfg, seed=seed, scratch_dir=scratch_dir)
+    stats, env_seconds = _render_recipes(out_dir, todo, cfg, seed=seed, scratch_dir=scratch_dir,
+                                         device=device)
     done = set(read_pool_done(out_dir))
     splits = {"train": sorted(r["name"] for r in recipes if r["name"] in done), "val": [], "test": []}
     write_json_atomic(out_dir / "splits.json", splits)
@@ -235,8 +255,10 @@ def _summary(out_dir: Path, splits: dict, stats: list[dict], start: float, env_s
 
 
 def _render_recipes(out_dir: Path, recipes: list[dict], cfg: BenchmarkConfig, *, seed: int,
-                    scratch_dir: str | Path | None) -> tuple[list[dict], float]:
-    """Render every recipe's scene (in `cfg.workers` processes); (per-scene stats, env seconds)."""
+                    scratch_dir: str | Path | None, device: torch.device | str = "cpu"
+                    ) -> tuple[list[dict], float]:
+    """Render every recipe's scene (in `cfg.workers` processes, all on `device`);
+    (per-scene stats, env seconds)."""
     import shutil
 
     start = time.perf_counter()
@@ -247,16 +269,16 @@ def _render_recipes(out_dir: Path, recipes: list[dict], cfg: BenchmarkConfig, *,
     try:
         env_paths = write_environments(scratch, needed, cfg)
         env_seconds = time.perf_counter() - start
-        cfg_dict = asdict(cfg)
+        cfg_dict, device_name = asdict(cfg), str(torch.device(device))
         if cfg.workers > 1:
             ctx = multiprocessing.get_context("spawn")
             with concurrent.futures.ProcessPoolExecutor(
                     cfg.workers, mp_context=ctx, initializer=_init_worker,
-                    initargs=(cfg_dict, env_paths)) as pool:
+                    initargs=(cfg_dict, env_paths, device_name)) as pool:
                 stats = list(pool.map(_make_scene, recipes, [str(out_dir)] * len(recipes),
                                       [seed] * len(recipes)))
         else:
-            _init_worker(cfg_dict, env_paths)
+            _init_worker(cfg_dict, env_paths, device_name)
             stats = [_make_scene(r, str(out_dir), seed) for r in recipes]
     finally:
         torch.set_num_threads(threads)

@@ -95,8 +95,8 @@ def sample_material(material_class: str, rng: np.random.Generator) -> dict:
     return r
 
 
-def _lin(colour_srgb) -> Tensor:
-    return srgb_to_linear(torch.tensor(colour_srgb, dtype=torch.float32))
+def _lin(colour_srgb, device: torch.device) -> Tensor:
+    return srgb_to_linear(torch.tensor(colour_srgb, dtype=torch.float32, device=device))
 
 
 def _pick(mask: Tensor, a: Tensor, b: Tensor) -> Tensor:
@@ -112,27 +112,37 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         recipe: from `sample_material`.
         q: [N, 3] object-space surface points (unit-sphere frame), float32.
     Returns:
-        MaterialSample with linear albedo.
+        MaterialSample with linear albedo, on the device of `q`.
     """
     n, seed, cls = q.shape[0], int(recipe["seed"]), recipe["class"]
-    ones, zeros = torch.ones(n), torch.zeros(n)
+    dev = dict(device=q.device)
+    ones, zeros = torch.ones(n, **dev), torch.zeros(n, **dev)
+
+    def lin(colour_srgb) -> Tensor:
+        return _lin(colour_srgb, q.device)
+
+    def vec(values) -> Tensor:
+        return torch.tensor(values, **dev)
+
+    def full(value: float) -> Tensor:
+        return torch.full((n,), value, **dev)
     if cls == "rough_plastic":
         _, _, ident = patterns.voronoi(q * recipe["frequency"], seed)
         k = torch.clamp((ident * 3).long(), 0, 2)
-        albedo = torch.stack([_lin(c) for c in recipe["colours"]])[k]
+        albedo = torch.stack([lin(c) for c in recipe["colours"]])[k]
         rough = recipe["roughness"] + 0.2 * (patterns.fbm(q * 4.0, seed + 1) - 0.5)
         metal = zeros
     elif cls == "glossy_plastic":
         if recipe["pattern"] == "stripes":
-            sel = patterns.stripes(q, torch.tensor(recipe["axis"]), recipe["frequency"])
+            sel = patterns.stripes(q, vec(recipe["axis"]), recipe["frequency"])
         else:
             sel = patterns.checker(q, recipe["frequency"])
-        c0, c1 = (_lin(c) for c in recipe["colours"])
+        c0, c1 = (lin(c) for c in recipe["colours"])
         albedo = _pick(sel, c0.expand(n, 3), c1.expand(n, 3))
         rough = recipe["roughness"] + 0.05 * (patterns.value_noise(q * 8.0, seed) - 0.5)
         metal = zeros
     elif cls == "metal":
-        f0 = torch.tensor(METAL_F0[recipe["metal"]]).expand(n, 3)
+        f0 = vec(METAL_F0[recipe["metal"]]).expand(n, 3)
         if recipe["finish"] == "brushed":
             streak = patterns.brushed(q, seed)
             rough = recipe["brushed_roughness"] + 0.15 * (streak - 0.5)
@@ -140,22 +150,22 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         else:
             rough = recipe["roughness"] + 0.04 * (patterns.value_noise(q * 6.0, seed) - 0.5)
         ink = patterns.glyph_stripes(q, seed, lines=recipe["lines"], band=(-0.3, 0.3))
-        albedo = _pick(ink, f0, _lin(recipe["enamel"]).expand(n, 3))
-        rough = _pick(ink, rough, torch.full((n,), 0.3))
+        albedo = _pick(ink, f0, lin(recipe["enamel"]).expand(n, 3))
+        rough = _pick(ink, rough, full(0.3))
         metal = _pick(ink, ones, zeros)
     elif cls == "painted_metal":
         worn = patterns.fbm(q * recipe["wear_frequency"], seed, octaves=5) > recipe["wear"]
         ink = patterns.glyph_stripes(q, seed + 5, lines=recipe["lines"], band=(-0.2, 0.4)) & ~worn
-        paint = _pick(ink, _lin(recipe["paint"]).expand(n, 3), _lin(recipe["text"]).expand(n, 3))
-        albedo = _pick(worn, paint, torch.tensor(recipe["bare_f0"]).expand(n, 3))
-        rough = _pick(worn, torch.full((n,), recipe["paint_roughness"]),
+        paint = _pick(ink, lin(recipe["paint"]).expand(n, 3), lin(recipe["text"]).expand(n, 3))
+        albedo = _pick(worn, paint, vec(recipe["bare_f0"]).expand(n, 3))
+        rough = _pick(worn, full(recipe["paint_roughness"]),
                       recipe["bare_roughness"] + 0.1 * patterns.value_noise(q * 20.0, seed))
         metal = _pick(worn, zeros, ones)
     elif cls == "fabric":
-        c0, c1 = (_lin(c) for c in recipe["colours"])
+        c0, c1 = (lin(c) for c in recipe["colours"])
         if recipe["pattern"] == "tartan":
-            a = patterns.stripes(q, torch.tensor([1.0, 0.0, 0.0]), recipe["tartan"], 0.35)
-            b = patterns.stripes(q, torch.tensor([0.0, 0.7071, 0.7071]), recipe["tartan"], 0.35)
+            a = patterns.stripes(q, vec([1.0, 0.0, 0.0]), recipe["tartan"], 0.35)
+            b = patterns.stripes(q, vec([0.0, 0.7071, 0.7071]), recipe["tartan"], 0.35)
             mix = (a.float() + b.float())[:, None] / 2
         else:
             mix = patterns.checker(q, recipe["weave"]).float()[:, None]
@@ -167,13 +177,13 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         f1, f2, ident = patterns.voronoi(q * recipe["tiles"], seed)
         grout = (f2 - f1) < 0.08
         ink = patterns.glyph_stripes(q, seed + 9, lines=recipe["lines"], band=(-0.5, 0.3))
-        glaze = _lin(recipe["glaze"]) * (0.85 + 0.15 * ident)[:, None]
-        albedo = _pick(ink, glaze, _lin(recipe["decoration"]).expand(n, 3))
-        albedo = _pick(grout, albedo, _lin(recipe["grout"]).expand(n, 3))
-        rough = _pick(grout, torch.full((n,), recipe["roughness"]), torch.full((n,), 0.8))
+        glaze = lin(recipe["glaze"]) * (0.85 + 0.15 * ident)[:, None]
+        albedo = _pick(ink, glaze, lin(recipe["decoration"]).expand(n, 3))
+        albedo = _pick(grout, albedo, lin(recipe["grout"]).expand(n, 3))
+        rough = _pick(grout, full(recipe["roughness"]), full(0.8))
         rim = q[:, 2] > recipe["rim"]
-        albedo = _pick(rim, albedo, torch.tensor(METAL_F0["gold"]).expand(n, 3))
-        rough = _pick(rim, rough, torch.full((n,), 0.15))
+        albedo = _pick(rim, albedo, vec(METAL_F0["gold"]).expand(n, 3))
+        rough = _pick(rim, rough, full(0.15))
         metal = _pick(rim, zeros, ones)
     else:
         raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")

@@ -1,9 +1,9 @@
 """3D procedural patterns evaluated at surface points (pure torch, deterministic).
 
 Every function takes object-space points `q` [N, 3] (unit-sphere frame of
-`gspi.data.sdf_shapes.ShapeSDF.local`) and an integer `seed`, and returns per-point values;
-there is no texture image, so material boundaries are exact at any resolution and
-supersampling integrates them. Hashing is integer arithmetic on int64 (wrap-around is
+`gspi.data.sdf_shapes.ShapeSDF.local`) and an integer `seed`, and returns per-point values
+on the device of `q`; there is no texture image, so material boundaries are exact at any
+resolution and supersampling integrates them. Hashing is integer arithmetic on int64 (wrap-around is
 deterministic), so the same seed gives the same pattern on every machine.
 """
 from __future__ import annotations
@@ -46,7 +46,7 @@ def value_noise(q: Tensor, seed: int) -> Tensor:
     """Trilinear value noise with smoothstep weights; [N, 3] -> [N] in [0, 1)."""
     cell, f = _split(q)
     w = f * f * (3.0 - 2.0 * f)
-    out = torch.zeros(q.shape[0], dtype=q.dtype)
+    out = torch.zeros(q.shape[0], dtype=q.dtype, device=q.device)
     for dx in (0, 1):
         for dy in (0, 1):
             for dz in (0, 1):
@@ -61,7 +61,7 @@ def value_noise(q: Tensor, seed: int) -> Tensor:
 def fbm(q: Tensor, seed: int, *, octaves: int = 4, lacunarity: float = 2.0,
         gain: float = 0.5) -> Tensor:
     """Fractal sum of value noise, normalised to [0, 1); [N, 3] -> [N]."""
-    total, amp, norm, freq = torch.zeros(q.shape[0], dtype=q.dtype), 1.0, 0.0, 1.0
+    total, amp, norm, freq = torch.zeros(q.shape[0], dtype=q.dtype, device=q.device), 1.0, 0.0, 1.0
     for k in range(octaves):
         total = total + amp * value_noise(q * freq, seed + 1013 * k)
         norm += amp
@@ -80,7 +80,7 @@ def voronoi(q: Tensor, seed: int) -> tuple[Tensor, Tensor, Tensor]:
         cell_id [N] float in [0, 1): a hash of the nearest cell (constant per region).
     """
     cell, f = _split(q)
-    r = torch.arange(-1, 2)
+    r = torch.arange(-1, 2, device=q.device)
     offsets = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), dim=-1).reshape(1, 27, 3)
     nb = cell[:, None, :] + offsets                                   # [N, 27, 3] int64
     h = hash_int(nb[..., 0], nb[..., 1], nb[..., 2], seed)           # [N, 27]
@@ -134,6 +134,6 @@ def glyph_stripes(q: Tensor, seed: int, *, lines: float = 5.0, glyphs_per_turn: 
 
 def brushed(q: Tensor, seed: int, axis: int = 2) -> Tensor:
     """Anisotropic streaks (value noise squashed along `axis`), [N] in [0, 1)."""
-    scale = torch.full((3,), 90.0)
+    scale = torch.full((3,), 90.0, device=q.device)
     scale[axis] = 2.0
     return value_noise(q * scale, seed)

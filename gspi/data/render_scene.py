@@ -13,7 +13,8 @@
 
 Per-view conventions are those of `gspi.data.render_view`. Relit images use the same shader,
 the same environment file and the same `view_directions` as the evaluator, so re-rendering
-them from the files reproduces them bit for bit.
+them from the files reproduces them bit for bit (on the CPU; relit images of a dataset made
+with `device=cuda` are shaded on the GPU and agree with a CPU re-rendering to float rounding).
 """
 from __future__ import annotations
 
@@ -63,21 +64,24 @@ def write_view(view_dir: Path, r: ViewRender) -> None:
     write_view_file(view_dir, "mask.png", r.mask.astype(np.float32))
 
 
-def stored_relight_inputs(scene: Scene, view: View) -> dict[str, torch.Tensor]:
-    """The relighting inputs of a view, read back from its stored files (as the evaluator does)."""
+def stored_relight_inputs(scene: Scene, view: View, device: torch.device | str = "cpu"
+                          ) -> dict[str, torch.Tensor]:
+    """The relighting inputs of a view, read back from its stored files (as the evaluator does),
+    on `device`."""
     vdir = scene.view_dir(view.split, view.id)
-    t = {name: torch.from_numpy(read_view_file(vdir, f)) for name, f in
+    t = {name: torch.from_numpy(read_view_file(vdir, f)).to(device) for name, f in
          (("albedo", "albedo.png"), ("roughness", "roughness.png"), ("metallic", "metallic.png"),
           ("normal", "normal.exr"))}
-    t["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width)
+    t["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width).to(device)
     return t
 
 
-def relight_stored_view(scene: Scene, view: View, env) -> np.ndarray:
-    """`eval.views.relight_view` of the stored maps of `view` under `env` -> [H, W, 3] float32."""
-    t = stored_relight_inputs(scene, view)
+def relight_stored_view(scene: Scene, view: View, env, device: torch.device | str = "cpu") -> np.ndarray:
+    """`eval.views.relight_view` of the stored maps of `view` under `env`, shaded on `device`
+    -> [H, W, 3] float32 (CPU)."""
+    t = stored_relight_inputs(scene, view, device)
     out = relight_view(t["albedo"], t["roughness"], t["metallic"], t["normal"], t["view_dir"], env)
-    return out.numpy().astype(np.float32)
+    return out.cpu().numpy().astype(np.float32)
 
 
 def _view_seed(view_seed: int, split: str, k: int) -> int:
@@ -86,27 +90,29 @@ def _view_seed(view_seed: int, split: str, k: int) -> int:
     return int(ss.generate_state(1)[0])
 
 
-def sdf_renderer(recipe: dict):
-    """The procedural scenes' renderer: `render(cameras, height, width, env, supersample)`."""
+def sdf_renderer(recipe: dict, device: torch.device | str = "cpu"):
+    """The procedural scenes' renderer: `render(cameras, height, width, env, supersample)`,
+    tracing and shading on `device`."""
     shape = ShapeSDF(recipe["shape"])
 
     def render(cameras, height, width, env, supersample):
         return render_views(shape, recipe["material"], cameras, height, width, env=env,
-                            supersample=supersample)
+                            supersample=supersample, device=device)
     return render
 
 
 def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor],
                    prefiltered: dict, width: int, height: int, supersample: int,
                    lattice: dict, extra: dict | None = None, render=None,
-                   retrace=None) -> dict:
+                   retrace=None, device: torch.device | str = "cpu") -> dict:
     """Render every view of a scene and write it (see module docstring).
 
     Args:
         recipe: from `gspi.data.scene_recipe.sample_scene_recipe`.
         out_dir: dataset folder; the scene goes to `out_dir / recipe["name"]`.
-        envs: env name -> [h, w, 3] float32 map (written to envmaps/).
-        prefiltered: env name -> `eval.relight.PrefilteredEnvironment` of the same map.
+        envs: env name -> [h, w, 3] float32 CPU map (written to envmaps/).
+        prefiltered: env name -> `eval.relight.PrefilteredEnvironment` of the same map (best
+            on `device`).
         width, height: image size; supersample: S (S x S rays per pixel); lattice: kwargs of
             `lattice_cameras` (num_views, radius, fov_deg, min_elevation_deg).
         extra: more metadata for scene.json's `generator` entry.
@@ -115,6 +121,8 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
         retrace: optional `retrace(cameras, height, width, env [h, w, 3])` -> one rgb
             [H, W, 3] per camera that replaces the split-sum input (gspi.data.pathtrace);
             maps, masks and relit ground truth stay those of `render`.
+        device: where the default renderer traces and shades and the relit ground truth is
+            shaded; files are written from the CPU.
     Returns:
         Stats: {"name", "seconds", "rays", "sdf_evals", "views", "retrace_seconds"}.
     """
@@ -127,7 +135,7 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
     write_scene_json(scene)
     for name in [scene.capture_env, *scene.relight_envs]:
         write_exr(scene.envmap_path(name), envs[name].numpy())
-    render = render or sdf_renderer(recipe)
+    render = render or sdf_renderer(recipe, device)
     todo = [(split, k, view) for split, vs in views.items() for k, view in enumerate(vs)]
     cameras = [(view.K, view.w2c, _view_seed(recipe["view_seed"], split, k))
                for split, k, view in todo]
@@ -145,7 +153,7 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
         for env_name in scene.relight_envs:
             env = prefiltered[env_name]
             write_exr(scene.view_dir("test", view.id) / f"relit_{env_name}.exr",
-                      relight_stored_view(scene, view, env))
+                      relight_stored_view(scene, view, env, device))
     return {"name": scene.name, "seconds": time.perf_counter() - start, "rays": rays,
             "sdf_evals": evals, "views": sum(len(v) for v in views.values()),
             "retrace_seconds": retrace_seconds}

@@ -15,6 +15,10 @@ Per view outputs (numpy float32, H x W):
   silhouette pixel), the z of the hit sample nearest to the centre (the unprojected point is
   then off the surface by at most about one pixel footprint, never averaged across layers).
 Everything except rgb is 0 outside the mask.
+
+Device: the sub-pixel jitter and the rays are drawn on the CPU (the same rays on every device),
+then traced, shaded and reduced on `device` (`render_views(..., device=)`); the maps come back
+to the CPU as numpy arrays. On the CPU this is the code path of before, bit for bit.
 """
 from __future__ import annotations
 
@@ -82,7 +86,7 @@ def _shade(shape: ShapeSDF, material: dict, pos: Tensor, normal: Tensor, dirs: T
                         normal[sl], -dirs[sl], env)
         for lst, val in zip(out, (rgb, mat.albedo_linear, mat.roughness, mat.metallic)):
             lst.append(val)
-    return tuple(torch.cat(v) if v else torch.zeros(0) for v in out)  # type: ignore[return-value]
+    return tuple(torch.cat(v) if v else pos.new_zeros(0) for v in out)  # type: ignore[return-value]
 
 
 def _aggregate(height: int, width: int, s2: int, sub: Tensor, centre: Tensor, hit_sub: Tensor,
@@ -91,15 +95,16 @@ def _aggregate(height: int, width: int, s2: int, sub: Tensor, centre: Tensor, hi
     """Per-pixel reduction of one view's samples (see module docstring).
 
     idx: [n_hit] indices of the hit sub-samples in this view's [H*W*S^2] block, sorted.
+    Computed on the device of the inputs; the maps are returned as CPU numpy arrays.
     """
     rgb_h, alb_h, rough_h, metal_h = shaded
     pix = torch.div(idx, s2, rounding_mode="floor")
 
     def pixel_sum(values: Tensor) -> Tensor:  # [n_hit, C] -> [H*W, C]
-        acc = torch.zeros(height * width, values.shape[-1], dtype=torch.float64)
+        acc = torch.zeros(height * width, values.shape[-1], dtype=torch.float64, device=pix.device)
         return acc.index_add_(0, pix, values.double())
 
-    count = pixel_sum(torch.ones(len(idx), 1))
+    count = pixel_sum(torch.ones(len(idx), 1, device=pix.device))
     mask = count[:, 0] * 2 > s2
     denom = count.clamp_min(1.0)
     closeness = (sub.reshape(-1, s2, 3) * centre[:, None, :]).sum(-1)        # [HW, S^2]
@@ -109,40 +114,42 @@ def _aggregate(height: int, width: int, s2: int, sub: Tensor, centre: Tensor, hi
     m = mask[:, None]
 
     def img(x: Tensor, c: int) -> np.ndarray:
-        return torch.where(m, x, torch.zeros_like(x)).float().reshape(height, width, c).numpy()
+        return torch.where(m, x, torch.zeros_like(x)).float().reshape(height, width, c).cpu().numpy()
 
-    return {"rgb": (pixel_sum(rgb_h) / s2).float().reshape(height, width, 3).numpy(),
+    return {"rgb": (pixel_sum(rgb_h) / s2).float().reshape(height, width, 3).cpu().numpy(),
             "albedo_srgb": img(linear_to_srgb(pixel_sum(alb_h) / denom), 3),
             "roughness": img(pixel_sum(rough_h[:, None]) / denom, 1),
             "metallic": img(pixel_sum(metal_h[:, None]) / denom, 1),
             "normal": img(torch.nn.functional.normalize(pixel_sum(normal_h), dim=-1), 3),
-            "depth": img(depth, 1), "mask": mask.reshape(height, width).numpy()}
+            "depth": img(depth, 1), "mask": mask.reshape(height, width).cpu().numpy()}
 
 
 def _render_group(shape: ShapeSDF, material: dict, cameras: list, height: int, width: int,
-                  env, supersample: int) -> list[ViewRender]:
+                  env, supersample: int, device: torch.device) -> list[ViewRender]:
     """Trace and shade the rays of several views in one batch (amortises per-step overhead)."""
     s2 = supersample * supersample
     blocks, origins = [], []
     for K, w2c, seed in cameras:
-        gen = torch.Generator().manual_seed(int(seed))
-        sub = subpixel_rays(K, w2c, height, width, supersample, gen).reshape(-1, 3)
-        centre = pixel_rays(K, w2c, height, width).reshape(-1, 3)
-        cam = torch.as_tensor(np.linalg.inv(w2c)[:3, 3], dtype=torch.float32)
+        gen = torch.Generator().manual_seed(int(seed))  # CPU: the same jitter on every device
+        sub = subpixel_rays(K, w2c, height, width, supersample, gen).reshape(-1, 3).to(device)
+        centre = pixel_rays(K, w2c, height, width).reshape(-1, 3).to(device)
+        cam = torch.as_tensor(np.linalg.inv(w2c)[:3, 3], dtype=torch.float32, device=device)
         blocks.append((sub, centre))
         origins.append(cam.expand(len(sub) + len(centre), 3))
     dirs = torch.cat([torch.cat(b) for b in blocks])
     tr = sphere_trace(shape, torch.cat(origins).contiguous(), dirs, step_factor=shape.step_factor)
     n_sub, n_pix = height * width * s2, height * width
-    is_sub = torch.cat([torch.cat([torch.ones(n_sub, dtype=torch.bool),
-                                   torch.zeros(n_pix, dtype=torch.bool)]) for _ in cameras])
+    flags = dict(dtype=torch.bool, device=device)
+    is_sub = torch.cat([torch.cat([torch.ones(n_sub, **flags), torch.zeros(n_pix, **flags)])
+                        for _ in cameras])
     hit_idx = torch.nonzero(tr.hit & is_sub).squeeze(-1)
     shaded = _shade(shape, material, tr.position[hit_idx], tr.normal[hit_idx], dirs[hit_idx], env)
     out = []
     for v, ((K, w2c, _), (sub, centre)) in enumerate(zip(cameras, blocks)):
         start = v * (n_sub + n_pix)
-        lo, hi = torch.searchsorted(hit_idx, torch.tensor([start, start + n_sub])).tolist()
-        forward = torch.as_tensor(w2c[2, :3], dtype=torch.float32)
+        bounds = torch.tensor([start, start + n_sub], device=device)
+        lo, hi = torch.searchsorted(hit_idx, bounds).tolist()
+        forward = torch.as_tensor(w2c[2, :3], dtype=torch.float32, device=device)
         sl_sub, sl_c = slice(start, start + n_sub), slice(start + n_sub, start + n_sub + n_pix)
         maps = _aggregate(height, width, s2, sub, centre, tr.hit[sl_sub], tr.hit[sl_c],
                           tr.t[sl_sub] * (sub @ forward), tr.t[sl_c] * (centre @ forward),
@@ -153,17 +160,20 @@ def _render_group(shape: ShapeSDF, material: dict, cameras: list, height: int, w
 
 
 def render_views(shape: ShapeSDF, material: dict, cameras: list, height: int, width: int, *,
-                 env, supersample: int, max_rays: int = 1 << 20) -> list[ViewRender]:
+                 env, supersample: int, max_rays: int = 1 << 20,
+                 device: torch.device | str = "cpu") -> list[ViewRender]:
     """Render several views of one scene (see module docstring).
 
     Args:
         shape: the scene's SDF. material: its material recipe.
         cameras: list of (K [3, 3], w2c [4, 4] OpenCV world-to-camera, jitter seed).
-        env: capture environment for `split_sum` (PrefilteredEnvironment or [h, w, 3] tensor).
+        env: capture environment for `split_sum` (PrefilteredEnvironment or [h, w, 3] tensor;
+            best already on `device`, else its maps are copied there at every shading chunk).
         supersample: S (S x S samples per pixel).
         max_rays: views are traced together in groups of at most this many rays (at least one
             view per group); results do not depend on the grouping except through float
             vectorisation, so keep it fixed for byte-identical datasets.
+        device: where the rays are traced and shaded (module docstring).
     Returns:
         One ViewRender per camera, in order.
     """
@@ -172,7 +182,7 @@ def render_views(shape: ShapeSDF, material: dict, cameras: list, height: int, wi
     out: list[ViewRender] = []
     for i in range(0, len(cameras), group):
         out += _render_group(shape, material, cameras[i:i + group], height, width, env,
-                             supersample)
+                             supersample, torch.device(device))
     return out
 
 

@@ -44,14 +44,14 @@ def sd_torus(x: Tensor, major: float, minor: float) -> Tensor:
 
 
 def sd_round_box(x: Tensor, half: list[float], rounding: float) -> Tensor:
-    q = x.abs() - torch.tensor(half, dtype=x.dtype) + rounding
+    q = x.abs() - torch.tensor(half, dtype=x.dtype, device=x.device) + rounding
     outside = q.clamp_min(0.0).norm(dim=-1)
     inside = q.max(dim=-1).values.clamp_max(0.0)
     return outside + inside - rounding
 
 
 def sd_capsule(x: Tensor, a: list[float], b: list[float], r: float) -> Tensor:
-    a_t, b_t = torch.tensor(a, dtype=x.dtype), torch.tensor(b, dtype=x.dtype)
+    a_t, b_t = (torch.tensor(v, dtype=x.dtype, device=x.device) for v in (a, b))
     pa, ba = x - a_t, b_t - a_t
     h = ((pa @ ba) / (ba @ ba)).clamp(0.0, 1.0)
     return (pa - h[:, None] * ba).norm(dim=-1) - r
@@ -66,7 +66,7 @@ def sd_cylinder(x: Tensor, r: float, half_height: float, z0: float = 0.0) -> Ten
 def sd_superquadric(x: Tensor, axes: list[float], e1: float, e2: float) -> Tensor:
     """Barr superquadric, radially scaled inside-outside function (a distance *bound* only
     after the 0.5 step factor of the recipe; exponents keep the gradient finite)."""
-    a = torch.tensor(axes, dtype=x.dtype)
+    a = torch.tensor(axes, dtype=x.dtype, device=x.device)
     y = (x / a).abs() + 1e-12
     xy = (y[:, 0] ** (2.0 / e2) + y[:, 1] ** (2.0 / e2)) ** (e2 / e1)
     f = (xy + y[:, 2] ** (2.0 / e1)) ** (e1 / 2.0)
@@ -83,7 +83,7 @@ def smooth_min(a: Tensor, b: Tensor, k: float) -> Tensor:
 def _sd_blob(x: Tensor, p: dict) -> Tensor:
     d = None
     for c, r in zip(p["centers"], p["radii"]):
-        s = sd_sphere(x - torch.tensor(c, dtype=x.dtype), r)
+        s = sd_sphere(x - torch.tensor(c, dtype=x.dtype, device=x.device), r)
         d = s if d is None else smooth_min(d, s, p["blend"])
     if p["disp_amp"] > 0:
         f = p["disp_freq"]
@@ -97,12 +97,12 @@ def _sd_multipart(x: Tensor, p: dict) -> Tensor:
         outer = sd_cylinder(x, p["radius"], p["half_height"])
         inner = sd_cylinder(x, p["radius"] - p["wall"], p["half_height"], z0=p["wall"])
         body = torch.maximum(outer, -inner)
-        hx = x - torch.tensor([p["radius"], 0.0, 0.0], dtype=x.dtype)
+        hx = x - torch.tensor([p["radius"], 0.0, 0.0], dtype=x.dtype, device=x.device)
         handle = sd_torus(hx[:, [0, 2, 1]], p["handle_major"], p["handle_minor"])  # xz-plane ring
         return torch.minimum(body, handle)
     base = sd_cylinder(x, p["base_radius"], p["base_half"], z0=-0.9)
     stem = sd_capsule(x, [0.0, 0.0, -0.9], [0.0, 0.0, p["stem_top"]], p["stem_radius"])
-    t = x - torch.tensor([0.0, 0.0, p["stem_top"]], dtype=x.dtype)
+    t = x - torch.tensor([0.0, 0.0, p["stem_top"]], dtype=x.dtype, device=x.device)
     if p["top"] == "sphere":
         top = sd_sphere(t, p["top_size"])
     elif p["top"] == "torus":
@@ -252,9 +252,9 @@ class ShapeSDF:
 
     def local(self, p_world: Tensor) -> Tensor:
         """[N, 3] world -> [N, 3] object frame (unit-sphere scale; materials live here)."""
-        return p_world @ self.rotation
+        return p_world @ self.rotation.to(p_world.device)
 
     def __call__(self, p_world: Tensor) -> Tensor:
-        """[N, 3] world points -> [N] signed distance bound (world units)."""
-        x = self.center + self.scale * self.local(p_world)
+        """[N, 3] world points -> [N] signed distance bound (world units), on their device."""
+        x = self.center.to(p_world.device) + self.scale * self.local(p_world)
         return raw_sdf(self.family, self.params, x) / self.scale

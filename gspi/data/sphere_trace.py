@@ -2,7 +2,7 @@
 
 All rays of a view (times the supersampling factor) are marched together; rays that hit or
 leave the bounding sphere are dropped from the working set after every step (compaction), so
-the cost follows the rays still in flight. Normals are the autograd gradient of the same SDF
+the cost follows the rays still in flight. Everything runs on the rays' device. Normals are the autograd gradient of the same SDF
 expression at the hit point (exact for the analytic SDF, not a finite difference).
 """
 from __future__ import annotations
@@ -68,7 +68,7 @@ def sphere_trace(sdf: SDF, origins: Tensor, directions: Tensor, *, bound_radius:
     sq = disc.clamp_min(0.0).sqrt()
     t_all = (-b - sq).clamp_min(0.0)
     t_exit = -b + sq
-    hit = torch.zeros(n, dtype=torch.bool)
+    hit = torch.zeros(n, dtype=torch.bool, device=origins.device)
     idx = torch.nonzero(enters & (t_exit > 0)).squeeze(-1)
     o, d, t, te = origins[idx], directions[idx], t_all[idx], t_exit[idx]
     evals = 0

@@ -70,7 +70,8 @@ class GspiMethod(Method):
 
 
 class InhouseMethod(Method):
-    """A baseline run here: ``baselines.<name>.predict_scene`` (and its optional ``prepare``)."""
+    """A baseline run here: ``baselines.<name>.predict_scene`` (and its optional ``prepare``),
+    given the run's resolved ``device`` (every in-house baseline takes ``device=``)."""
 
     def __init__(self, cfg, run_cfg, cache_root):
         super().__init__(cfg, run_cfg, cache_root)
@@ -84,9 +85,12 @@ class InhouseMethod(Method):
         return record
 
     def predict(self, scene, out_scene_dir, *, asset, clock, work_dir, split, progress=False) -> dict:
+        from gspi.device import resolve_device
+
+        device = resolve_device(self.run_cfg.get("device", "cpu"))  # checked at start-up (check_run_config)
         with clock.stage("material"):
             return dict(self.module.predict_scene(scene, asset, out_scene_dir, self.cfg, progress=progress,
-                                                  **self.shared) or {})
+                                                  device=device, **self.shared) or {})
 
 
 class ExternalMethod(Method):

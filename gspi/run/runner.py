@@ -235,7 +235,8 @@ def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, meth
 
     protocol = OmegaConf.create(cfg["eval"])
     validate_protocol(protocol)
-    result = evaluate(data_dir, out / "predictions", protocol, method=method_name)
+    result = evaluate(data_dir, out / "predictions", protocol, method=method_name,
+                      device=resolve_device(cfg.get("device", "cpu")))  # the run's device
     if cfg_hash is not None:
         result.info["config_hash"] = cfg_hash
     write_eval(out / "eval", result, dict(cfg["eval"]))
