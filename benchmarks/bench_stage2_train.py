@@ -9,6 +9,7 @@ is the model's compute; ``--data`` also times ``sample_batch`` on a dataset's tr
     python -m benchmarks.bench_stage2_train --settings 1x8 2x32 --compile
     python -m benchmarks.bench_stage2_train --data ~/.cache/gspi/stage2_pool
     python -m benchmarks.bench_stage2_train --settings 1x32 2x32 2px1x32   # + data-parallel
+    python -m benchmarks.bench_stage2_train --settings 1x16 --stage2 capacity_l   # another size
 
 A setting ``TxB`` = T torch threads, global batch B; ``PpxTxB`` = P data-parallel processes
 (``gspi.stage2.distributed`` on gloo, as ``torchrun --nproc_per_node=P`` runs gspi-train) of T
@@ -36,9 +37,12 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 PRIOR_DIM, VIEWS_KEPT, CELLS = 256, 16, 25
 
 
+STAGE2 = {"config": "cpu_small"}  # --stage2: the model size timed (conf/stage2/<name>.yaml)
+
+
 def train_config(overrides: list[str]) -> dict:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("gspi_train", overrides=["stage2=cpu_small", "data_dir=.", "out=.",
+        cfg = compose("gspi_train", overrides=[f"stage2={STAGE2['config']}", "data_dir=.", "out=.",
                                                "stage2.train.init_from=null", *overrides])
     return OmegaConf.to_container(cfg, resolve=True)
 
@@ -143,8 +147,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--compile", action="store_true", help="also time torch.compile (inductor)")
     parser.add_argument("--data", default=None, help="dataset folder: also time sample_batch")
+    parser.add_argument("--stage2", default="cpu_small", help="conf/stage2 config of the model timed")
     args = parser.parse_args()
-    print(f"machine: {machine()}")
+    STAGE2["config"] = args.stage2
+    print(f"machine: {machine()}; model: stage2={args.stage2}")
     rows = []
     for setting in args.settings:
         procs, threads, batch = parse_setting(setting)
