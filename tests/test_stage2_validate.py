@@ -65,3 +65,13 @@ def test_an_empty_validation_split_is_refused(dataset, tmp_path):  # noqa: F811
     cfg = tiny_cfg(dataset, tmp_path, "stage2.validate.every=2", "stage2.validate.split=val")
     with pytest.raises(ValueError, match="split 'val' is empty"):
         train(cfg, tmp_path)
+
+
+def test_a_saved_checkpoint_scores_as_it_did_while_training(dataset, runs):  # noqa: F811
+    """score_checkpoint(best.pt) reproduces the score logged at the best step."""
+    from gspi.stage2.validate import ValidationConfig, score_checkpoint
+
+    _, checked, stats = runs
+    cfg = ValidationConfig(every=4, split="test", num_steps=2, max_points=300)
+    scores = score_checkpoint(checked / "best.pt", dataset, cfg)
+    assert scores[SCORE_KEY] == pytest.approx(stats["best_validation"]["score"], abs=1e-9)

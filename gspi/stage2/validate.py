@@ -10,6 +10,8 @@ scene whose values are propagated to the whole cloud by 1-NN (``gspi.point_cloud
 .nearest_fill``, as ``stage2.inference.max_points`` does at inference). It draws from its own
 seeded generators and reads only the EMA weights, so a run with validation trains exactly as
 one without (tested). The selection score is the mean PSNR over albedo, roughness, metallic.
+
+    python -m gspi.stage2.validate CHECKPOINT DATASET [--split val]   # a saved model, same measure
 """
 from __future__ import annotations
 
@@ -90,3 +92,39 @@ def validation_config(stage2: Mapping[str, Any]) -> ValidationConfig:
     from gspi.strict_config import dataclass_from_dict
 
     return dataclass_from_dict(ValidationConfig, stage2["validate"], "stage2.validate")
+
+
+def score_checkpoint(path, data_dir, cfg: ValidationConfig) -> dict[str, float]:
+    """The validation scores of a saved Stage II model (a reference line for training curves)."""
+    from gspi.stage2.checkpoint import load_stage2_checkpoint
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.train import load_split
+
+    model, saved = load_stage2_checkpoint(path)
+    encoder = build_encoder(saved["stage2"]["prior"])
+    scenes = load_split({**saved, "data_dir": str(data_dir)}, cfg.split, encoder)
+    return Validator(cfg, scenes, PointDataConfig.from_mapping(saved["stage2"]["data"])).score(model)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """python -m gspi.stage2.validate CHECKPOINT DATASET [--split val] [--num-steps 10] [--max-points 20000]"""
+    import argparse
+    import json
+
+    import torch
+
+    parser = argparse.ArgumentParser(description="Stage II validation scores of a checkpoint")
+    parser.add_argument("checkpoint")
+    parser.add_argument("data")
+    parser.add_argument("--split", default="val")
+    parser.add_argument("--num-steps", type=int, default=10)
+    parser.add_argument("--max-points", type=int, default=20000)
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    cfg = ValidationConfig(every=1, split=args.split, num_steps=args.num_steps, max_points=args.max_points)
+    print(json.dumps(score_checkpoint(args.checkpoint, args.data, cfg), indent=2))
+
+
+if __name__ == "__main__":
+    main()
