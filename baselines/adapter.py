@@ -163,6 +163,12 @@ def export_blender_scene(scene_dir: Path, out_dir: Path) -> Path:
     return out
 
 
+def skip_train_flag(cfg: Mapping) -> str:
+    """`--skip_train` unless `render_lattice: true` asks the render command for the training
+    (= lattice) views too, for lattice-view evaluation (`eval.split=lattice`)."""
+    return "" if option(cfg, "render_lattice", (True, False)) else "--skip_train"
+
+
 def check_path_free_of(path: Path, words: tuple[str, ...], system: str) -> None:
     """Some loaders switch dataset readers on substrings of the data path: refuse those."""
     hits = [w for w in words if w in str(Path(path).resolve())]
@@ -181,6 +187,8 @@ class Adapter:
 
     name = ""
     forbidden_path_words: tuple[str, ...] = ()  # data-path substrings that switch its loader
+    # view splits whose maps the system's render command writes (train = the lattice views)
+    rendered_splits: tuple[str, ...] = ("train", "test")
 
     # --- export -------------------------------------------------------------------------
     def export(self, scene_dir: str | Path, out_dir: str | Path, cfg: Mapping) -> Path:
@@ -249,21 +257,24 @@ class Adapter:
         return seconds
 
     # --- import -------------------------------------------------------------------------
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> Any:
-        """Locate and validate the system's output folder; returns what `read_view` needs."""
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Any:
+        """Locate and validate the system's output folder of the `split` views (`test`, or
+        `train`: the lattice views); returns what `read_view` needs."""
         raise NotImplementedError
 
     def read_view(self, outputs: Any, index: int, view: View, scene: Scene,
                   cfg: dict) -> dict[str, np.ndarray]:
-        """Maps of the `index`-th test view: {"albedo": HxWx3 sRGB-encoded, "roughness": HxW,
-        "metallic": HxW (linear)}, only the channels the system models, values in [0, 1]."""
+        """Maps of the `index`-th view of `view.split`: {"albedo": HxWx3 sRGB-encoded,
+        "roughness": HxW, "metallic": HxW (linear)}, only the channels the system models,
+        values in [0, 1]."""
         raise NotImplementedError
 
     def import_outputs(self, src: str | Path, scene_dir: str | Path, out_pred_dir: str | Path,
-                       cfg: Mapping, runtime_s: float | None = None) -> Path:
-        """Convert the system's outputs for one scene into `<out_pred_dir>/<scene name>/`.
+                       cfg: Mapping, runtime_s: float | None = None, split: str = "test") -> Path:
+        """Convert the system's outputs for one scene into `<out_pred_dir>/<scene name>/<split>/`.
 
-        Test view k of the scene (its order in scene.json) is the system's view index k.
+        View k of the scene's `split` (its order in scene.json) is the system's view index k
+        of that split (`test`, or `train`: the lattice views, exported as the training frames).
         Runtime: `runtime_s`, else `cfg["runtime_s"]`, else `<src>/gspi_runtime.json` (a timed
         `run`), else null; it is counted as both material and end-to-end time because these
         systems estimate geometry and materials in one run.
@@ -275,14 +286,17 @@ class Adapter:
         src, scene = Path(src), read_scene(scene_dir)
         if not src.is_dir():
             raise AdapterError(f"{src}: output folder of {self.name} not found")
-        outputs = self.open_outputs(src, scene, cfg)
+        if split not in self.rendered_splits:
+            raise AdapterError(f"{self.name}: its commands render the {' and '.join(self.rendered_splits)} "
+                               f"views only, not {split!r}")
+        outputs = self.open_outputs(src, scene, cfg, split)
         out_scene = Path(out_pred_dir) / scene.name
-        for index, view in enumerate(scene.split_views("test")):
+        for index, view in enumerate(scene.split_views(split)):
             maps = self.read_view(outputs, index, view, scene, cfg)
             for channel, values in maps.items():
-                check_map(values, channel, scene, f"{src} ({self.name}, test view {index} "
+                check_map(values, channel, scene, f"{src} ({self.name}, {split} view {index} "
                                                   f"= {view.id})")
-                write_material(out_scene / "test" / view.id, channel, values)
+                write_material(out_scene / split / view.id, channel, values)
         runtime = runtime_s if runtime_s is not None else cfg.get("runtime_s")
         if runtime is None and (src / RUNTIME_FILE).is_file():
             runtime = json.loads((src / RUNTIME_FILE).read_text())["seconds"]
@@ -328,8 +342,10 @@ def get_adapter(name: str) -> Adapter:
     return getattr(importlib.import_module(module), cls)()
 
 
-def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str | Path) -> Path:
-    """Table 1: import `<cfg.outputs>/<scene name>/` (the system's model dir for that scene).
+def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str | Path,
+                          split: str = "test") -> Path:
+    """Table 1: import `<cfg.outputs>/<scene name>/` (the system's model dir for that scene),
+    the views of `split` (`test`, or `train`: the lattice views).
 
     Raises:
         AdapterError: `outputs` is unset or has no folder for this scene.
@@ -342,4 +358,4 @@ def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str
     src = Path(cfg["outputs"]) / scene.name
     if not src.is_dir():
         raise AdapterError(f"{src}: missing (outputs of {cfg.get('name')} for scene {scene.name})")
-    return get_adapter(str(cfg["name"])).import_outputs(src, scene_dir, out_pred_dir, cfg)
+    return get_adapter(str(cfg["name"])).import_outputs(src, scene_dir, out_pred_dir, cfg, split=split)

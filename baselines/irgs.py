@@ -2,8 +2,9 @@
 
 Input: the Blender loader (`transforms_*.json` + RGBA PNG); the data path must not contain
 `TensoIR`, `Synthetic4Relight` or `blender_LDR`, which switch the loader.
-Output read (render.py without `--no_save`): `<model>/irgs/test/ours_<iter>/<key>/{k:05d}.png`
-(`src` may be `<model>` or `<model>/irgs`; iter = the highest by default, 20000 here).
+Output read (render.py without `--no_save`): `<model>/irgs/<split>/ours_<iter>/<key>/{k:05d}.png`
+(`src` may be `<model>` or `<model>/irgs`; iter = the highest by default, 20000 here); split
+`test`, or `train` (the lattice views: the recipe's render.py renders both, `shuffle=False`).
 
 * albedo: `albedo_source: base_color_linear` (default) holds the linear base colour: it is
   sRGB-encoded here; `base_color` holds the same already sRGB-encoded (taken as is).
@@ -29,9 +30,9 @@ class IrgsAdapter(Adapter):
     name = "irgs"
     forbidden_path_words = ("TensoIR", "Synthetic4Relight", "blender_LDR")
 
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> Path:
-        """`<src>[/irgs]/test/ours_<iter>`."""
-        root = first_existing([src / "irgs" / "test", src / "test"],
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Path:
+        """`<src>[/irgs]/<split>/ours_<iter>`."""
+        root = first_existing([src / "irgs" / split, src / split],
                               "IRGS render.py output of the irgs stage")
         return find_iteration_dir(root, "ours_", cfg.get("iteration"), "IRGS render.py output")
 
@@ -40,8 +41,8 @@ class IrgsAdapter(Adapter):
         name = f"{index:05d}.png"
         source = option(cfg, "albedo_source", ALBEDO_SOURCES)
         albedo = read_output_png(outputs / source / name,
-                                 f"IRGS {source} of test view {index} ({view.id})")[..., :3]
+                                 f"IRGS {source} of {view.split} view {index} ({view.id})")[..., :3]
         rough_path = outputs / "roughness" / name
-        rough = read_output_png(rough_path, f"IRGS roughness of test view {index} ({view.id})")
+        rough = read_output_png(rough_path, f"IRGS roughness of {view.split} view {index} ({view.id})")
         return {"albedo": srgb_encode(albedo) if source == "base_color_linear" else albedo,
                 "roughness": grey_channel(rough, rough_path)}

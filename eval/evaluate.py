@@ -20,7 +20,7 @@ from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, n
                          read_meta, read_scene, read_splits, read_view_file)
 from eval.metrics import erode_mask
 from eval.protocol import apply_albedo_scale, fit_albedo_scale
-from eval.protocol_id import protocol_dict, protocol_hash
+from eval.protocol_id import protocol_dict, protocol_hash, scored_split
 from eval.scoring import has_metal, metal_scores, score_pair, score_relit
 from eval.views import relight_view, view_directions
 
@@ -154,7 +154,8 @@ class EnvironmentCache:
 def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: EnvironmentCache
                    ) -> tuple[list[dict], list[dict]]:
     """Rows for one scene and the list of missing (view, channel) entries."""
-    views = scene.split_views(protocol.split)
+    split = scored_split(protocol)
+    views = scene.split_views(split)
     gt = {v.id: _load_gt_view(scene, v) for v in views}
     for v in views:
         gt[v.id]["mask"] = _scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol)
@@ -163,7 +164,7 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
         float(protocol.metallic.threshold))
     preds, missing = {}, []
     for v in views:
-        pdir = pred_scene / protocol.split / v.id
+        pdir = pred_scene / split / v.id
         preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width)) if pdir.is_dir() else {}
     modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
     for v in views:
@@ -278,7 +279,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         metas.append(read_meta(pred_scene))
     if not rows:  # "images: 0" with exit 0 read as "not modelled" (docs/RELIABILITY.md)
         raise LayoutError(no_images_message(Path(pred_root), read_scene(gt_scenes[names[0]]),
-                                            protocol.split, list(protocol.channels)))
+                                            scored_split(protocol), list(protocol.channels)))
     methods = sorted({m["method"] for m in metas if "method" in m})
     missing_scenes = [n for n in expected_scenes(Path(gt_root), names, gt_scenes) if n not in names]
     if missing_scenes:  # a method that skips a hard scene must not look better unnoticed

@@ -25,7 +25,16 @@ def protocol_dict(protocol) -> dict:
     return OmegaConf.to_container(protocol, resolve=True)
 
 
-ALIASES = {"albedo_alignment": {"per_channel": "lstsq"}}  # spellings with one meaning
+# spellings with one meaning; `lattice` names the views of a scene's `train` folder: the 32
+# lattice views the method reconstructs from (docs/PROTOCOL.md, "Views")
+ALIASES = {"albedo_alignment": {"per_channel": "lstsq"}, "split": {"lattice": "train"}}
+SPLIT_LABELS = {"train": "lattice views", "val": "validation views"}  # footer words; test: none
+
+
+def scored_split(protocol) -> str:
+    """The view folder a protocol scores (`eval.split` with `lattice` resolved to `train`)."""
+    split = protocol["split"] if isinstance(protocol, dict) else protocol.split
+    return ALIASES["split"].get(split, split)
 
 
 def canonical(protocol: dict) -> dict:
@@ -106,7 +115,9 @@ def describe_protocol(p: dict) -> str:
     tone = r.get("tonemap")
     tone_text = (f"linear clipped to [0, {r.get('hdr_max')}]" if tone == "none" else
                  f"{tone}{'+sRGB' if r.get('srgb') else ''}, exposure {r.get('exposure_stops')} stops")
-    return (f"{p.get('name')} v{p.get('version')} #{protocol_hash(p)}: split {p.get('split')}; "
+    split = ALIASES["split"].get(p.get("split"), p.get("split"))
+    label = f" ({SPLIT_LABELS[split]})" if split in SPLIT_LABELS else ""
+    return (f"{p.get('name')} v{p.get('version')} #{protocol_hash(p)}: split {split}{label}; "
             f"albedo alignment {p.get('albedo_alignment')} (scope {p.get('alignment_scope')}), "
             f"scored in {p.get('albedo_space', 'srgb')}; GT mask eroded "
             f"{p.get('mask_erosion_px', 0)} px; PSNR over {ps.get('region', 'mask')}, {floor_text}"

@@ -85,8 +85,8 @@ class InhouseMethod(Method):
 
     def predict(self, scene, out_scene_dir, *, asset, clock, work_dir, split, progress=False) -> dict:
         with clock.stage("material"):
-            return dict(self.module.predict_scene(scene, asset, out_scene_dir, self.cfg, progress=progress,
-                                                  **self.shared) or {})
+            return dict(self.module.predict_scene(scene, asset, out_scene_dir, self.cfg, split=split,
+                                                  progress=progress, **self.shared) or {})
 
 
 class ExternalMethod(Method):
@@ -105,7 +105,7 @@ class ExternalMethod(Method):
         from baselines.adapter import import_placed_outputs
 
         with clock.stage("import"):
-            import_placed_outputs(self.cfg, scene.root, out_scene_dir.parent)
+            import_placed_outputs(self.cfg, scene.root, out_scene_dir.parent, split=split)
         return {"imported_from": str(Path(self.cfg["outputs"]) / scene.name)}
 
 

@@ -1,7 +1,8 @@
 """One `gspi-run` job: a method on a dataset's scenes, scored, recorded, tracked.
 
     <out>/
-      predictions/<scene>/{meta.json, test/<view>/*.png}   canonical layout (docs/FORMAT.md)
+      predictions/<scene>/{meta.json, <views>/<view>/*.png} canonical layout (docs/FORMAT.md);
+                                                            <views> = eval.split (test | train)
       work/<scene>/                                         intermediate files (pipeline.py)
       eval/        per_view.csv, summary.json, eval_meta.json   (as gspi-eval writes them)
       points_eval/summary.json                               Table 2's measure (GS-PI only)
@@ -65,6 +66,14 @@ def scene_done(pred_scene: Path, cfg_hash: str, scene: Scene, split: str) -> boo
     return all((pred_scene / split / v.id).is_dir() for v in scene.split_views(split))
 
 
+def view_split(cfg: Mapping[str, Any]) -> str:
+    """The views a job predicts and scores: the protocol's ``eval.split`` (``lattice`` = the
+    ``train`` folder). The job's own ``split`` picks the dataset's scenes, not their views."""
+    from eval.protocol_id import scored_split
+
+    return scored_split(dict(cfg["eval"]))
+
+
 def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
@@ -75,7 +84,7 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     """Predicts one scene into ``out/predictions/<name>`` and writes its meta.json."""
     scene = read_scene(data_dir if data_dir.name == name and (data_dir / "scene.json").is_file()
                        else data_dir / name)
-    split = cfg["split"]
+    split = view_split(cfg)
     pred_scene, work = out / "predictions" / name, out / "work" / name
     if scene_done(pred_scene, cfg_hash, scene, split):
         log.info("%s: finished prediction found, reused", name)
@@ -326,7 +335,7 @@ def write_figures(cfg: Mapping[str, Any], data_dir: Path, out: Path, names: list
         scene_dir = data_dir if (data_dir / "scene.json").is_file() else data_dir / name
         try:
             path = scene_figure(read_scene(scene_dir), out / "predictions" / name, out / "figures" / f"{name}.png",
-                                protocol, split=cfg["split"])
+                                protocol, split=view_split(cfg))
             tracker.log_image(f"figures/{name}", path)
         except Exception:  # a figure must never fail a run
             log.warning("%s: figure failed:\n%s", name, traceback.format_exc())
