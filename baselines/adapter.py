@@ -28,7 +28,7 @@ import torch
 from eval.atomic import write_json_atomic
 from eval.colorspace import linear_to_srgb
 from eval.imageio import ImageFormatError, read_png
-from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta
+from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta, write_view_file
 
 RUNTIME_FILE = "gspi_runtime.json"  # written into the model dir by `Adapter.run`
 METHOD_CONF_DIR = Path(__file__).resolve().parents[1] / "conf" / "method"
@@ -266,7 +266,8 @@ class Adapter:
                   cfg: dict) -> dict[str, np.ndarray]:
         """Maps of the `index`-th view of `view.split`: {"albedo": HxWx3 sRGB-encoded,
         "roughness": HxW, "metallic": HxW (linear)}, only the channels the system models,
-        values in [0, 1]."""
+        values in [0, 1]; plus "alpha": HxW, the system's rendered opacity, where it saves it
+        (written as the view's `alpha.png`, read by `eval.unpremultiply`)."""
         raise NotImplementedError
 
     def import_outputs(self, src: str | Path, scene_dir: str | Path, out_pred_dir: str | Path,
@@ -293,6 +294,10 @@ class Adapter:
         out_scene = Path(out_pred_dir) / scene.name
         for index, view in enumerate(scene.split_views(split)):
             maps = self.read_view(outputs, index, view, scene, cfg)
+            alpha = maps.pop("alpha", None)  # the system's opacity, for eval.unpremultiply
+            if alpha is not None:
+                check_map(alpha, "roughness", scene, f"{src} ({self.name}, alpha of {split} view {index})")
+                write_view_file(out_scene / split / view.id, "alpha.png", alpha[..., None])
             for channel, values in maps.items():
                 check_map(values, channel, scene, f"{src} ({self.name}, {split} view {index} "
                                                   f"= {view.id})")

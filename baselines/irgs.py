@@ -11,7 +11,9 @@ Output read (render.py without `--no_save`): `<model>/irgs/<split>/ours_<iter>/<
 * roughness: channel 0 of the grey `roughness/` map (linear).
 * metallic: a PLY attribute that never enters shading (F0 = 0.04): absent.
 Every map is multiplied by the rendered alpha and the GT mask; interior pixels are unaffected,
-edge pixels carry the alpha weighting (left as is).
+edge pixels carry the alpha weighting. The rendered alpha (`rend_alpha/`, saved x GT mask as
+well) is imported as the view's `alpha.png`, so `eval.unpremultiply=true` can divide it out;
+without that option the maps are scored as saved.
 """
 from __future__ import annotations
 
@@ -44,5 +46,10 @@ class IrgsAdapter(Adapter):
                                  f"IRGS {source} of {view.split} view {index} ({view.id})")[..., :3]
         rough_path = outputs / "roughness" / name
         rough = read_output_png(rough_path, f"IRGS roughness of {view.split} view {index} ({view.id})")
-        return {"albedo": srgb_encode(albedo) if source == "base_color_linear" else albedo,
+        maps = {"albedo": srgb_encode(albedo) if source == "base_color_linear" else albedo,
                 "roughness": grey_channel(rough, rough_path)}
+        alpha_path = outputs / "rend_alpha" / name
+        if alpha_path.is_file():  # render.py saves it beside the maps (x GT mask, like them)
+            maps["alpha"] = grey_channel(read_output_png(alpha_path, f"IRGS rendered opacity of "
+                                                         f"{view.split} view {index} ({view.id})"), alpha_path)
+        return maps

@@ -72,6 +72,7 @@ class ProtocolConfig:
     alignment_scope: str = "scene"      # scene (pooled over its views) | view
     albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear
     mask_erosion_px: int = 0            # erode the GT mask by a (2r+1)^2 square (Stanford-ORB: 2)
+    unpremultiply: bool = False         # divide maps by the prediction's alpha.png inside the mask
     fail_on_missing_view: bool = False  # False: report missing views and score the rest
     psnr: PsnrConfig = field(default_factory=PsnrConfig)
     ssim: SsimConfig = field(default_factory=SsimConfig)
@@ -122,6 +123,7 @@ def validate_protocol(cfg) -> None:
     if isinstance(cfg.version, bool) or not isinstance(cfg.version, int) or cfg.version < 1:
         raise ValueError(f"eval.version={cfg.version!r}: must be an integer >= 1")
     _allowed("split", cfg.split, SCORED_SPLITS)
+    _allowed("unpremultiply", cfg.unpremultiply, (False, True))
     if not float(cfg.psnr.mse_floor) > 0:
         raise ValueError(f"eval.psnr.mse_floor={cfg.psnr.mse_floor}: must be > 0 "
                          "(a zero floor lets one exact image make a mean +inf)")

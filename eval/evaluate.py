@@ -21,6 +21,7 @@ from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, n
 from eval.metrics import erode_mask
 from eval.protocol import apply_albedo_scale, fit_albedo_scale
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
+from eval.unpremultiply import unpremultiply
 from eval.scoring import has_metal, metal_scores, score_pair, score_relit
 from eval.views import relight_view, view_directions
 
@@ -108,6 +109,8 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int]) -> dict:
             if arr.shape[:2] != shape:
                 raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
             out[name] = _tensor(arr)
+    if (pred_dir / "alpha.png").exists():  # the method's own opacity (eval.unpremultiply)
+        out["alpha"] = _tensor(read_view_file(pred_dir, "alpha.png", shape))
     return out
 
 
@@ -166,6 +169,12 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
     for v in views:
         pdir = pred_scene / split / v.id
         preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width)) if pdir.is_dir() else {}
+    divided = set()  # views whose maps were divided by the method's alpha.png
+    for v in views:
+        alpha = preds[v.id].pop("alpha", None)
+        if protocol.unpremultiply and alpha is not None:
+            preds[v.id].update(unpremultiply(preds[v.id], alpha, gt[v.id]["mask"]))
+            divided.add(v.id)
     modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
     for v in views:
         for c in modelled:
@@ -198,6 +207,9 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
         if "relight" in protocol.channels and "albedo" in p and \
                 all(c in p for c in modelled):
             rows += _relight_rows(scene, v, g, p, protocol, net, envs)
+    for row in rows:
+        if row["view"] in divided:
+            row["unpremultiplied"] = True
     return rows, missing
 
 
@@ -296,6 +308,8 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
                         "end_to_end": _mean_runtime(metas, "end_to_end")},
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
     }
+    if protocol.unpremultiply:  # how many views carried an alpha.png and were divided by it
+        info["unpremultiplied_views"] = len({(r["scene"], r["view"]) for r in rows if r.get("unpremultiplied")})
     floored = sum(c["psnr_floored"] for c in info["counts"].values())
     if floored:
         info["note"] = (f"{floored} image(s) hit the PSNR floor (MSE <= {protocol.psnr.mse_floor:g}, "

@@ -31,6 +31,7 @@ VIEW_FILES = {
     "normal.exr": ("exr", 3),     # world-space unit normals, 0 outside the mask
     "depth.exr": ("exr", 1),      # camera-space z (OpenCV), world units, 0 outside the mask
     "mask.png": ("png", 1),       # 8-bit, 255 = foreground
+    "alpha.png": ("png", 1),      # predictions only, optional: 16-bit, the method's rendered opacity
 }
 
 
