@@ -13,7 +13,6 @@ system module (`baselines/<system>.py`) holds only what is specific to it: `open
 from __future__ import annotations
 
 import importlib
-import json
 import shlex
 import shutil
 import subprocess
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from baselines.runtime import command_stages, given_runtime, read_runtime, split_seconds
 from eval.atomic import write_json_atomic
 from eval.colorspace import linear_to_srgb
 from eval.imageio import ImageFormatError, read_png
@@ -225,6 +225,7 @@ class Adapter:
                 if value:
                     argv.append(value)
             out.append(argv)
+        command_stages(cfg, len(out))  # a bad `command_stages` fails before anything runs
         return out
 
     def run(self, scene_export_dir: str | Path, model_dir: str | Path, cfg: Mapping, *,
@@ -232,8 +233,9 @@ class Adapter:
         """Print the commands; unless `dry_run`, run them in the checkout and time them.
 
         Returns:
-            The wall time in seconds of all commands (also written to
-            `<model_dir>/gspi_runtime.json`), or None for a dry run.
+            The wall time in seconds of all commands, or None for a dry run. Each command is
+            timed; `<model_dir>/gspi_runtime.json` keeps the times and, with the config's
+            `command_stages`, the geometry / material / end-to-end split (baselines/runtime.py).
         Raises:
             AdapterError: not a dry run and `checkout` is unset or missing.
             subprocess.CalledProcessError: a command failed.
@@ -248,13 +250,17 @@ class Adapter:
         if not checkout or not Path(checkout).is_dir():
             raise AdapterError(f"method {self.name}: checkout={checkout!r} is not a folder; set "
                                f"method.checkout to a clone of {cfg.get('repo', {}).get('url')}")
+        stages = command_stages(cfg, len(argvs))
         Path(model_dir).mkdir(parents=True, exist_ok=True)
-        start = time.perf_counter()
+        seconds = []
         for argv in argvs:
+            start = time.perf_counter()
             subprocess.run(argv, cwd=checkout, check=True)
-        seconds = time.perf_counter() - start
-        write_json_atomic(Path(model_dir) / RUNTIME_FILE, {"system": self.name, "seconds": seconds, "commands": argvs})
-        return seconds
+            seconds.append(time.perf_counter() - start)
+        write_json_atomic(Path(model_dir) / RUNTIME_FILE, {
+            "system": self.name, "seconds": sum(seconds), "commands": argvs, "command_seconds": seconds,
+            "command_stages": stages, **split_seconds(seconds, stages)})
+        return sum(seconds)
 
     # --- import -------------------------------------------------------------------------
     def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Any:
@@ -276,9 +282,10 @@ class Adapter:
 
         View k of the scene's `split` (its order in scene.json) is the system's view index k
         of that split (`test`, or `train`: the lattice views, exported as the training frames).
-        Runtime: `runtime_s`, else `cfg["runtime_s"]`, else `<src>/gspi_runtime.json` (a timed
-        `run`), else null; it is counted as both material and end-to-end time because these
-        systems estimate geometry and materials in one run.
+        Runtime: `runtime_s`, else `cfg["runtime_s"]` (a number = the total; or {geometry,
+        material}), else `<src>/gspi_runtime.json` (a timed `run`, split by the config's
+        `command_stages` where the system has them), else unknown; meta.json records
+        `runtime_s.{geometry, material, end_to_end}` (baselines/runtime.py).
 
         Returns:
             The prediction folder of the scene.
@@ -302,12 +309,12 @@ class Adapter:
                 check_map(values, channel, scene, f"{src} ({self.name}, {split} view {index} "
                                                   f"= {view.id})")
                 write_material(out_scene / split / view.id, channel, values)
-        runtime = runtime_s if runtime_s is not None else cfg.get("runtime_s")
-        if runtime is None and (src / RUNTIME_FILE).is_file():
-            runtime = json.loads((src / RUNTIME_FILE).read_text())["seconds"]
-        runtime = None if runtime is None else float(runtime)
-        write_meta(out_scene, method=str(cfg.get("name", self.name)), material_s=runtime,
-                   end_to_end_s=runtime, source={"system": self.name, "outputs": str(src)})
+        given = runtime_s if runtime_s is not None else cfg.get("runtime_s")
+        runtime = given_runtime(given) if given is not None else read_runtime(src, RUNTIME_FILE)
+        runtime = runtime or {"geometry": None, "material": None, "end_to_end": None}
+        write_meta(out_scene, method=str(cfg.get("name", self.name)), material_s=runtime["material"],
+                   end_to_end_s=runtime["end_to_end"], geometry_s=runtime["geometry"],
+                   source={"system": self.name, "outputs": str(src)})
         return out_scene
 
 

@@ -305,7 +305,9 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         "data": str(Path(gt_root).resolve()), "counts": image_counts(rows),
         "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
         "runtime_min": {"material": _mean_runtime(metas, "material"),
-                        "end_to_end": _mean_runtime(metas, "end_to_end")},
+                        "end_to_end": _mean_runtime(metas, "end_to_end"),
+                        **({"geometry": _mean_runtime(metas, "geometry")}
+                           if any("geometry" in m.get("runtime_s", {}) for m in metas) else {})},
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
     }
     if protocol.unpremultiply:  # how many views carried an alpha.png and were divided by it

@@ -297,9 +297,11 @@ def read_meta(pred_scene_dir: Path) -> dict:
 
 
 def write_meta(pred_scene_dir: Path, *, method: str, material_s: float | None,
-               end_to_end_s: float | None, **extra) -> Path:
+               end_to_end_s: float | None, geometry_s: float | None = None, **extra) -> Path:
+    """`meta.json`: runtimes in seconds (None = unknown); `geometry` only when known."""
     path = Path(pred_scene_dir) / "meta.json"
-    write_json_atomic(path, {"method": method,
-                             "runtime_s": {"material": material_s, "end_to_end": end_to_end_s},
-                             **extra})
+    runtime = {"material": material_s, "end_to_end": end_to_end_s}
+    if geometry_s is not None:
+        runtime["geometry"] = geometry_s
+    write_json_atomic(path, {"method": method, "runtime_s": runtime, **extra})
     return path

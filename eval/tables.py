@@ -158,10 +158,12 @@ def _fmt(value, col: str) -> str:
 
 
 def _runtime_cell(row) -> str:
+    """"material (end-to-end)"; a system whose material time cannot be split from its geometry
+    (one joint run, docs/BASELINES.md) shows its end-to-end time as "T total only"."""
     mat, e2e = row["runtime/material"], row["runtime/end_to_end"]
-    if mat is None or (isinstance(mat, float) and math.isnan(mat)):
-        return "--"
     e2e_ok = e2e is not None and not (isinstance(e2e, float) and math.isnan(e2e))
+    if mat is None or (isinstance(mat, float) and math.isnan(mat)):
+        return f"{_fmt(e2e, 'runtime')} total only" if e2e_ok else "--"
     return _fmt(mat, "runtime") + (f" ({_fmt(e2e, 'runtime')})" if e2e_ok else "")
 
 

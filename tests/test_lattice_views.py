@@ -147,3 +147,29 @@ def test_gspi_import_split_option_is_validated(scene, tmp_path):
                             "out": str(tmp_path / "pred"), "runtime_s": None, "split": "lattise"})
     with pytest.raises(ValueError, match=r"split='lattise'; allowed for irgs: train, test, lattice"):
         run_import(cfg)
+
+
+def test_gspi_run_imports_an_external_systems_lattice_views(micro_dataset, tmp_path):
+    """IRGS outputs of the train views placed under method.outputs: gspi-run eval.split=lattice
+    imports and scores them; a runtime given as {geometry, material} reaches meta.json."""
+    from gspi.run.runner import run_job
+    from tests.run_helpers import run_config
+
+    name = json.loads((micro_dataset / "splits.json").read_text())["test"][0]
+    scene = read_scene(micro_dataset / name)
+    train = tmp_path / "outputs" / name / "irgs" / "train" / "ours_20000"
+    for k, m in enumerate(train_maps(scene)):
+        save_image(train / "base_color_linear" / f"{k:05d}.png", srgb_eotf(m["albedo"]))
+        save_image(train / "roughness" / f"{k:05d}.png", m["roughness"])
+    out = tmp_path / "run"
+    result = run_job(run_config(micro_dataset, out, [
+        "method=irgs", f"method.outputs={tmp_path / 'outputs'}", "eval.split=lattice", "figures=false",
+        "method.runtime_s={geometry: 600, material: 400}"]))
+    assert result["status"] == "complete", result
+    meta = json.loads((out / "predictions" / name / "meta.json").read_text())
+    assert meta["runtime_s"] == {"material": 400.0, "end_to_end": 1000.0, "geometry": 600.0}
+    summary = json.loads((out / "eval" / "summary.json").read_text())
+    assert summary["albedo"]["psnr"] > 40 and summary["roughness"]["psnr"] > 40  # GT through 8 bits
+    eval_meta = json.loads((out / "eval" / "eval_meta.json").read_text())
+    assert eval_meta["counts"]["albedo"]["images"] == len(scene.split_views("train"))
+    assert eval_meta["runtime_min"] == {"material": 400 / 60, "end_to_end": 1000 / 60, "geometry": 10.0}

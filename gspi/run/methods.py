@@ -99,6 +99,11 @@ class ExternalMethod(Method):
         if not self.cfg.get("outputs"):
             raise MethodUnavailable(f"method {self.name!r}: no outputs configured; place the system's outputs "
                                     f"under a folder and pass method.outputs=<folder> (docs/BASELINES.md)")
+        from baselines.runtime import command_stages, given_runtime
+
+        command_stages(self.cfg, len(self.cfg.get("commands") or []))  # checked before any import
+        if self.cfg.get("runtime_s") is not None:
+            given_runtime(self.cfg["runtime_s"])
         return {}
 
     def predict(self, scene, out_scene_dir, *, asset, clock, work_dir, split, progress=False) -> dict:

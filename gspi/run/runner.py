@@ -105,14 +105,17 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     material_s = clock.seconds(*method.material_stages)
     recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
     end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
+    geometry_s = recon_s
     if method.reports_own_runtime:  # the system's own runtime (user value or timed run), not the import's
         runtime = read_meta(pred_scene).get("runtime_s", {})
         material_s, end_to_end = runtime.get("material"), runtime.get("end_to_end")
+        geometry_s = runtime.get("geometry")
     points_scores = stats.pop("points_scores", None) if isinstance(stats, dict) else None
     if points_scores is not None:
         write_json_atomic(work / "points_scores.json", points_scores)
     write_meta(pred_scene, method=method.name, material_s=None if material_s is None else round(material_s, 3),
-               end_to_end_s=None if end_to_end is None else round(end_to_end, 3), config_hash=cfg_hash,
+               end_to_end_s=None if end_to_end is None else round(end_to_end, 3),
+               geometry_s=None if geometry_s is None else round(float(geometry_s), 3), config_hash=cfg_hash,
                stages=clock.stages, asset={k: v for k, v in asset_info.items() if k != "config"},
                stats=stats)
     return read_meta(pred_scene)
