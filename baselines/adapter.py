@@ -277,7 +277,7 @@ class Adapter:
         raise NotImplementedError
 
     def import_outputs(self, src: str | Path, scene_dir: str | Path, out_pred_dir: str | Path,
-                       cfg: Mapping, runtime_s: float | None = None, split: str = "test") -> Path:
+                       cfg: Mapping, runtime_s: float | Mapping | None = None, split: str = "test") -> Path:
         """Convert the system's outputs for one scene into `<out_pred_dir>/<scene name>/<split>/`.
 
         View k of the scene's `split` (its order in scene.json) is the system's view index k

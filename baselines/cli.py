@@ -57,6 +57,11 @@ def run_export(cfg: DictConfig) -> dict:
             "commands": argvs, "runtime_s": runtime}
 
 
+def as_runtime(value):
+    """`runtime_s=` of the command line: a number (total seconds) or {geometry, material}."""
+    return as_dict(value) if isinstance(value, DictConfig) else float(value)
+
+
 def run_import(cfg: DictConfig) -> dict:
     """Import the outputs in `cfg.src` of system `cfg.method.name` into `cfg.out`."""
     from eval.protocol_id import ALIASES
@@ -69,7 +74,7 @@ def run_import(cfg: DictConfig) -> dict:
     if split not in allowed:
         raise ValueError(f"split={split!r}; allowed for {method['name']}: {', '.join(allowed)}")
     scene_out = adapter.import_outputs(Path(cfg.src), Path(cfg.scene), Path(cfg.out), method,
-                                       runtime_s=None if runtime is None else float(runtime),
+                                       runtime_s=None if runtime is None else as_runtime(runtime),
                                        split=ALIASES["split"].get(split, split))
     log.info("wrote %s", scene_out)
     return {"system": method["name"], "prediction": str(scene_out)}

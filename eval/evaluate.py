@@ -172,7 +172,7 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
     divided = set()  # views whose maps were divided by the method's alpha.png
     for v in views:
         alpha = preds[v.id].pop("alpha", None)
-        if protocol.unpremultiply and alpha is not None:
+        if getattr(protocol, "unpremultiply", False) and alpha is not None:
             preds[v.id].update(unpremultiply(preds[v.id], alpha, gt[v.id]["mask"]))
             divided.add(v.id)
     modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
@@ -310,7 +310,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
                            if any("geometry" in m.get("runtime_s", {}) for m in metas) else {})},
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
     }
-    if protocol.unpremultiply:  # how many views carried an alpha.png and were divided by it
+    if getattr(protocol, "unpremultiply", False):  # how many views carried an alpha.png and were divided by it
         info["unpremultiplied_views"] = len({(r["scene"], r["view"]) for r in rows if r.get("unpremultiplied")})
     floored = sum(c["psnr_floored"] for c in info["counts"].values())
     if floored:

@@ -58,3 +58,18 @@ def test_table_cell_says_total_only():
     assert _runtime_cell({"runtime/material": None, "runtime/end_to_end": 16.7}) == "16.7 total only"
     assert _runtime_cell({"runtime/material": 6.7, "runtime/end_to_end": 16.7}) == "6.7 (16.7)"
     assert _runtime_cell({"runtime/material": None, "runtime/end_to_end": None}) == "--"
+
+
+def test_gspi_import_takes_a_split_runtime(tmp_path):
+    from omegaconf import OmegaConf
+
+    from baselines.cli import run_import
+
+    scene = make_scene(tmp_path / "gt", "ball", size=20, seed=1, num_test=3)
+    model = write_gs_ir(tmp_path / "model", gt_maps(scene))
+    cfg = OmegaConf.create({"method": load_method_config("gs_ir"), "src": str(model), "scene": str(scene.root),
+                            "out": str(tmp_path / "pred"), "split": "test",
+                            "runtime_s": {"geometry": 60.0, "material": 30.0}})
+    run_import(cfg)
+    assert read_meta(tmp_path / "pred" / scene.name)["runtime_s"] == \
+        {"material": 30.0, "end_to_end": 90.0, "geometry": 60.0}
