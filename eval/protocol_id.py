@@ -37,12 +37,22 @@ def scored_split(protocol) -> str:
     return ALIASES["split"].get(split, split)
 
 
+# Keys added after a protocol was in use, whose default IS the earlier behaviour: at that
+# default they are dropped before hashing, so an evaluation recorded before the key existed
+# and one recorded after hash alike (and tables may mix them); any other value is hashed.
+LATER_KEYS = {"unpremultiply": False}
+
+
 def canonical(protocol: dict) -> dict:
-    """The protocol with aliases resolved, so equal conventions hash equal."""
+    """The protocol with aliases resolved and later keys at their neutral default dropped, so
+    equal conventions hash equal."""
     out = dict(protocol)
     for key, names in ALIASES.items():
         if out.get(key) in names:
             out[key] = names[out[key]]
+    for key, neutral in LATER_KEYS.items():
+        if key in out and out[key] is neutral:
+            del out[key]
     return out
 
 

@@ -66,6 +66,9 @@ def test_premultiplied_roughness_is_recovered(sphere_dataset, tmp_path, lpips_ne
     assert min(want_div) > 90 > max(want_raw)
     assert div.info["unpremultiplied_views"] == 6 and "unpremultiplied_views" not in raw.info
     assert protocol_hash(protocol_dict(protocol(unpremultiply=True))) != protocol_hash(protocol_dict(protocol()))
+    # false is what every evaluation did before the key existed: those records hash alike
+    before = {k: v for k, v in protocol_dict(protocol()).items() if k != "unpremultiply"}
+    assert protocol_hash(before) == protocol_hash(protocol_dict(protocol()))
     assert "un-premultiplied" in describe_protocol(protocol_dict(protocol(unpremultiply=True)))
     assert "un-premultiplied" not in describe_protocol(protocol_dict(protocol()))
 
