@@ -13,7 +13,6 @@ system module (`baselines/<system>.py`) holds only what is specific to it: `open
 from __future__ import annotations
 
 import importlib
-import json
 import shlex
 import shutil
 import subprocess
@@ -25,10 +24,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from baselines.runtime import command_stages, given_runtime, read_runtime, split_seconds
 from eval.atomic import write_json_atomic
 from eval.colorspace import linear_to_srgb
 from eval.imageio import ImageFormatError, read_png
-from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta
+from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta, write_view_file
 
 RUNTIME_FILE = "gspi_runtime.json"  # written into the model dir by `Adapter.run`
 METHOD_CONF_DIR = Path(__file__).resolve().parents[1] / "conf" / "method"
@@ -163,6 +163,12 @@ def export_blender_scene(scene_dir: Path, out_dir: Path) -> Path:
     return out
 
 
+def skip_train_flag(cfg: Mapping) -> str:
+    """`--skip_train` unless `render_lattice: true` asks the render command for the training
+    (= lattice) views too, for lattice-view evaluation (`eval.split=lattice`)."""
+    return "" if option(cfg, "render_lattice", (True, False)) else "--skip_train"
+
+
 def check_path_free_of(path: Path, words: tuple[str, ...], system: str) -> None:
     """Some loaders switch dataset readers on substrings of the data path: refuse those."""
     hits = [w for w in words if w in str(Path(path).resolve())]
@@ -181,6 +187,8 @@ class Adapter:
 
     name = ""
     forbidden_path_words: tuple[str, ...] = ()  # data-path substrings that switch its loader
+    # view splits whose maps the system's render command writes (train = the lattice views)
+    rendered_splits: tuple[str, ...] = ("train", "test")
 
     # --- export -------------------------------------------------------------------------
     def export(self, scene_dir: str | Path, out_dir: str | Path, cfg: Mapping) -> Path:
@@ -217,6 +225,7 @@ class Adapter:
                 if value:
                     argv.append(value)
             out.append(argv)
+        command_stages(cfg, len(out))  # a bad `command_stages` fails before anything runs
         return out
 
     def run(self, scene_export_dir: str | Path, model_dir: str | Path, cfg: Mapping, *,
@@ -224,8 +233,9 @@ class Adapter:
         """Print the commands; unless `dry_run`, run them in the checkout and time them.
 
         Returns:
-            The wall time in seconds of all commands (also written to
-            `<model_dir>/gspi_runtime.json`), or None for a dry run.
+            The wall time in seconds of all commands, or None for a dry run. Each command is
+            timed; `<model_dir>/gspi_runtime.json` keeps the times and, with the config's
+            `command_stages`, the geometry / material / end-to-end split (baselines/runtime.py).
         Raises:
             AdapterError: not a dry run and `checkout` is unset or missing.
             subprocess.CalledProcessError: a command failed.
@@ -240,33 +250,42 @@ class Adapter:
         if not checkout or not Path(checkout).is_dir():
             raise AdapterError(f"method {self.name}: checkout={checkout!r} is not a folder; set "
                                f"method.checkout to a clone of {cfg.get('repo', {}).get('url')}")
+        stages = command_stages(cfg, len(argvs))
         Path(model_dir).mkdir(parents=True, exist_ok=True)
-        start = time.perf_counter()
+        seconds = []
         for argv in argvs:
+            start = time.perf_counter()
             subprocess.run(argv, cwd=checkout, check=True)
-        seconds = time.perf_counter() - start
-        write_json_atomic(Path(model_dir) / RUNTIME_FILE, {"system": self.name, "seconds": seconds, "commands": argvs})
-        return seconds
+            seconds.append(time.perf_counter() - start)
+        write_json_atomic(Path(model_dir) / RUNTIME_FILE, {
+            "system": self.name, "seconds": sum(seconds), "commands": argvs, "command_seconds": seconds,
+            "command_stages": stages, **split_seconds(seconds, stages)})
+        return sum(seconds)
 
     # --- import -------------------------------------------------------------------------
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> Any:
-        """Locate and validate the system's output folder; returns what `read_view` needs."""
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Any:
+        """Locate and validate the system's output folder of the `split` views (`test`, or
+        `train`: the lattice views); returns what `read_view` needs."""
         raise NotImplementedError
 
     def read_view(self, outputs: Any, index: int, view: View, scene: Scene,
                   cfg: dict) -> dict[str, np.ndarray]:
-        """Maps of the `index`-th test view: {"albedo": HxWx3 sRGB-encoded, "roughness": HxW,
-        "metallic": HxW (linear)}, only the channels the system models, values in [0, 1]."""
+        """Maps of the `index`-th view of `view.split`: {"albedo": HxWx3 sRGB-encoded,
+        "roughness": HxW, "metallic": HxW (linear)}, only the channels the system models,
+        values in [0, 1]; plus "alpha": HxW, the system's rendered opacity, where it saves it
+        (written as the view's `alpha.png`, read by `eval.unpremultiply`)."""
         raise NotImplementedError
 
     def import_outputs(self, src: str | Path, scene_dir: str | Path, out_pred_dir: str | Path,
-                       cfg: Mapping, runtime_s: float | None = None) -> Path:
-        """Convert the system's outputs for one scene into `<out_pred_dir>/<scene name>/`.
+                       cfg: Mapping, runtime_s: float | Mapping | None = None, split: str = "test") -> Path:
+        """Convert the system's outputs for one scene into `<out_pred_dir>/<scene name>/<split>/`.
 
-        Test view k of the scene (its order in scene.json) is the system's view index k.
-        Runtime: `runtime_s`, else `cfg["runtime_s"]`, else `<src>/gspi_runtime.json` (a timed
-        `run`), else null; it is counted as both material and end-to-end time because these
-        systems estimate geometry and materials in one run.
+        View k of the scene's `split` (its order in scene.json) is the system's view index k
+        of that split (`test`, or `train`: the lattice views, exported as the training frames).
+        Runtime: `runtime_s`, else `cfg["runtime_s"]` (a number = the total; or {geometry,
+        material}), else `<src>/gspi_runtime.json` (a timed `run`, split by the config's
+        `command_stages` where the system has them), else unknown; meta.json records
+        `runtime_s.{geometry, material, end_to_end}` (baselines/runtime.py).
 
         Returns:
             The prediction folder of the scene.
@@ -275,20 +294,27 @@ class Adapter:
         src, scene = Path(src), read_scene(scene_dir)
         if not src.is_dir():
             raise AdapterError(f"{src}: output folder of {self.name} not found")
-        outputs = self.open_outputs(src, scene, cfg)
+        if split not in self.rendered_splits:
+            raise AdapterError(f"{self.name}: its commands render the {' and '.join(self.rendered_splits)} "
+                               f"views only, not {split!r}")
+        outputs = self.open_outputs(src, scene, cfg, split)
         out_scene = Path(out_pred_dir) / scene.name
-        for index, view in enumerate(scene.split_views("test")):
+        for index, view in enumerate(scene.split_views(split)):
             maps = self.read_view(outputs, index, view, scene, cfg)
+            alpha = maps.pop("alpha", None)  # the system's opacity, for eval.unpremultiply
+            if alpha is not None:
+                check_map(alpha, "roughness", scene, f"{src} ({self.name}, alpha of {split} view {index})")
+                write_view_file(out_scene / split / view.id, "alpha.png", alpha[..., None])
             for channel, values in maps.items():
-                check_map(values, channel, scene, f"{src} ({self.name}, test view {index} "
+                check_map(values, channel, scene, f"{src} ({self.name}, {split} view {index} "
                                                   f"= {view.id})")
-                write_material(out_scene / "test" / view.id, channel, values)
-        runtime = runtime_s if runtime_s is not None else cfg.get("runtime_s")
-        if runtime is None and (src / RUNTIME_FILE).is_file():
-            runtime = json.loads((src / RUNTIME_FILE).read_text())["seconds"]
-        runtime = None if runtime is None else float(runtime)
-        write_meta(out_scene, method=str(cfg.get("name", self.name)), material_s=runtime,
-                   end_to_end_s=runtime, source={"system": self.name, "outputs": str(src)})
+                write_material(out_scene / split / view.id, channel, values)
+        given = runtime_s if runtime_s is not None else cfg.get("runtime_s")
+        runtime = given_runtime(given) if given is not None else read_runtime(src, RUNTIME_FILE)
+        runtime = runtime or {"geometry": None, "material": None, "end_to_end": None}
+        write_meta(out_scene, method=str(cfg.get("name", self.name)), material_s=runtime["material"],
+                   end_to_end_s=runtime["end_to_end"], geometry_s=runtime["geometry"],
+                   source={"system": self.name, "outputs": str(src)})
         return out_scene
 
 
@@ -328,8 +354,10 @@ def get_adapter(name: str) -> Adapter:
     return getattr(importlib.import_module(module), cls)()
 
 
-def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str | Path) -> Path:
-    """Table 1: import `<cfg.outputs>/<scene name>/` (the system's model dir for that scene).
+def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str | Path,
+                          split: str = "test") -> Path:
+    """Table 1: import `<cfg.outputs>/<scene name>/` (the system's model dir for that scene),
+    the views of `split` (`test`, or `train`: the lattice views).
 
     Raises:
         AdapterError: `outputs` is unset or has no folder for this scene.
@@ -342,4 +370,4 @@ def import_placed_outputs(cfg: Mapping, scene_dir: str | Path, out_pred_dir: str
     src = Path(cfg["outputs"]) / scene.name
     if not src.is_dir():
         raise AdapterError(f"{src}: missing (outputs of {cfg.get('name')} for scene {scene.name})")
-    return get_adapter(str(cfg["name"])).import_outputs(src, scene_dir, out_pred_dir, cfg)
+    return get_adapter(str(cfg["name"])).import_outputs(src, scene_dir, out_pred_dir, cfg, split=split)

@@ -6,13 +6,15 @@
     gspi-export system=materialanything scene=... out=... method.mesh=meshes/   # <scene>.obj
     gspi-import system=gs_ir src=exports/gs_ir/s002/model scene=data/small/s002_... out=preds/gs_ir
     gspi-import system=gs_ir src=... scene=... out=... method.gamma=false runtime_s=5400
+    gspi-import system=irgs src=... scene=... out=... split=lattice   # the lattice (train) views
 
 `system=<name>` is an alias of the config-group override `method=<name>` (conf/method/);
 adapter options are overridden as `method.<option>=<value>`. `gspi-export` writes the system's
 input folder to `out`, prints the commands that train the system and render its test views into
 `model` (default `<out>/model`) and saves them as `<out>/commands.sh`; with `run=true` it runs
 them in `method.checkout` and times them (`<model>/gspi_runtime.json`, read back by
-`gspi-import`). `gspi-import` writes `<out>/<scene name>/test/<view id>/*.png` + `meta.json`.
+`gspi-import`). `gspi-import` writes `<out>/<scene name>/<split>/<view id>/*.png` + `meta.json` (`split=test`, or
+`lattice` = `train`, the lattice views, where the system's commands rendered them).
 Configs: conf/gspi_export.yaml, conf/gspi_import.yaml. The working directory never changes.
 """
 from __future__ import annotations
@@ -55,13 +57,25 @@ def run_export(cfg: DictConfig) -> dict:
             "commands": argvs, "runtime_s": runtime}
 
 
+def as_runtime(value):
+    """`runtime_s=` of the command line: a number (total seconds) or {geometry, material}."""
+    return as_dict(value) if isinstance(value, DictConfig) else float(value)
+
+
 def run_import(cfg: DictConfig) -> dict:
     """Import the outputs in `cfg.src` of system `cfg.method.name` into `cfg.out`."""
+    from eval.protocol_id import ALIASES
+
     method = as_dict(cfg.method)
     adapter = get_adapter(str(method["name"]))
     runtime = cfg.get("runtime_s")
+    split = str(cfg.get("split", "test"))
+    allowed = (*adapter.rendered_splits, *(a for a, s in ALIASES["split"].items() if s in adapter.rendered_splits))
+    if split not in allowed:
+        raise ValueError(f"split={split!r}; allowed for {method['name']}: {', '.join(allowed)}")
     scene_out = adapter.import_outputs(Path(cfg.src), Path(cfg.scene), Path(cfg.out), method,
-                                       runtime_s=None if runtime is None else float(runtime))
+                                       runtime_s=None if runtime is None else as_runtime(runtime),
+                                       split=ALIASES["split"].get(split, split))
     log.info("wrote %s", scene_out)
     return {"system": method["name"], "prediction": str(scene_out)}
 

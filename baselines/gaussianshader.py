@@ -2,7 +2,8 @@
 
 Input: the Blender loader (`transforms_*.json` + RGBA PNG). Square images only: the loader
 swaps FovX and FovY in its `camera_angle_x` branch, harmless only when W = H.
-Output read (render.py): `<model>/test/ours_<iter>/{diffuse_color,roughness}/{k:05d}.png`.
+Output read (render.py): `<model>/<split>/ours_<iter>/{diffuse_color,roughness}/{k:05d}.png`;
+split `test`, or `train` (the lattice views: the recipe's render.py renders both, `shuffle=False`).
 
 * albedo: GaussianShader has no albedo; the closest proxy is `diffuse_color/`, the view-
   independent diffuse radiance sigmoid(kd - ln 3) (lighting baked in), in display space (the
@@ -36,9 +37,9 @@ class GaussianShaderAdapter(Adapter):
                                f"swaps FovX/FovY), scene is {scene.width}x{scene.height}")
         return super().export(scene_dir, out_dir, cfg)
 
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> Path:
-        """`<src>/test/ours_<iter>` (30000 with the README recipe)."""
-        return find_iteration_dir(src / "test", "ours_", cfg.get("iteration"),
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Path:
+        """`<src>/<split>/ours_<iter>` (30000 with the README recipe)."""
+        return find_iteration_dir(src / split, "ours_", cfg.get("iteration"),
                                   "GaussianShader render.py output")
 
     def read_view(self, outputs: Path, index: int, view: View, scene: Scene,
@@ -46,8 +47,8 @@ class GaussianShaderAdapter(Adapter):
         name = f"{index:05d}.png"
         source = option(cfg, "albedo_source", ALBEDO_SOURCES)
         albedo = read_output_png(outputs / source / name, f"GaussianShader {source} (display "
-                                 f"space) of test view {index} ({view.id})")
+                                 f"space) of {view.split} view {index} ({view.id})")
         rough_path = outputs / "roughness" / name
-        rough = read_output_png(rough_path, f"GaussianShader roughness of test view {index} "
+        rough = read_output_png(rough_path, f"GaussianShader roughness of {view.split} view {index} "
                                             f"({view.id})")
         return {"albedo": albedo[..., :3], "roughness": grey_channel(rough, rough_path)}

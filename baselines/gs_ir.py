@@ -1,7 +1,9 @@
 """GS-IR (lzhnb/GS-IR @ e5a030b) adapter: Blender-style input, `pbr/*_brdf.png` panels out.
 
-Output read (render.py with `--pbr`): `<model>/test/ours_None/pbr/{k:05d}_brdf.png`, 8-bit RGB
-of width 3W = [albedo | roughness x3 | metallic x3] (the iteration tag is the literal `None`).
+Output read (render.py with `--pbr`): `<model>/<split>/ours_None/pbr/{k:05d}_brdf.png`, 8-bit RGB
+of width 3W = [albedo | roughness x3 | metallic x3] (the iteration tag is the literal `None`);
+split `test`, or `train` (the lattice views: render.py renders them when `render_lattice: true`
+drops `--skip_train`; `Scene(shuffle=False)` keeps the exported frame order).
 
 * albedo: with `gamma: true` (the TensoIR object recipe, `--gamma`) GS-IR shades in linear
   space and applies the sRGB OETF afterwards, so the saved albedo is linear: it is sRGB-encoded
@@ -20,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from baselines.adapter import Adapter, find_iteration_dir, grey_channel, option, \
-    read_output_png, split_panels, srgb_encode
+    read_output_png, skip_train_flag, split_panels, srgb_encode
 from eval.layout import Scene, View
 
 ROUGHNESS_MIN = 0.04  # train.py shades with 0.04 + 0.96 * r
@@ -36,13 +38,15 @@ class GsIrAdapter(Adapter):
 
     def template_fields(self, cfg: dict) -> dict[str, str]:
         return {"gamma_flag": "--gamma" if option(cfg, "gamma", (True, False)) else "",
-                "metallic_flag": "--metallic" if option(cfg, "metallic", (True, False)) else ""}
+                "metallic_flag": "--metallic" if option(cfg, "metallic", (True, False)) else "",
+                "skip_train_flag": skip_train_flag(cfg)}
 
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> Path:
-        """`<src>/test/ours_<iteration>/pbr` (iteration "None" for GS-IR's render.py)."""
-        test_dir = find_iteration_dir(src / "test", "ours_", cfg.get("iteration"),
-                                      "GS-IR render.py output, run with --pbr")
-        return test_dir / "pbr"
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Path:
+        """`<src>/<split>/ours_<iteration>/pbr` (iteration "None" for GS-IR's render.py)."""
+        hint = " and without --skip_train (method.render_lattice=true)" if split == "train" else ""
+        split_dir = find_iteration_dir(src / split, "ours_", cfg.get("iteration"),
+                                       f"GS-IR render.py output, run with --pbr{hint}")
+        return split_dir / "pbr"
 
     def read_view(self, outputs: Path, index: int, view: View, scene: Scene,
                   cfg: dict) -> dict[str, np.ndarray]:

@@ -287,8 +287,9 @@ def fit_materials(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig, *,
 
 
 def write_test_maps(scene: Scene, fitted: Gaussians2D, out_scene_dir: Path, *,
-                    silhouette_alpha: float) -> int:
-    """Renders the learned maps at every ``test`` view and writes them (canonical layout).
+                    silhouette_alpha: float, split: str = "test") -> int:
+    """Renders the learned maps at every view of ``split`` (``test``, or ``train``: the lattice
+    views it was fitted on) and writes them (canonical layout).
 
     Maps are un-premultiplied (composited value / alpha) inside the rendered silhouette
     (``alpha > silhouette_alpha``) and 0 outside; albedo is sRGB-encoded. Rendered on the
@@ -297,7 +298,7 @@ def write_test_maps(scene: Scene, fitted: Gaussians2D, out_scene_dir: Path, *,
     Returns:
         The number of views written.
     """
-    views = scene.split_views("test")
+    views = scene.split_views(split)
     device = fitted.means.device
     for v in views:
         viewmat = torch.as_tensor(v.w2c, dtype=torch.float32, device=device)[None]
@@ -307,7 +308,7 @@ def write_test_maps(scene: Scene, fitted: Gaussians2D, out_scene_dir: Path, *,
         alpha = out.alpha[0]
         inside = alpha > silhouette_alpha
         maps = torch.where(inside, out.features[0] / alpha.clamp_min(1e-8), 0.0).clamp(0, 1).cpu()
-        vdir = Path(out_scene_dir) / "test" / v.id
+        vdir = Path(out_scene_dir) / split / v.id
         write_material(vdir, "albedo", linear_to_srgb(maps[..., :3]).numpy())
         write_material(vdir, "roughness", maps[..., 3:4].numpy())
         write_material(vdir, "metallic", maps[..., 4:5].numpy())
@@ -315,14 +316,15 @@ def write_test_maps(scene: Scene, fitted: Gaussians2D, out_scene_dir: Path, *,
 
 
 def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Mapping, *,
-                  progress: bool = False, device: torch.device | str = "cpu") -> dict:
+                  split: str = "test", progress: bool = False, device: torch.device | str = "cpu") -> dict:
     """Runs the joint inverse-rendering baseline on one scene.
 
     Args:
         scene: The ground-truth scene (only its ``train`` inputs and ``test`` cameras are read).
         asset: The scene's 2DGS asset (Stage 0 output).
-        out_scene_dir: ``<pred>/<scene name>``; ``test/<view id>/*.png`` are written there.
+        out_scene_dir: ``<pred>/<scene name>``; ``<split>/<view id>/*.png`` are written there.
         cfg: ``conf/method/joint_ir.yaml`` contents (:class:`JointIRConfig` keys).
+        split: The views written: ``test`` (held-out) or ``train`` (the lattice views).
         progress: Log the optimisation.
         device: Where it runs (module docstring); the run's resolved ``device``.
 
@@ -342,7 +344,7 @@ def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Ma
     views = resize_views(load_scene_views(scene, "train").to(device), options.image_size)
     fitted, env, stats = fit_materials(asset.to(device), views, options, progress=progress)
     written = write_test_maps(scene, fitted, Path(out_scene_dir),
-                              silhouette_alpha=options.silhouette_alpha)
+                              silhouette_alpha=options.silhouette_alpha, split=split)
     material_s = time.perf_counter() - t0
     return {"material_s": material_s, "material_cpu_s": time.process_time() - cpu0,
             "test_views": written, "env_mean": float(env.mean()),

@@ -6,8 +6,9 @@ sRGB RGB, black background), `<out>/masks/<same name>` (8-bit grey, 255 = object
 OpenCV w2c as COLMAP's qvec/tvec) and `<out>/<scene name>_split.csv` (`filename;split`).
 COLMAP has no points for a rendered scene: `points3D.txt` holds `init_points` seeded random
 points in the cube [-1.3, 1.3]^3, what the Blender loaders of the other systems generate.
-Output read (render_simple.py): `<model>/render_test/ours_<iter>/renders/<image name>_albedo.png`,
-two panels [GT | albedo], named by image (with its extension), so order does not matter.
+Output read (render_simple.py): `<model>/render_<split>/ours_<iter>/renders/<image name>_albedo.png`,
+two panels [GT | albedo], named by image (with its extension), so order does not matter; split
+`test`, or `train` (the lattice views, rendered when `render_lattice: true` drops `--skip_train`).
 
 * albedo: LumiGauss multiplies albedo by gamma-encoded shading, so the albedo lives in gamma-2.2
   space (`albedo_space: gamma22`): linear = x^2.2, then sRGB-encoded; `srgb` keeps it as is.
@@ -23,7 +24,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from baselines.adapter import Adapter, find_iteration_dir, option, read_output_png, \
-    split_panels, srgb_encode
+    skip_train_flag, split_panels, srgb_encode
 from eval.colorspace import linear_to_srgb
 from eval.imageio import write_png
 from eval.layout import Scene, View, read_scene, read_view_file
@@ -89,15 +90,19 @@ class LumiGaussAdapter(Adapter):
             writer.writerows(rows)
         return out
 
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> Path:
-        """`<src>/render_test/ours_<iter>/renders`."""
-        return find_iteration_dir(src / "render_test", "ours_", cfg.get("iteration"),
-                                  "LumiGauss render_simple.py output") / "renders"
+    def template_fields(self, cfg: dict) -> dict[str, str]:
+        return {"skip_train_flag": skip_train_flag(cfg)}
+
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> Path:
+        """`<src>/render_<split>/ours_<iter>/renders`."""
+        hint = " without --skip_train (method.render_lattice=true)" if split == "train" else ""
+        return find_iteration_dir(src / f"render_{split}", "ours_", cfg.get("iteration"),
+                                  f"LumiGauss render_simple.py output{hint}") / "renders"
 
     def read_view(self, outputs: Path, index: int, view: View, scene: Scene,
                   cfg: dict) -> dict[str, np.ndarray]:
         path = outputs / f"{image_name(view)}_albedo.png"
-        image = read_output_png(path, f"LumiGauss [GT | albedo] panels of test view {index} "
+        image = read_output_png(path, f"LumiGauss [GT | albedo] panels of {view.split} view {index} "
                                       f"({view.id})")
         albedo = split_panels(image[..., :3], 2, path)[1]
         if option(cfg, "albedo_space", ALBEDO_SPACES) == "gamma22":

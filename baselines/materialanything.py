@@ -16,7 +16,8 @@ Commands: `scripts/generate_texture_pbr_3d.py --input_dir <out> --output_dir <mo
 
 Import: the UV textures `<model>/generate/material/final_albedo_after.png` (sRGB-encoded) and
 `final_rm_after.png` (linear; G = roughness, B = metallic) are rendered on the input mesh (the
-output mesh keeps its UV layout) at the scene's test cameras with baselines.mesh_render. The
+output mesh keeps its UV layout) at the scene's cameras of the scored split (test, or the
+lattice views) with baselines.mesh_render. The
 mesh is `mesh` if set, else `<model>/input_mesh.obj`. Pixels the mesh does not cover are 0.
 """
 from __future__ import annotations
@@ -72,6 +73,7 @@ def load_mesh(path: Path) -> UVMesh:
 
 class MaterialAnythingAdapter(Adapter):
     name = "materialanything"
+    rendered_splits = ("train", "val", "test")  # its textures are rendered here, at any camera
 
     def export(self, scene_dir, out_dir, cfg) -> Path:
         scene, out = read_scene(scene_dir), Path(out_dir)
@@ -98,7 +100,7 @@ class MaterialAnythingAdapter(Adapter):
     def template_fields(self, cfg: dict) -> dict[str, str]:
         return {"prompt": str(cfg.get("prompt", "an object")), "input_mesh": INPUT_MESH}
 
-    def open_outputs(self, src: Path, scene: Scene, cfg: dict) -> tuple[UVMesh, dict]:
+    def open_outputs(self, src: Path, scene: Scene, cfg: dict, split: str) -> tuple[UVMesh, dict]:
         """The world-space mesh and the textures {"albedo": sRGB, "rm": linear (G, B used)}."""
         material = src / MATERIAL_DIR
         textures = {"albedo": read_output_png(material / ALBEDO_TEXTURE,

@@ -130,16 +130,17 @@ def observed_albedo(asset: Gaussians2D, w2c: np.ndarray, K: np.ndarray, width: i
 
 
 def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Mapping, *,
-                  constants: dict[str, float], progress: bool = False,
+                  constants: dict[str, float], split: str = "test", progress: bool = False,
                   device: torch.device | str = "cpu") -> dict:
-    """Writes ``<out_scene_dir>/test/<view id>/{albedo,roughness,metallic}.png``.
+    """Writes ``<out_scene_dir>/<split>/<view id>/{albedo,roughness,metallic}.png``.
 
     Args:
-        scene: The ground-truth scene (only its ``test`` cameras are read).
+        scene: The ground-truth scene (only the cameras of its ``split`` views are read).
         asset: The scene's 2DGS asset.
         out_scene_dir: ``<pred>/<scene name>``.
         cfg: ``conf/method/no_decomposition.yaml`` contents (``silhouette_alpha``).
         constants: :func:`fit_constants` output.
+        split: The views written: ``test`` (held-out) or ``train`` (the lattice views).
         progress: Unused (the method is a few renders); kept for the runner's interface.
         device: Where the asset is rendered (the run's ``device``); maps are written from the CPU.
 
@@ -152,11 +153,11 @@ def predict_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Ma
             raise ValueError(f"constants must hold 'roughness' and 'metallic', got {sorted(constants)}")
     silhouette_alpha = float(dict(cfg or {}).get("silhouette_alpha", DEFAULT_SILHOUETTE_ALPHA))
     t0, cpu0 = time.perf_counter(), time.process_time()
-    views, asset = scene.split_views("test"), asset.to(device)
+    views, asset = scene.split_views(split), asset.to(device)
     for v in views:
         albedo, inside = observed_albedo(asset, v.w2c, v.K, scene.width, scene.height,
                                          silhouette_alpha=silhouette_alpha)
-        vdir = Path(out_scene_dir) / "test" / v.id
+        vdir = Path(out_scene_dir) / split / v.id
         write_material(vdir, "albedo", albedo.cpu().numpy())
         for key in ("roughness", "metallic"):
             write_material(vdir, key, np.where(inside.cpu().numpy(), constants[key], 0.0)[..., None])

@@ -64,7 +64,7 @@ class RelightConfig:
 class ProtocolConfig:
     name: str = "gspi-decoupled"
     version: int = 1
-    split: str = "test"                 # which view split of each scene is scored
+    split: str = "test"                 # scored views: test | lattice (= train) | val
     channels: list[str] = field(default_factory=lambda: ["albedo", "roughness", "metallic",
                                                          "relight"])
     background: float = 0.0             # composite value outside the mask for SSIM/LPIPS
@@ -72,6 +72,7 @@ class ProtocolConfig:
     alignment_scope: str = "scene"      # scene (pooled over its views) | view
     albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear
     mask_erosion_px: int = 0            # erode the GT mask by a (2r+1)^2 square (Stanford-ORB: 2)
+    unpremultiply: bool = False         # divide maps by the prediction's alpha.png inside the mask
     fail_on_missing_view: bool = False  # False: report missing views and score the rest
     psnr: PsnrConfig = field(default_factory=PsnrConfig)
     ssim: SsimConfig = field(default_factory=SsimConfig)
@@ -89,6 +90,7 @@ LPIPS_NETS = ("alex", "vgg")
 LPIPS_MODES = ("masked_mean", "composite")
 TONEMAPS = ("aces", "clamp", "reinhard", "none")
 SCALE_FITS = ("none", "lstsq")
+SCORED_SPLITS = ("test", "lattice", "train", "val")  # lattice = train (protocol_id.ALIASES)
 
 
 def _allowed(key: str, value, allowed: tuple) -> None:
@@ -120,8 +122,8 @@ def validate_protocol(cfg) -> None:
         raise ValueError(f"eval.background={background!r}: must be a number in [0, 1]")
     if isinstance(cfg.version, bool) or not isinstance(cfg.version, int) or cfg.version < 1:
         raise ValueError(f"eval.version={cfg.version!r}: must be an integer >= 1")
-    if not isinstance(cfg.split, str) or not cfg.split:
-        raise ValueError(f"eval.split={cfg.split!r}: must be a split name (train, val or test)")
+    _allowed("split", cfg.split, SCORED_SPLITS)
+    _allowed("unpremultiply", cfg.unpremultiply, (False, True))
     if not float(cfg.psnr.mse_floor) > 0:
         raise ValueError(f"eval.psnr.mse_floor={cfg.psnr.mse_floor}: must be > 0 "
                          "(a zero floor lets one exact image make a mean +inf)")

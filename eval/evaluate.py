@@ -25,7 +25,8 @@ from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, n
                          read_meta, read_scene, read_splits, read_view_file)
 from eval.metrics import erode_mask
 from eval.protocol import apply_albedo_scale, fit_albedo_scale
-from eval.protocol_id import protocol_dict, protocol_hash
+from eval.protocol_id import protocol_dict, protocol_hash, scored_split
+from eval.unpremultiply import unpremultiply
 from eval.scoring import has_metal, metal_scores, score_pair, score_relit
 from eval.views import relight_view, view_directions
 
@@ -116,6 +117,8 @@ def _load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device
             if arr.shape[:2] != shape:
                 raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
             out[name] = _tensor(arr, device)
+    if (pred_dir / "alpha.png").exists():  # the method's own opacity (eval.unpremultiply)
+        out["alpha"] = _tensor(read_view_file(pred_dir, "alpha.png", shape), device)
     return out
 
 
@@ -164,7 +167,8 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
                    ) -> tuple[list[dict], list[dict]]:
     """Rows for one scene and the list of missing (view, channel) entries; the tensors live
     on ``envs.device``."""
-    views = scene.split_views(protocol.split)
+    split = scored_split(protocol)
+    views = scene.split_views(split)
     gt = {v.id: _load_gt_view(scene, v, envs.device) for v in views}
     for v in views:
         gt[v.id]["mask"] = _scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol)
@@ -173,8 +177,14 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
         float(protocol.metallic.threshold))
     preds, missing = {}, []
     for v in views:
-        pdir = pred_scene / protocol.split / v.id
+        pdir = pred_scene / split / v.id
         preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width), envs.device) if pdir.is_dir() else {}
+    divided = set()  # views whose maps were divided by the method's alpha.png
+    for v in views:
+        alpha = preds[v.id].pop("alpha", None)
+        if getattr(protocol, "unpremultiply", False) and alpha is not None:
+            preds[v.id].update(unpremultiply(preds[v.id], alpha, gt[v.id]["mask"]))
+            divided.add(v.id)
     modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
     for v in views:
         for c in modelled:
@@ -207,6 +217,9 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
         if "relight" in protocol.channels and "albedo" in p and \
                 all(c in p for c in modelled):
             rows += _relight_rows(scene, v, g, p, protocol, net, envs)
+    for row in rows:
+        if row["view"] in divided:
+            row["unpremultiplied"] = True
     return rows, missing
 
 
@@ -297,7 +310,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         metas.append(read_meta(pred_scene))
     if not rows:  # "images: 0" with exit 0 read as "not modelled" (docs/RELIABILITY.md)
         raise LayoutError(no_images_message(Path(pred_root), read_scene(gt_scenes[names[0]]),
-                                            protocol.split, list(protocol.channels)))
+                                            scored_split(protocol), list(protocol.channels)))
     methods = sorted({m["method"] for m in metas if "method" in m})
     missing_scenes = [n for n in expected_scenes(Path(gt_root), names, gt_scenes) if n not in names]
     if missing_scenes:  # a method that skips a hard scene must not look better unnoticed
@@ -311,9 +324,13 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         "data": str(Path(gt_root).resolve()), "device": str(device), "counts": image_counts(rows),
         "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
         "runtime_min": {"material": _mean_runtime(metas, "material"),
-                        "end_to_end": _mean_runtime(metas, "end_to_end")},
+                        "end_to_end": _mean_runtime(metas, "end_to_end"),
+                        **({"geometry": _mean_runtime(metas, "geometry")}
+                           if any("geometry" in m.get("runtime_s", {}) for m in metas) else {})},
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
     }
+    if getattr(protocol, "unpremultiply", False):  # how many views carried an alpha.png and were divided by it
+        info["unpremultiplied_views"] = len({(r["scene"], r["view"]) for r in rows if r.get("unpremultiplied")})
     floored = sum(c["psnr_floored"] for c in info["counts"].values())
     if floored:
         info["note"] = (f"{floored} image(s) hit the PSNR floor (MSE <= {protocol.psnr.mse_floor:g}, "

@@ -31,6 +31,7 @@ VIEW_FILES = {
     "normal.exr": ("exr", 3),     # world-space unit normals, 0 outside the mask
     "depth.exr": ("exr", 1),      # camera-space z (OpenCV), world units, 0 outside the mask
     "mask.png": ("png", 1),       # 8-bit, 255 = foreground
+    "alpha.png": ("png", 1),      # predictions only, optional: 16-bit, the method's rendered opacity
 }
 
 
@@ -296,9 +297,11 @@ def read_meta(pred_scene_dir: Path) -> dict:
 
 
 def write_meta(pred_scene_dir: Path, *, method: str, material_s: float | None,
-               end_to_end_s: float | None, **extra) -> Path:
+               end_to_end_s: float | None, geometry_s: float | None = None, **extra) -> Path:
+    """`meta.json`: runtimes in seconds (None = unknown); `geometry` only when known."""
     path = Path(pred_scene_dir) / "meta.json"
-    write_json_atomic(path, {"method": method,
-                             "runtime_s": {"material": material_s, "end_to_end": end_to_end_s},
-                             **extra})
+    runtime = {"material": material_s, "end_to_end": end_to_end_s}
+    if geometry_s is not None:
+        runtime["geometry"] = geometry_s
+    write_json_atomic(path, {"method": method, "runtime_s": runtime, **extra})
     return path

@@ -25,15 +25,34 @@ def protocol_dict(protocol) -> dict:
     return OmegaConf.to_container(protocol, resolve=True)
 
 
-ALIASES = {"albedo_alignment": {"per_channel": "lstsq"}}  # spellings with one meaning
+# spellings with one meaning; `lattice` names the views of a scene's `train` folder: the 32
+# lattice views the method reconstructs from (docs/PROTOCOL.md, "Views")
+ALIASES = {"albedo_alignment": {"per_channel": "lstsq"}, "split": {"lattice": "train"}}
+SPLIT_LABELS = {"train": "lattice views", "val": "validation views"}  # footer words; test: none
+
+
+def scored_split(protocol) -> str:
+    """The view folder a protocol scores (`eval.split` with `lattice` resolved to `train`)."""
+    split = protocol["split"] if isinstance(protocol, dict) else protocol.split
+    return ALIASES["split"].get(split, split)
+
+
+# Keys added after a protocol was in use, whose default IS the earlier behaviour: at that
+# default they are dropped before hashing, so an evaluation recorded before the key existed
+# and one recorded after hash alike (and tables may mix them); any other value is hashed.
+LATER_KEYS = {"unpremultiply": False}
 
 
 def canonical(protocol: dict) -> dict:
-    """The protocol with aliases resolved, so equal conventions hash equal."""
+    """The protocol with aliases resolved and later keys at their neutral default dropped, so
+    equal conventions hash equal."""
     out = dict(protocol)
     for key, names in ALIASES.items():
         if out.get(key) in names:
             out[key] = names[out[key]]
+    for key, neutral in LATER_KEYS.items():
+        if key in out and out[key] is neutral:
+            del out[key]
     return out
 
 
@@ -106,10 +125,14 @@ def describe_protocol(p: dict) -> str:
     tone = r.get("tonemap")
     tone_text = (f"linear clipped to [0, {r.get('hdr_max')}]" if tone == "none" else
                  f"{tone}{'+sRGB' if r.get('srgb') else ''}, exposure {r.get('exposure_stops')} stops")
-    return (f"{p.get('name')} v{p.get('version')} #{protocol_hash(p)}: split {p.get('split')}; "
+    split = ALIASES["split"].get(p.get("split"), p.get("split"))
+    label = f" ({SPLIT_LABELS[split]})" if split in SPLIT_LABELS else ""
+    return (f"{p.get('name')} v{p.get('version')} #{protocol_hash(p)}: split {split}{label}; "
             f"albedo alignment {p.get('albedo_alignment')} (scope {p.get('alignment_scope')}), "
             f"scored in {p.get('albedo_space', 'srgb')}; GT mask eroded "
-            f"{p.get('mask_erosion_px', 0)} px; PSNR over {ps.get('region', 'mask')}, {floor_text}"
+            f"{p.get('mask_erosion_px', 0)} px"
+            f"{'; maps un-premultiplied by the method alpha.png' if p.get('unpremultiply') else ''}"
+            f"; PSNR over {ps.get('region', 'mask')}, {floor_text}"
             f"{', grey floor' if ps.get('grey_floor') else ''}; "
             f"SSIM window {ss.get('window', 11)} {ss.get('padding', 'valid')} over "
             f"{ss.get('region', 'mask')}; LPIPS "

@@ -60,7 +60,10 @@ def _row_cells(table: SweepTable, label: str, style: str) -> list[str]:
     runtime = [c for c in table.spec.columns if c.measure == "runtime"]
     if runtime:
         material, e2e = (_cell(table, label, c, style) for c in runtime)
-        cells.append(material + (f" ({e2e})" if e2e != "--" and material != "--" else ""))
+        if material == "--" and e2e != "--":  # one joint run: material not separable (docs/BASELINES.md)
+            cells.append(f"{e2e} total only")
+        else:
+            cells.append(material + (f" ({e2e})" if e2e != "--" and material != "--" else ""))
     n = int(table.count.loc[label, table.spec.delta.key])
     return cells + [str(n), _delta_cell(table, label, style)]
 

@@ -113,8 +113,9 @@ def make_dataset(root: str | Path, *, num_scenes: int = 2, size: int = 48) -> Pa
 
 def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str = "perturbed",
                     roughness_offset: float = 6554 / 65535, albedo_scale: float = 1.0,
-                    channels=("albedo", "roughness", "metallic")) -> Path:
-    """A prediction folder derived from the ground truth with known, controlled errors.
+                    channels=("albedo", "roughness", "metallic"), split: str = "test") -> Path:
+    """A prediction folder derived from the ground truth with known, controlled errors, for
+    the views of `split` (test, or train: the lattice views).
 
     roughness: gt + offset inside the mask (exactly representable in 16 bits);
     albedo: linear albedo times `albedo_scale`; metallic: copied.
@@ -126,8 +127,8 @@ def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str =
     gt_root, pred_root = Path(gt_root), Path(pred_root)
     for scene_json in sorted(gt_root.glob("*/scene.json")):
         scene = read_scene(scene_json.parent)
-        for v in scene.split_views("test"):
-            src, dst = scene.view_dir("test", v.id), pred_root / scene.name / "test" / v.id
+        for v in scene.split_views(split):
+            src, dst = scene.view_dir(split, v.id), pred_root / scene.name / split / v.id
             mask = read_view_file(src, "mask.png")[..., 0] > 0.5
             if "albedo" in channels:
                 a = torch.from_numpy(read_view_file(src, "albedo.png")).double()

@@ -89,8 +89,8 @@ class InhouseMethod(Method):
 
         device = resolve_device(self.run_cfg.get("device", "cpu"))  # checked at start-up (check_run_config)
         with clock.stage("material"):
-            return dict(self.module.predict_scene(scene, asset, out_scene_dir, self.cfg, progress=progress,
-                                                  device=device, **self.shared) or {})
+            return dict(self.module.predict_scene(scene, asset, out_scene_dir, self.cfg, split=split,
+                                                  progress=progress, device=device, **self.shared) or {})
 
 
 class ExternalMethod(Method):
@@ -103,13 +103,18 @@ class ExternalMethod(Method):
         if not self.cfg.get("outputs"):
             raise MethodUnavailable(f"method {self.name!r}: no outputs configured; place the system's outputs "
                                     f"under a folder and pass method.outputs=<folder> (docs/BASELINES.md)")
+        from baselines.runtime import command_stages, given_runtime
+
+        command_stages(self.cfg, len(self.cfg.get("commands") or []))  # checked before any import
+        if self.cfg.get("runtime_s") is not None:
+            given_runtime(self.cfg["runtime_s"])
         return {}
 
     def predict(self, scene, out_scene_dir, *, asset, clock, work_dir, split, progress=False) -> dict:
         from baselines.adapter import import_placed_outputs
 
         with clock.stage("import"):
-            import_placed_outputs(self.cfg, scene.root, out_scene_dir.parent)
+            import_placed_outputs(self.cfg, scene.root, out_scene_dir.parent, split=split)
         return {"imported_from": str(Path(self.cfg["outputs"]) / scene.name)}
 
 

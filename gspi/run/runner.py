@@ -1,7 +1,8 @@
 """One `gspi-run` job: a method on a dataset's scenes, scored, recorded, tracked.
 
     <out>/
-      predictions/<scene>/{meta.json, test/<view>/*.png}   canonical layout (docs/FORMAT.md)
+      predictions/<scene>/{meta.json, <views>/<view>/*.png} canonical layout (docs/FORMAT.md);
+                                                            <views> = eval.split (test | train)
       work/<scene>/                                         intermediate files (pipeline.py)
       eval/        per_view.csv, summary.json, eval_meta.json   (as gspi-eval writes them)
       points_eval/summary.json                               Table 2's measure (GS-PI only)
@@ -65,6 +66,14 @@ def scene_done(pred_scene: Path, cfg_hash: str, scene: Scene, split: str) -> boo
     return all((pred_scene / split / v.id).is_dir() for v in scene.split_views(split))
 
 
+def view_split(cfg: Mapping[str, Any]) -> str:
+    """The views a job predicts and scores: the protocol's ``eval.split`` (``lattice`` = the
+    ``train`` folder). The job's own ``split`` picks the dataset's scenes, not their views."""
+    from eval.protocol_id import scored_split
+
+    return scored_split(dict(cfg["eval"]))
+
+
 def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
@@ -75,7 +84,7 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     """Predicts one scene into ``out/predictions/<name>`` and writes its meta.json."""
     scene = read_scene(data_dir if data_dir.name == name and (data_dir / "scene.json").is_file()
                        else data_dir / name)
-    split = cfg["split"]
+    split = view_split(cfg)
     pred_scene, work = out / "predictions" / name, out / "work" / name
     if scene_done(pred_scene, cfg_hash, scene, split):
         log.info("%s: finished prediction found, reused", name)
@@ -96,14 +105,17 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     material_s = clock.seconds(*method.material_stages)
     recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
     end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
+    geometry_s = recon_s
     if method.reports_own_runtime:  # the system's own runtime (user value or timed run), not the import's
         runtime = read_meta(pred_scene).get("runtime_s", {})
         material_s, end_to_end = runtime.get("material"), runtime.get("end_to_end")
+        geometry_s = runtime.get("geometry")
     points_scores = stats.pop("points_scores", None) if isinstance(stats, dict) else None
     if points_scores is not None:
         write_json_atomic(work / "points_scores.json", points_scores)
     write_meta(pred_scene, method=method.name, material_s=None if material_s is None else round(material_s, 3),
-               end_to_end_s=None if end_to_end is None else round(end_to_end, 3), config_hash=cfg_hash,
+               end_to_end_s=None if end_to_end is None else round(end_to_end, 3),
+               geometry_s=None if geometry_s is None else round(float(geometry_s), 3), config_hash=cfg_hash,
                stages=clock.stages, asset={k: v for k, v in asset_info.items() if k != "config"},
                stats=stats)
     return read_meta(pred_scene)
@@ -327,7 +339,7 @@ def write_figures(cfg: Mapping[str, Any], data_dir: Path, out: Path, names: list
         scene_dir = data_dir if (data_dir / "scene.json").is_file() else data_dir / name
         try:
             path = scene_figure(read_scene(scene_dir), out / "predictions" / name, out / "figures" / f"{name}.png",
-                                protocol, split=cfg["split"])
+                                protocol, split=view_split(cfg))
             tracker.log_image(f"figures/{name}", path)
         except Exception:  # a figure must never fail a run
             log.warning("%s: figure failed:\n%s", name, traceback.format_exc())

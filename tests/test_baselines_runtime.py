@@ -1,0 +1,75 @@
+"""External systems' runtime split into geometry and material (baselines/runtime.py)."""
+import json
+
+import pytest
+
+from baselines import adapter as adapter_module
+from baselines.adapter import get_adapter, load_method_config
+from baselines.runtime import command_stages, given_runtime, split_seconds
+from eval.layout import read_meta
+from eval.tables import _runtime_cell
+from tests.fixtures import make_scene
+from tests.test_baselines_adapters import gt_maps, write_gs_ir
+
+
+def test_split_by_command_stage_hand_computed():
+    assert split_seconds([600.0, 60.0, 300.0, 40.0], ["geometry", "material", "material", "material"]) == \
+        {"geometry": 600.0, "material": 400.0, "end_to_end": 1000.0}
+    assert split_seconds([600.0, 400.0], None) == {"geometry": None, "material": None, "end_to_end": 1000.0}
+    # geometry made elsewhere (MaterialAnything's mesh): material only, end-to-end unknown
+    assert split_seconds([90.0, 0.5], ["material", "material"]) == \
+        {"geometry": None, "material": 90.5, "end_to_end": None}
+    assert given_runtime(1000) == {"geometry": None, "material": None, "end_to_end": 1000.0}
+    assert given_runtime({"geometry": 600, "material": 400}) == \
+        {"geometry": 600.0, "material": 400.0, "end_to_end": 1000.0}
+
+
+def test_command_stages_are_validated():
+    cfg = load_method_config("r3dg")
+    assert command_stages(cfg, 3) == ["geometry", "material", "material"]
+    with pytest.raises(ValueError, match="one stage per command"):
+        command_stages({**cfg, "command_stages": ["geometry"]}, 3)
+    with pytest.raises(ValueError, match=r"command_stages has \['shape'\]; allowed: geometry, material"):
+        get_adapter("r3dg").commands("d", "m", {**cfg, "command_stages": ["shape", "material", "material"]})
+    with pytest.raises(ValueError, match="runtime_s="):
+        given_runtime({"geometry": 1.0, "total": 2.0})
+    for system in ("gs_ir", "r3dg", "irgs", "gaussianshader", "lumigauss", "materialanything"):
+        cfg = load_method_config(system)  # every shipped recipe is consistent
+        command_stages(cfg, len(cfg["commands"]))
+
+
+def test_timed_run_records_geometry_and_material(tmp_path, monkeypatch):
+    """GS-IR's 4 commands 'take' 600, 60, 300, 40 s (a fake clock): geometry = stage 1, material
+    = baking + stage 2 + render, end-to-end = all; the import writes them to meta.json."""
+    clock = iter([0.0, 600.0, 600.0, 660.0, 660.0, 960.0, 960.0, 1000.0])
+    monkeypatch.setattr(adapter_module.time, "perf_counter", lambda: next(clock))
+    monkeypatch.setattr(adapter_module.subprocess, "run", lambda *a, **k: None)
+    scene = make_scene(tmp_path / "gt", "ball", size=20, seed=1, num_test=3)
+    model = write_gs_ir(tmp_path / "model", gt_maps(scene))
+    adapter, cfg = get_adapter("gs_ir"), {**load_method_config("gs_ir"), "checkout": str(tmp_path)}
+    assert adapter.run(tmp_path / "data", model, cfg, dry_run=False, echo=lambda _: None) == 1000.0
+    record = json.loads((model / "gspi_runtime.json").read_text())
+    assert record["command_seconds"] == [600.0, 60.0, 300.0, 40.0]
+    pred = adapter.import_outputs(model, scene.root, tmp_path / "pred", cfg)
+    assert read_meta(pred)["runtime_s"] == {"material": 400.0, "end_to_end": 1000.0, "geometry": 600.0}
+
+
+def test_table_cell_says_total_only():
+    assert _runtime_cell({"runtime/material": None, "runtime/end_to_end": 16.7}) == "16.7 total only"
+    assert _runtime_cell({"runtime/material": 6.7, "runtime/end_to_end": 16.7}) == "6.7 (16.7)"
+    assert _runtime_cell({"runtime/material": None, "runtime/end_to_end": None}) == "--"
+
+
+def test_gspi_import_takes_a_split_runtime(tmp_path):
+    from omegaconf import OmegaConf
+
+    from baselines.cli import run_import
+
+    scene = make_scene(tmp_path / "gt", "ball", size=20, seed=1, num_test=3)
+    model = write_gs_ir(tmp_path / "model", gt_maps(scene))
+    cfg = OmegaConf.create({"method": load_method_config("gs_ir"), "src": str(model), "scene": str(scene.root),
+                            "out": str(tmp_path / "pred"), "split": "test",
+                            "runtime_s": {"geometry": 60.0, "material": 30.0}})
+    run_import(cfg)
+    assert read_meta(tmp_path / "pred" / scene.name)["runtime_s"] == \
+        {"material": 30.0, "end_to_end": 90.0, "geometry": 60.0}
