@@ -7,7 +7,6 @@ from baselines import adapter as adapter_module
 from baselines.adapter import get_adapter, load_method_config
 from baselines.runtime import command_stages, given_runtime, split_seconds
 from eval.layout import read_meta
-from eval.tables import _runtime_cell
 from tests.fixtures import make_scene
 from tests.test_baselines_adapters import gt_maps, write_gs_ir
 
@@ -54,10 +53,29 @@ def test_timed_run_records_geometry_and_material(tmp_path, monkeypatch):
     assert read_meta(pred)["runtime_s"] == {"material": 400.0, "end_to_end": 1000.0, "geometry": 600.0}
 
 
-def test_table_cell_says_total_only():
-    assert _runtime_cell({"runtime/material": None, "runtime/end_to_end": 16.7}) == "16.7 total only"
-    assert _runtime_cell({"runtime/material": 6.7, "runtime/end_to_end": 16.7}) == "6.7 (16.7)"
-    assert _runtime_cell({"runtime/material": None, "runtime/end_to_end": None}) == "--"
+def test_table_cell_says_total_only(tmp_path):
+    """Table 1's runtime cell: "material (end-to-end)", or "T total only" for a joint run."""
+    import json
+
+    from eval.eval_folders import load_eval_folders
+    from eval.tables_render import to_markdown
+    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+
+    scores = {c: {"psnr": 20.0, "ssim": 0.5, "lpips": 0.1} for c in ("albedo", "relight")}
+    for name, runtime in (("joint", {"material": None, "end_to_end": 16.7}),
+                          ("split", {"material": 6.7, "end_to_end": 16.7}), ("none", {})):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "summary.json").write_text(json.dumps(scores))
+        (d / "eval_meta.json").write_text(json.dumps({"method": name, "runtime_min": runtime,
+                                                      "protocol": {"name": "p", "version": 1}}))
+    sweep = load_eval_folders([tmp_path])
+    rows = {line.split(" | ")[0][2:]: line for line in
+            to_markdown(build_sweep_table(sweep, TABLE_SPECS["table1"]), sweep).splitlines()
+            if line.startswith("| ") and not line.startswith("| Method")}
+    assert "16.7 total only" in rows["joint"]
+    assert "6.7** (16.7)" in rows["split"]  # the fastest material time is bold
+    assert "total only" not in rows["none"] and " -- | 1 |" in rows["none"]
 
 
 def test_gspi_import_takes_a_split_runtime(tmp_path):
