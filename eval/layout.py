@@ -33,6 +33,8 @@ VIEW_FILES = {
     "mask.png": ("png", 1),       # 8-bit, 255 = foreground
     "alpha.png": ("png", 1),      # predictions only, optional: 16-bit, the method's rendered opacity
 }
+PREDICTION_ONLY_FILES = ("alpha.png",)
+GT_VIEW_FILES = tuple(n for n in VIEW_FILES if n not in PREDICTION_ONLY_FILES)  # every GT view has these
 
 
 class LayoutError(ValueError):

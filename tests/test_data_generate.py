@@ -14,7 +14,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from eval.imageio import read_exr
-from eval.layout import VIEW_FILES, read_scene, read_splits, read_view_file
+from eval.layout import GT_VIEW_FILES, read_scene, read_splits, read_view_file
 from gspi.cli.data import alias_preset, run
 from gspi.data.lattice import lattice_cameras
 from gspi.data.render_scene import relight_stored_view
@@ -73,7 +73,7 @@ def test_every_scene_reads_and_has_the_canonical_views(dataset):
             assert env_map.shape == (16, 32, 3) and env_map.min() >= 0
         for split, views in scene.views.items():
             for v in views:
-                for name in VIEW_FILES:
+                for name in GT_VIEW_FILES:
                     assert (scene.view_dir(split, v.id) / name).is_file(), (split, v.id, name)
         assert (scene.root / "contact_sheet.png").is_file()
 
@@ -83,7 +83,7 @@ def test_value_ranges(dataset):
     for scene in scenes(out):
         for split, views in scene.views.items():
             for v in views:
-                f = {n: read_view_file(scene.view_dir(split, v.id), n) for n in VIEW_FILES}
+                f = {n: read_view_file(scene.view_dir(split, v.id), n) for n in GT_VIEW_FILES}
                 mask = f["mask.png"][..., 0]
                 assert set(np.unique(mask)) <= {0.0, 1.0}
                 inside = mask > 0.5
