@@ -111,6 +111,19 @@ def make_dataset(root: str | Path, *, num_scenes: int = 2, size: int = 48) -> Pa
     return root
 
 
+def protocol(**overrides):
+    """The default evaluation protocol with dotted-key overrides, validated as at start-up."""
+    from omegaconf import OmegaConf
+
+    from eval.config import ProtocolConfig, validate_protocol
+
+    cfg = OmegaConf.structured(ProtocolConfig)
+    for key, value in overrides.items():
+        OmegaConf.update(cfg, key, value)
+    validate_protocol(cfg)
+    return cfg
+
+
 def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str = "perturbed",
                     roughness_offset: float = 6554 / 65535, albedo_scale: float = 1.0,
                     channels=("albedo", "roughness", "metallic"), split: str = "test") -> Path:

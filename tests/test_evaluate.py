@@ -4,20 +4,10 @@ import shutil
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
 
-from eval.config import ProtocolConfig, validate_protocol
 from eval.evaluate import evaluate
 from eval.layout import LayoutError, read_scene, write_material
-from tests.fixtures import make_prediction
-
-
-def protocol(**overrides):
-    cfg = OmegaConf.structured(ProtocolConfig)
-    for key, value in overrides.items():
-        OmegaConf.update(cfg, key, value)
-    validate_protocol(cfg)
-    return cfg
+from tests.fixtures import make_prediction, protocol
 
 
 def test_scene_is_its_own_oracle(sphere_dataset, lpips_net):

@@ -4,23 +4,13 @@ import math
 import numpy as np
 import pytest
 import torch
-from omegaconf import OmegaConf
 
 from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.config import ProtocolConfig, validate_protocol
 from eval.evaluate import evaluate
 from eval.layout import read_scene, read_view_file, write_material, write_view_file
 from eval.protocol_id import describe_protocol, protocol_dict, protocol_hash
 from eval.unpremultiply import unpremultiply
-from tests.fixtures import make_prediction
-
-
-def protocol(**overrides):
-    cfg = OmegaConf.structured(ProtocolConfig)
-    for key, value in overrides.items():
-        OmegaConf.update(cfg, key, value)
-    validate_protocol(cfg)
-    return cfg
+from tests.fixtures import make_prediction, protocol
 
 
 def test_hand_computed_pixels():
