@@ -17,7 +17,8 @@ import pandas as pd
 
 from eval.layout import LayoutError, read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
-from eval.sweep import COLUMNS, RunRecord, Sweep, per_scene_rows, protocol_name
+from eval.sweep import (COLUMNS, RunRecord, Sweep, material_protocol_label, per_scene_rows,
+                        runtime_min_rows)
 
 TABLE = "table1"
 
@@ -78,13 +79,6 @@ def _score_rows(folder: Path, summary: dict, meta: dict) -> list[dict]:
     return per_scene_rows({"*": summary}, folder / "summary.json", "material")
 
 
-def _runtime_rows(meta: dict) -> list[dict]:
-    runtime = meta.get("runtime_min") or {}
-    return [{"scene": "*", "measure": "runtime", "channel": key, "metric": "minutes",
-             "value": float(runtime[key])}
-            for key in ("material", "end_to_end") if runtime.get(key) is not None]
-
-
 def check_same_scenes(metas: dict[Path, dict]) -> None:
     """Refuse to average folders of one method scored on different scene sets (the error
     names the folders); folders without a recorded scene list are not compared."""
@@ -121,10 +115,9 @@ def load_eval_folders(paths: list[str | Path]) -> Sweep:
         protocols[str(folder)], counts[str(folder)] = protocol, meta.get("counts") or {}
         own = {"method": method, "ablation": "full", "table": TABLE, "seed": seed,
                "config_hash": record.config_hash, "data": record.data or "", "run": str(folder),
-               "protocol": protocol_name(meta.get("protocol"), "unnamed protocol")
-               + f" #{protocol_hash(protocol)}"}
+               "protocol": material_protocol_label(meta)}
         rows += [dict(own, **r) for r in _score_rows(folder, summaries[folder], meta)
-                 + _runtime_rows(meta)]
+                 + runtime_min_rows(meta)]
     notes = ([f"Incomplete gspi-eval folder(s) left out (killed before eval_meta.json): "
               f"{', '.join(map(str, incomplete))}"] if incomplete else [])
     return Sweep(values=pd.DataFrame(rows, columns=COLUMNS), records=records, notes=notes,

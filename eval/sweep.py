@@ -196,11 +196,22 @@ def _runtime_rows(record: RunRecord, eval_meta: dict, scenes: list[str]) -> list
                 if runtime.get(key) is not None:
                     rows.append({"scene": scene, "channel": key, "value": runtime[key] / 60.0})
     else:
-        runtime = eval_meta.get("runtime_min") or {}
-        for key in ("material", "end_to_end"):
-            if runtime.get(key) is not None:
-                rows.append({"scene": "*", "channel": key, "value": float(runtime[key])})
+        return runtime_min_rows(eval_meta)
     return [dict(r, measure="runtime", metric="minutes") for r in rows]
+
+
+def runtime_min_rows(eval_meta: dict) -> list[dict]:
+    """The run's mean minutes from eval_meta.json (runtime_min) as one unit, scene "*"."""
+    runtime = eval_meta.get("runtime_min") or {}
+    return [{"scene": "*", "measure": "runtime", "channel": key, "metric": "minutes",
+             "value": float(runtime[key])}
+            for key in ("material", "end_to_end") if runtime.get(key) is not None]
+
+
+def material_protocol_label(eval_meta: dict) -> str:
+    """"name vN #hash" of the protocol an eval_meta.json records."""
+    return (protocol_name(eval_meta.get("protocol"), "unnamed protocol")
+            + f" #{protocol_hash(recorded_protocol(eval_meta))}")
 
 
 def protocol_name(protocol, default: str) -> str:
@@ -218,8 +229,7 @@ def record_values(record: RunRecord) -> tuple[list[dict], list[str]]:
         meta = _read_json(meta_path, "eval_meta.json of material_eval")
         _read_json(record.material_eval / "summary.json", "summary.json of material_eval")
         material = per_scene_rows(meta.get("per_scene"), meta_path, "material")
-        protocol["material"] = (protocol_name(meta.get("protocol"), "unnamed protocol")
-                                + f" #{protocol_hash(recorded_protocol(meta))}")
+        protocol["material"] = material_protocol_label(meta)
         rows += material + _runtime_rows(record, meta, sorted({r["scene"] for r in material}))
     if record.points_eval is not None:
         summary_path = record.points_eval / "summary.json"
