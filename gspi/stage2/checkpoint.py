@@ -106,9 +106,13 @@ def load_stage2_checkpoint(path: str | Path) -> tuple[RCWDenoiser, dict]:
     return model.eval().requires_grad_(False), cfg
 
 
-def export_ema_only(src: str | Path, dst: str | Path, *, half: bool = False) -> Path:
-    """Writes the shippable EMA-only file of a training checkpoint (optionally fp16 weights)."""
-    ckpt = read_checkpoint(src)
+def ema_only(ckpt: dict, *, half: bool = False) -> dict:
+    """The shippable EMA-only content of a training checkpoint (optionally fp16 weights)."""
     ema = {k: (v.half() if half and v.is_floating_point() else v) for k, v in ckpt["ema"].items()}
     keep = {k: ckpt[k] for k in ("format", "version", "step", "rcw_config", "config", "elapsed_s") if k in ckpt}
-    return save_atomic({**keep, "ema": ema, "weights": "ema" + ("-fp16" if half else "")}, dst)
+    return {**keep, "ema": ema, "weights": "ema" + ("-fp16" if half else "")}
+
+
+def export_ema_only(src: str | Path, dst: str | Path, *, half: bool = False) -> Path:
+    """Writes the shippable EMA-only file of a training checkpoint (optionally fp16 weights)."""
+    return save_atomic(ema_only(read_checkpoint(src), half=half), dst)

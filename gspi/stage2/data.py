@@ -115,6 +115,12 @@ class ScenePoints:
     def num_points(self) -> int:
         return len(self.xyz)
 
+    def prior_grid(self) -> Optional[Tensor]:
+        """The global prior as the sampler takes it: [32, D, 5, 5] (None without a prior)."""
+        if self.global_tokens is None:
+            return None
+        return self.global_tokens.transpose(1, 2).unflatten(2, (5, 5))
+
     @property
     def tree(self) -> cKDTree:
         if self._tree is None:

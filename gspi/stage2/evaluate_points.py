@@ -141,8 +141,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     def predict(scene: ScenePoints) -> np.ndarray:
         rng = np.random.default_rng([seed, scenes.index(scene)])
         xyz, cond = whole_scene_inputs(scene, data_cfg, rng)
-        feats = None if scene.global_tokens is None else scene.global_tokens.transpose(1, 2).unflatten(2, (5, 5))
-        return predict_point_pbr(model, xyz, cond, feats, num_steps=num_steps, seed=seed, frame=scene.frame,
+        return predict_point_pbr(model, xyz, cond, scene.prior_grid(), num_steps=num_steps, seed=seed, frame=scene.frame,
                                  write_chunk=write_chunk).numpy()
 
     result = evaluate_scenes(scenes, predict, lambda s: baseline_prediction(s, rough, metal))

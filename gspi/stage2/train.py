@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from gspi.stage2.checkpoint import (CheckpointError, load_weights, rcw_config_dict, read_checkpoint,
-                                    save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
+from gspi.stage2.checkpoint import (CheckpointError, ema_only, load_weights, rcw_config_dict,
+                                    read_checkpoint, save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
 from gspi.stage2.config import complete_stage2
 from gspi.stage2.distributed import DistContext
 from gspi.stage2.data import (PointDataConfig, ScenePoints, load_scene_points, local_condition_dim,
@@ -204,9 +204,7 @@ def validate(state: TrainState, validator, cfg: Mapping[str, Any], out_dir: Path
     metrics.log(state.step, {**scores, "stage2/val/seconds": time.perf_counter() - t0})
     if not state.best or scores[SCORE_KEY] > state.best["score"]:
         state.best = {"step": state.step, "score": scores[SCORE_KEY]}
-        full = state.state_dict(cfg)
-        keep = ("format", "version", "step", "rcw_config", "config", "elapsed_s", "best")
-        save_atomic({**{k: full[k] for k in keep}, "ema": full["ema"], "weights": "ema"}, out_dir / "best.pt")
+        save_atomic({**ema_only(state.state_dict(cfg)), "best": state.best}, out_dir / "best.pt")
     log.info("step %d  validation avg PSNR %.2f dB (best %.2f at step %d)", state.step, scores[SCORE_KEY],
              state.best["score"], state.best["step"])
     return scores

@@ -52,8 +52,7 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
     keep = np.arange(scene.num_points)
     if cfg.max_points is not None and scene.num_points > cfg.max_points:
         keep = np.sort(rng.choice(scene.num_points, cfg.max_points, replace=False))
-    feats = None if scene.global_tokens is None else \
-        scene.global_tokens.transpose(1, 2).unflatten(2, (5, 5))
+    feats = scene.prior_grid()
     device = next(model.parameters()).device
     values = predict_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
                                num_steps=cfg.num_steps, seed=cfg.seed, frame=scene.frame).cpu().numpy()
