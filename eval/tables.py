@@ -5,10 +5,12 @@
     gspi-table multirun/2025-01-01/12-00-00 out=tables             # a gspi-run sweep
     gspi-table multirun/... table=table2 bootstrap.n=20000 bootstrap.seed=1
 
-Two sources, one table builder and one renderer: folders holding gspi-run records
+Three sources, one table builder and one renderer: folders holding gspi-run records
 (result.json, docs/TABLES.md) give Tables 1-3 (`eval.sweep`); plain gspi-eval folders
 (summary.json + eval_meta.json, searched recursively) give Table 1, each folder one run of its
-method (`eval.eval_folders`). Either way every cell is mean ± SE over (scene, run) units, Δ
+method (`eval.eval_folders`); Stage II point-cloud evaluations (`python -m
+gspi.stage2.evaluate_points`, scores.json) give Table 2, each folder one run of its
+ablation (`eval.points_folders`). Either way every cell is mean ± SE over (scene, run) units, Δ
 is the paired bootstrap against GS-PI where it is a row, and the footer names the protocol,
 the image counts and every folder left out (`eval.tables_sweep`, `eval.tables_render`).
 "--" marks a channel the method does not model; the best value of a column is bold (LaTeX:
@@ -36,11 +38,23 @@ def is_sweep(paths: list[str | Path]) -> bool:
 
 
 def load_sources(runs: list, tables: tuple[str, ...]):
-    """The Sweep of gspi-run records below `runs`, else of their plain gspi-eval folders."""
-    from eval.eval_folders import load_eval_folders
+    """The Sweep of gspi-run records below `runs`; else of their Stage II point-cloud
+    evaluations (Table 2, `eval.points_folders`) when there are only those; else of their
+    plain gspi-eval folders (Table 1)."""
+    from eval.eval_folders import find_eval_folders, load_eval_folders
+    from eval.points_folders import find_points_folders, load_points_folders
     from eval.sweep import load_sweep
 
-    return load_sweep(runs, tables=tables) if is_sweep(runs) else load_eval_folders(runs)
+    if is_sweep(runs):
+        return load_sweep(runs, tables=tables)
+    if find_points_folders(runs):
+        try:
+            find_eval_folders(runs)
+        except FileNotFoundError:
+            return load_points_folders(runs)
+        raise ValueError(f"{', '.join(map(str, runs))}: holds both gspi-eval folders (Table 1) and "
+                         "Stage II point-cloud evaluations (Table 2); tabulate them separately")
+    return load_eval_folders(runs)
 
 
 def run(cfg) -> dict:

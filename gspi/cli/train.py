@@ -44,7 +44,7 @@ def run(cfg: DictConfig) -> dict:
 
     from gspi.stage2.checkpoint import load_stage2_checkpoint
     from gspi.stage2.config import complete_stage2
-    from gspi.stage2.evaluate_points import evaluate_checkpoint
+    from gspi.stage2.evaluate_points import checkpoint_source, evaluate_checkpoint
     from gspi.device import resolve_device
     from gspi.stage2.distributed import from_env, shutdown
     from gspi.stage2.train import train
@@ -75,7 +75,7 @@ def run(cfg: DictConfig) -> dict:
         model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")
         result = evaluate_checkpoint(model, saved_cfg, plain["data_dir"], out / "eval_points", split=ev["split"],
                                      num_steps=int(ev["num_steps"]), seed=int(ev["seed"]),
-                                     write_chunk=ev["write_chunk"])
+                                     write_chunk=ev["write_chunk"], source=checkpoint_source(out / "checkpoint.pt"))
         stats["eval_points"] = {"split": ev["split"], "mean": result["mean"]}
     write_json_atomic(out / "stats.json", stats, allow_nan=True)
     log.info("wrote %s", out / "stats.json")

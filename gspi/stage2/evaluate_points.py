@@ -122,8 +122,13 @@ def markdown_table(result: Mapping[str, Any], *, caption: str) -> str:
 
 def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out_dir: str | Path, *,
                         split: str = "test", num_steps: int = 50, seed: int = 0,
-                        write_chunk: int | None = 32768) -> dict[str, Any]:
+                        write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None
+                        ) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
+
+    ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
+    seed, the dataset and ``source`` (e.g. the checkpoint's path and step), so that
+    ``gspi-table`` can build Table 2 from such folders (``eval/points_folders.py``).
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
@@ -145,6 +150,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                                  write_chunk=write_chunk).numpy()
 
     result = evaluate_scenes(scenes, predict, lambda s: baseline_prediction(s, rough, metal))
+    result.update(format="gspi-points-eval", version=1, ablation=str(cfg.get("ablation_name", "full")),
+                  train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()), **dict(source or {}))
     result.update(split=split, num_steps=num_steps, seed=seed, scenes=[s.name for s in scenes],
                   baseline_constants={"roughness": rough, "metallic": metal}, psnr_cap_db=PSNR_CAP_DB,
                   lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"])
@@ -157,6 +164,15 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                f"Baseline constants (training means): roughness {rough:.3f}, metallic {metal:.3f}.")
     (out_dir / "table.md").write_text(markdown_table(result, caption=caption))
     return result
+
+
+def checkpoint_source(path: str | Path) -> dict[str, Any]:
+    """Where a model came from: the checkpoint's path, training step and training seconds."""
+    from gspi.stage2.checkpoint import read_checkpoint
+
+    saved = read_checkpoint(Path(path))
+    return {"checkpoint": str(Path(path).resolve()), "checkpoint_step": int(saved.get("step", -1)),
+            "checkpoint_elapsed_s": saved.get("elapsed_s")}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -174,7 +190,8 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(args.threads)
     model, cfg = load_stage2_checkpoint(args.checkpoint)
-    evaluate_checkpoint(model, cfg, args.data, args.out, split=args.split, num_steps=args.num_steps, seed=args.seed)
+    evaluate_checkpoint(model, cfg, args.data, args.out, split=args.split, num_steps=args.num_steps, seed=args.seed,
+                        source=checkpoint_source(args.checkpoint))
     print((Path(args.out) / "table.md").read_text())
 
 
