@@ -64,11 +64,12 @@ def _same_evaluation(scores: dict[Path, dict]) -> None:
     """All folders scored the same scenes of the same split and dataset, with the same
     baseline (else one table would compare models on different inputs)."""
     first_path, first = next(iter(scores.items()))
-    ident = lambda d: (sorted(d["scenes"]), d["split"], d["data"], d.get("num_steps"))  # noqa: E731
+    ident = lambda d: (sorted(d["scenes"]), d["split"], d["data"], d.get("num_steps"),  # noqa: E731
+                       d.get("max_points"))
     for path, data in scores.items():
         if ident(data) != ident(first):
             raise ValueError(f"{path} and {first_path}: scored on different scenes/split/data/DDIM "
-                             f"steps ({ident(data)} vs {ident(first)}); tabulate one evaluation at a time")
+                             f"steps/points ({ident(data)} vs {ident(first)}); tabulate one evaluation at a time")
         if not _close(data["per_scene"][BASELINE_KEY], first["per_scene"][BASELINE_KEY]):
             raise ValueError(f"{path} and {first_path}: the no-decomposition baseline differs "
                              "(different training constants?); tabulate one evaluation at a time")
@@ -100,7 +101,9 @@ def load_points_folders(paths: list[str | Path]) -> Sweep:
     records.append(_record(BASELINE_KEY, "full", 0, first_folder, first))
     notes = [f"{len(folders)} Stage II model(s) scored on the GT point clouds of "
              f"{len(first['scenes'])} {first['split']} scene(s) of {first['data']} "
-             f"({first.get('num_steps')} DDIM steps); the no-decomposition row is the same for every "
+             f"({first.get('num_steps')} DDIM steps, "
+             f"{'every point' if first.get('max_points') is None else str(first['max_points']) + '-point subset + 1-NN fill'}"
+             f" per scene); the no-decomposition row is the same for every "
              f"folder (training-mean roughness/metallic: {first.get('baseline_constants')})"]
     return Sweep(values=pd.DataFrame(rows, columns=COLUMNS), records=records, notes=notes)
 

@@ -75,3 +75,20 @@ def test_a_saved_checkpoint_scores_as_it_did_while_training(dataset, runs):  # n
     cfg = ValidationConfig(every=4, split="test", num_steps=2, max_points=300)
     scores = score_checkpoint(checked / "best.pt", dataset, cfg)
     assert scores[SCORE_KEY] == pytest.approx(stats["best_validation"]["score"], abs=1e-9)
+
+
+def test_evaluate_points_with_max_points_is_the_validation_measure(dataset, runs, tmp_path):  # noqa: F811
+    """One prediction path: evaluate_points with --max-points scores best.pt exactly as the
+    validation did, and without it predicts every point (another, recorded measure)."""
+    from gspi.stage2.evaluate_points import checkpoint_source, evaluate_checkpoint
+
+    _, checked, stats = runs
+    model, cfg = load_stage2_checkpoint(checked / "best.pt")
+    sub = evaluate_checkpoint(model, cfg, dataset, tmp_path / "sub", split="test", num_steps=2, seed=0,
+                              max_points=300, source=checkpoint_source(checked / "best.pt"))
+    assert sub["mean"]["stage2"]["avg"]["psnr"] == pytest.approx(stats["best_validation"]["score"], abs=1e-9)
+    assert (sub["max_points"], sub["checkpoint_step"]) == (300, stats["best_validation"]["step"])
+    full = evaluate_checkpoint(model, cfg, dataset, tmp_path / "all", split="test", num_steps=2, seed=0)
+    assert full["max_points"] is None
+    assert full["mean"]["stage2"]["avg"]["psnr"] != pytest.approx(sub["mean"]["stage2"]["avg"]["psnr"], abs=1e-6)
+    assert full["mean"]["no_decomposition"] == sub["mean"]["no_decomposition"]

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from eval.atomic import write_json_atomic
-from gspi.stage2.data import PointDataConfig, ScenePoints, whole_scene_inputs
+from gspi.stage2.data import PointDataConfig, ScenePoints
 from gspi.stage2.normalize import pbr_from_model
 from gspi.data.gt_maps import read_gt_view_maps
 from gspi.point_cloud import scatter_pixel_values
@@ -122,19 +122,21 @@ def markdown_table(result: Mapping[str, Any], *, caption: str) -> str:
 
 def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out_dir: str | Path, *,
                         split: str = "test", num_steps: int = 50, seed: int = 0,
-                        write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None
-                        ) -> dict[str, Any]:
+                        write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
+                        max_points: int | None = None) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
     seed, the dataset and ``source`` (e.g. the checkpoint's path and step), so that
     ``gspi-table`` can build Table 2 from such folders (``eval/points_folders.py``).
+    ``max_points``: predict a seeded subset of that many points per scene and fill the rest by
+    1-NN (the validation measure, ``gspi.stage2.validate``); None = every point.
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
     from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.sampler import predict_point_pbr
     from gspi.stage2.train import load_split
+    from gspi.stage2.validate import ValidationConfig, subset_prediction
 
     run_cfg = {**cfg, "data_dir": str(data_dir)}
     stage2 = cfg["stage2"]
@@ -143,16 +145,15 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     scenes = load_split(run_cfg, split, encoder)
     rough, metal = training_constants(load_split(run_cfg, "train", encoder))
 
+    sampling = ValidationConfig(num_steps=num_steps, max_points=max_points, seed=seed)
+
     def predict(scene: ScenePoints) -> np.ndarray:
-        rng = np.random.default_rng([seed, scenes.index(scene)])
-        xyz, cond = whole_scene_inputs(scene, data_cfg, rng)
-        return predict_point_pbr(model, xyz, cond, scene.prior_grid(), num_steps=num_steps, seed=seed, frame=scene.frame,
-                                 write_chunk=write_chunk).numpy()
+        return subset_prediction(model, scene, scenes.index(scene), data_cfg, sampling, write_chunk=write_chunk)
 
     result = evaluate_scenes(scenes, predict, lambda s: baseline_prediction(s, rough, metal))
     result.update(format="gspi-points-eval", version=1, ablation=str(cfg.get("ablation_name", "full")),
                   train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()), **dict(source or {}))
-    result.update(split=split, num_steps=num_steps, seed=seed, scenes=[s.name for s in scenes],
+    result.update(split=split, num_steps=num_steps, max_points=max_points, seed=seed, scenes=[s.name for s in scenes],
                   baseline_constants={"roughness": rough, "metallic": metal}, psnr_cap_db=PSNR_CAP_DB,
                   lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"])
     out_dir = Path(out_dir)
@@ -185,13 +186,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--split", default="test")
     parser.add_argument("--num-steps", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-points", type=int, default=None,
+                        help="per scene: a seeded subset + 1-NN fill (the validation measure); default every point")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(args.threads)
     model, cfg = load_stage2_checkpoint(args.checkpoint)
     evaluate_checkpoint(model, cfg, args.data, args.out, split=args.split, num_steps=args.num_steps, seed=args.seed,
-                        source=checkpoint_source(args.checkpoint))
+                        source=checkpoint_source(args.checkpoint), max_points=args.max_points)
     print((Path(args.out) / "table.md").read_text())
 
 

@@ -43,8 +43,10 @@ class ValidationConfig:
 
 
 def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointDataConfig,
-                      cfg: ValidationConfig) -> np.ndarray:
-    """[P, 5] PBR of every point of ``scene``: sampled on a seeded subset, 1-NN filled."""
+                      cfg: ValidationConfig, *, write_chunk: int | None = 32768) -> np.ndarray:
+    """[P, 5] PBR of every point of ``scene``: sampled on a seeded subset, 1-NN filled (every
+    point when ``cfg.max_points`` is None: then this is Table 2's measure proper, the
+    prediction of ``gspi.stage2.evaluate_points``)."""
     from gspi.stage2.sampler import predict_point_pbr
 
     rng = np.random.default_rng([cfg.seed, index])
@@ -55,7 +57,8 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
     feats = scene.prior_grid()
     device = next(model.parameters()).device
     values = predict_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
-                               num_steps=cfg.num_steps, seed=cfg.seed, frame=scene.frame).cpu().numpy()
+                               num_steps=cfg.num_steps, seed=cfg.seed, frame=scene.frame,
+                               write_chunk=write_chunk).cpu().numpy()
     return values if len(keep) == scene.num_points else nearest_fill(scene.xyz[keep], values, scene.xyz)
 
 
