@@ -97,3 +97,18 @@ def test_a_checkpoint_with_an_invalid_stored_config_names_the_file(tmp_path):
     torch.save(ckpt, tmp_path / "bad.pt")
     with pytest.raises(CheckpointError, match=r"bad\.pt.*stage2\.train\.no_such_key"):
         load_stage2_checkpoint(tmp_path / "bad.pt")
+
+
+@pytest.mark.parametrize("key", ["stop_after_minutes", "stop_after_cpu_minutes"])
+def test_gspi_run_refuses_a_time_budget_for_the_model_it_trains(key):
+    """gspi-run caches its trained Stage II model by config: a time budget would make it
+    machine-dependent (and a budget-stopped run never "finished"); a given checkpoint is fine."""
+    from gspi.run.config_check import check_run_config
+
+    cfg = {"split": "test", "data_dir": "d", "out": "o",
+           "stage2": {"checkpoint": None, "train": {key: 15}}}
+    with pytest.raises(ValueError, match=rf"stage2\.train\.{key}=15: gspi-run trains Stage II to "
+                                         r"stage2\.train\.steps"):
+        check_run_config(cfg)
+    check_run_config({**cfg, "stage2": {**cfg["stage2"], "checkpoint": "checkpoints/stage2_small.pt"}})
+    check_run_config({**cfg, "stage2": {"checkpoint": None, "train": {key: None}}})

@@ -44,5 +44,27 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
                       ("stage3", Stage3Config)):
         if cfg.get(key) is not None:
             kind.from_dict(dict(cfg[key]))
+    if cfg.get("stage2") is not None:
+        check_no_time_budget(cfg["stage2"])
     if cfg.get("eval") is not None:
         validate_protocol(OmegaConf.create(dict(cfg["eval"])))
+
+
+TIME_BUDGETS = ("stop_after_minutes", "stop_after_cpu_minutes")
+
+
+def check_no_time_budget(stage2: Mapping[str, Any]) -> None:
+    """A Stage II model that gspi-run trains is cached by its config's hash and reused by every
+    job of that config, so it must be the same model whatever the machine: a time budget
+    (gspi-train's stop_after_*minutes) would make it depend on the machine's speed, and a
+    budget-stopped run would never count as finished. Set the steps instead, or train with
+    gspi-train and pass stage2.checkpoint=<path>."""
+    if stage2.get("checkpoint"):
+        return
+    train = stage2.get("train") or {}
+    for key in TIME_BUDGETS:
+        if train.get(key) is not None:
+            raise ValueError(f"stage2.train.{key}={train[key]}: gspi-run trains Stage II to "
+                             f"stage2.train.steps (its model is cached by config and must not depend "
+                             f"on the machine's speed); set stage2.train.{key}=null and the steps, or "
+                             f"train with gspi-train and pass stage2.checkpoint=<its checkpoint.pt>")
