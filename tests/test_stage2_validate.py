@@ -92,3 +92,28 @@ def test_evaluate_points_with_max_points_is_the_validation_measure(dataset, runs
     assert full["max_points"] is None
     assert full["mean"]["stage2"]["avg"]["psnr"] != pytest.approx(sub["mean"]["stage2"]["avg"]["psnr"], abs=1e-6)
     assert full["mean"]["no_decomposition"] == sub["mean"]["no_decomposition"]
+
+
+def test_evaluate_points_baseline_constants_from_another_dataset(dataset, runs, tmp_path):  # noqa: F811
+    """A test-only dataset: its empty train split is named with the remedy; --baseline-train
+    takes the constants from another dataset (here the same one: the same scores)."""
+    import json
+    import shutil
+
+    from gspi.stage2.evaluate_points import main
+
+    _, checked, _ = runs
+    test_only = tmp_path / "test_only"
+    splits = json.loads((dataset / "splits.json").read_text())
+    test_only.mkdir()
+    for name in splits["test"]:
+        shutil.copytree(dataset / name, test_only / name)
+    (test_only / "splits.json").write_text(json.dumps({"train": [], "val": [], "test": splits["test"]}))
+    args = [str(checked / "best.pt"), str(test_only), str(tmp_path / "a"), "--num-steps", "2", "--max-points", "300"]
+    with pytest.raises(ValueError, match=r"split 'train' is empty: the no-decomposition baseline.*--baseline-train"):
+        main(args)
+    main(args + ["--baseline-train", str(dataset)])
+    main([str(checked / "best.pt"), str(dataset), str(tmp_path / "b"), "--num-steps", "2", "--max-points", "300"])
+    a, b = (json.loads((tmp_path / k / "scores.json").read_text()) for k in "ab")
+    assert a["per_scene"] == b["per_scene"] and a["baseline_constants"] == b["baseline_constants"]
+    assert a["baseline_train"] == str(dataset.resolve())

@@ -123,7 +123,8 @@ def markdown_table(result: Mapping[str, Any], *, caption: str) -> str:
 def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out_dir: str | Path, *,
                         split: str = "test", num_steps: int = 50, seed: int = 0,
                         write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
-                        max_points: int | None = None) -> dict[str, Any]:
+                        max_points: int | None = None, baseline_train: str | Path | None = None
+                        ) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
@@ -131,6 +132,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     ``gspi-table`` can build Table 2 from such folders (``eval/points_folders.py``).
     ``max_points``: predict a seeded subset of that many points per scene and fill the rest by
     1-NN (the validation measure, ``gspi.stage2.validate``); None = every point.
+    ``baseline_train``: the dataset whose train split gives the baseline's constants (default
+    ``data_dir``; e.g. the model's training pool when ``data_dir`` holds only test scenes).
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
@@ -143,7 +146,14 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     encoder = build_encoder(stage2["prior"])
     data_cfg = PointDataConfig.from_mapping(stage2["data"])
     scenes = load_split(run_cfg, split, encoder)
-    rough, metal = training_constants(load_split(run_cfg, "train", encoder))
+    constants_cfg = run_cfg if baseline_train is None else {**cfg, "data_dir": str(baseline_train)}
+    try:
+        train_scenes = load_split(constants_cfg, "train", encoder)
+    except ValueError as exc:  # e.g. a test-only dataset
+        raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
+                         "pass a dataset with a train split (--baseline-train, e.g. the model's training "
+                         "data)") from exc
+    rough, metal = training_constants(train_scenes)
 
     sampling = ValidationConfig(num_steps=num_steps, max_points=max_points, seed=seed)
 
@@ -154,7 +164,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     result.update(format="gspi-points-eval", version=1, ablation=str(cfg.get("ablation_name", "full")),
                   train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()), **dict(source or {}))
     result.update(split=split, num_steps=num_steps, max_points=max_points, seed=seed, scenes=[s.name for s in scenes],
-                  baseline_constants={"roughness": rough, "metallic": metal}, psnr_cap_db=PSNR_CAP_DB,
+                  baseline_constants={"roughness": rough, "metallic": metal},
+                  baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
                   lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"])
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -188,13 +199,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-points", type=int, default=None,
                         help="per scene: a seeded subset + 1-NN fill (the validation measure); default every point")
+    parser.add_argument("--baseline-train", default=None,
+                        help="dataset whose train split gives the baseline's constants (default: DATA)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(args.threads)
     model, cfg = load_stage2_checkpoint(args.checkpoint)
     evaluate_checkpoint(model, cfg, args.data, args.out, split=args.split, num_steps=args.num_steps, seed=args.seed,
-                        source=checkpoint_source(args.checkpoint), max_points=args.max_points)
+                        source=checkpoint_source(args.checkpoint), max_points=args.max_points,
+                        baseline_train=args.baseline_train)
     print((Path(args.out) / "table.md").read_text())
 
 
