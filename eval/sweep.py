@@ -77,6 +77,7 @@ class Sweep:
     notes: list[str] = field(default_factory=list)              # duplicates, missing scenes
     protocols: dict = field(default_factory=dict)  # run folder -> resolved material protocol
     counts: dict = field(default_factory=dict)     # run folder -> eval_meta.json image counts
+    specs: dict = field(default_factory=dict)      # table name -> TableSpec, where a source measures differently
 
 
 def infer_table(method: str, ablation: str) -> str:

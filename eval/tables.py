@@ -72,7 +72,7 @@ def run(cfg) -> dict:
     names = (chosen,) if chosen else TABLES
     sweep = load_sources(runs, names)
     boot = dict(cfg.get("bootstrap") or {})
-    built = {n: build_sweep_table(sweep, TABLE_SPECS[n], bootstrap=boot) for n in names}
+    built = {n: build_sweep_table(sweep, sweep.specs.get(n, TABLE_SPECS[n]), bootstrap=boot) for n in names}
     built = {n: t for n, t in built.items() if t is not None}
     if not built:
         failed = "; ".join(f"{r.run_dir}: {r.error}" for r in sweep.failed)

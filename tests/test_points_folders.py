@@ -74,6 +74,18 @@ def test_rows_cells_and_delta(folders):
     assert got["mean"] == pytest.approx(-2.0 + 0.1 * 1.5 * (len("a1_no_global_prior") % 3 - len("full") % 3))
 
 
+def test_gspi_table_says_the_measure_is_on_gt_point_clouds(folders, tmp_path):
+    from omegaconf import OmegaConf
+
+    from eval.tables import run
+
+    run(OmegaConf.create({"runs": [str(folders)], "out": str(tmp_path / "tables"), "table": "table2",
+                          "bootstrap": {"n": 200, "seed": 0}}))
+    text = (tmp_path / "tables" / "table2.md").read_text()
+    assert "Table 2: Stage II ablations (GT point cloud, evaluate_points)" in text
+    assert "GT point cloud (gspi.stage2.evaluate_points)" in text and "generated" not in text
+
+
 def test_two_seeds_of_one_ablation_are_its_runs(folders):
     write_scores(folders / "full_seed1" / "eval", "full", train_seed=1)
     sweep = load_points_folders([folders])
