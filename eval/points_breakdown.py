@@ -7,6 +7,7 @@ baseline per group of scenes: by material class (the scene name's suffix, e.g.
 mixes the presets' 64 and 128 px, hence their point densities) and per channel.
 
     python -m eval.points_breakdown runs/t2cpu/*/eval_heldout
+    python -m eval.points_breakdown runs/t2cpu/*/eval_heldout --channel metallic   # groups of one channel
 """
 from __future__ import annotations
 
@@ -32,10 +33,12 @@ def image_size(data_dir: Path, scene: str) -> int | None:
     return int(json.loads(path.read_text())["width"]) if path.is_file() else None
 
 
-def breakdown(folders: list[Path]) -> dict[str, dict[str, dict[str, float]]]:
+def breakdown(folders: list[Path], channel: str | None = None) -> dict[str, dict[str, float]]:
     """{row: {group: mean PSNR}}; rows = ablations (+ the baseline), groups = "class=...",
-    "size=...", and "<channel>" (all scenes); a scene's value is the mean of its three channels
-    except in the channel groups."""
+    "size=...", and "<channel>" (all scenes); in the class and size groups a scene's value is
+    the mean of its three channels, or of `channel` alone when given."""
+    if channel is not None and channel not in CHANNELS:
+        raise ValueError(f"channel {channel!r}: one of {', '.join(CHANNELS)}")
     rows: dict[str, dict[str, list[float]]] = {}
     for folder in folders:
         data = read_points_scores(folder / SCORES_NAME)
@@ -46,7 +49,7 @@ def breakdown(folders: list[Path]) -> dict[str, dict[str, dict[str, float]]]:
         for row, key in sources:
             groups = rows.setdefault(row, {})
             for scene, channels in data["per_scene"][key].items():
-                avg = float(np.mean([channels[c]["psnr"] for c in CHANNELS]))
+                avg = float(np.mean([channels[c]["psnr"] for c in ([channel] if channel else CHANNELS)]))
                 groups.setdefault(f"class={material_class(scene)}", []).append(avg)
                 groups.setdefault(f"size={sizes[scene]}", []).append(avg)
                 for c in CHANNELS:
@@ -65,8 +68,10 @@ def to_markdown(table: dict[str, dict[str, float]]) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", nargs="+")
+    parser.add_argument("--channel", choices=CHANNELS, default=None,
+                        help="class/size groups of this channel's PSNR (default: the mean of the three)")
     args = parser.parse_args(argv)
-    print(to_markdown(breakdown(find_points_folders(args.folders))))
+    print(to_markdown(breakdown(find_points_folders(args.folders), args.channel)))
 
 
 if __name__ == "__main__":

@@ -148,3 +148,5 @@ def test_breakdown_by_material_class_and_image_size(tmp_path):
     assert table["a1_no_global_prior"]["metallic"] == pytest.approx(np.mean([11, 21, 31]))
     assert table["no_decomposition"]["class=fabric"] == pytest.approx(31.0)  # a1's baseline not added twice
     assert "| full |" in to_markdown(table)
+    metallic = breakdown([tmp_path / "full"], channel="metallic")
+    assert metallic["full"]["class=metal"] == pytest.approx(17.0)   # (12 + 22) / 2
