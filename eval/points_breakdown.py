@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from eval.points_folders import BASELINE_KEY, MODEL_KEY, SCORES_NAME, find_points_folders, read_points_scores
+from eval.tables_sweep import AVG_CHANNELS as CHANNELS
 
-CHANNELS = ("albedo", "roughness", "metallic")
 MATERIAL_CLASSES = ("rough_plastic", "glossy_plastic", "painted_metal", "metal", "fabric", "ceramic")
 
 
@@ -44,8 +44,8 @@ def breakdown(folders: list[Path], channel: str | None = None) -> dict[str, dict
         data = read_points_scores(folder / SCORES_NAME)
         sizes = {s: image_size(Path(data["data"]), s) for s in data["scenes"]}
         sources = [(str(data["ablation"]), MODEL_KEY)]
-        if "no_decomposition" not in rows:  # the same in every folder: counted once
-            sources.append(("no_decomposition", BASELINE_KEY))
+        if BASELINE_KEY not in rows:  # the same in every folder: counted once
+            sources.append((BASELINE_KEY, BASELINE_KEY))
         for row, key in sources:
             groups = rows.setdefault(row, {})
             for scene, channels in data["per_scene"][key].items():
@@ -60,7 +60,7 @@ def breakdown(folders: list[Path], channel: str | None = None) -> dict[str, dict
 def to_markdown(table: dict[str, dict[str, float]]) -> str:
     groups = sorted({g for row in table.values() for g in row})
     lines = ["| model | " + " | ".join(groups) + " |", "|---" * (len(groups) + 1) + "|"]
-    for row in sorted(table, key=lambda r: (r == "no_decomposition", r)):
+    for row in sorted(table, key=lambda r: (r == BASELINE_KEY, r)):
         lines.append(f"| {row} | " + " | ".join(f"{table[row].get(g, float('nan')):.2f}" for g in groups) + " |")
     return "\n".join(lines) + "\n"
 

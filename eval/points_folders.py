@@ -101,11 +101,12 @@ def load_points_folders(paths: list[str | Path]) -> Sweep:
     for folder, data in scores.items():
         ablation = str(data["ablation"])
         seed = runs_of[ablation] = runs_of.get(ablation, -1) + 1
-        rows += _rows("gspi", ablation, seed, folder, data, MODEL_KEY, label)
-        records.append(_record("gspi", ablation, seed, folder, data))
+        model = str(data.get("checkpoint", ""))  # a trained model's identity: its checkpoint
+        rows += _rows("gspi", ablation, seed, model, folder, data, MODEL_KEY, label)
+        records.append(_record("gspi", ablation, seed, model, folder, data))
     first_folder, first = next(iter(scores.items()))
-    rows += _rows(BASELINE_KEY, "full", 0, first_folder, first, BASELINE_KEY, label)
-    records.append(_record(BASELINE_KEY, "full", 0, first_folder, first))
+    rows += _rows(BASELINE_KEY, "full", 0, "", first_folder, first, BASELINE_KEY, label)
+    records.append(_record(BASELINE_KEY, "full", 0, "", first_folder, first))
     notes = [f"{len(folders)} Stage II model(s) scored on the GT point clouds of "
              f"{len(first['scenes'])} {first['split']} scene(s) of {first['data']} "
              f"({first.get('num_steps')} DDIM steps, "
@@ -116,16 +117,16 @@ def load_points_folders(paths: list[str | Path]) -> Sweep:
                  specs={TABLE: TABLE2_GT})
 
 
-def _record(method: str, ablation: str, seed: int, folder: Path, data: dict) -> RunRecord:
+def _record(method: str, ablation: str, seed: int, model: str, folder: Path, data: dict) -> RunRecord:
     path = folder / SCORES_NAME
     return RunRecord(path=path, status="complete", error=None, method=method, ablation=ablation,
-                     table=TABLE, seed=seed, config_hash=str(data.get("checkpoint_step", "")),
+                     table=TABLE, seed=seed, config_hash=model,
                      data=str(data["data"]), scenes=tuple(data["scenes"]), material_eval=None,
                      points_eval=folder, mtime=path.stat().st_mtime)
 
 
-def _rows(method: str, ablation: str, seed: int, folder: Path, data: dict, key: str,
+def _rows(method: str, ablation: str, seed: int, model: str, folder: Path, data: dict, key: str,
           protocol: str) -> list[dict]:
-    own = {"method": method, "ablation": ablation, "table": TABLE, "seed": seed, "config_hash": "",
+    own = {"method": method, "ablation": ablation, "table": TABLE, "seed": seed, "config_hash": model,
            "data": str(data["data"]), "run": str(folder), "protocol": protocol}
     return [dict(own, **r) for r in per_scene_rows(data["per_scene"][key], folder / SCORES_NAME, "points")]

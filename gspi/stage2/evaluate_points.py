@@ -162,8 +162,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
 
     result = evaluate_scenes(scenes, predict, lambda s: baseline_prediction(s, rough, metal))
     result.update(format="gspi-points-eval", version=1, ablation=str(cfg.get("ablation_name", "full")),
-                  train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()), **dict(source or {}))
-    result.update(split=split, num_steps=num_steps, max_points=max_points, seed=seed, scenes=[s.name for s in scenes],
+                  train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()), **dict(source or {}),
+                  split=split, num_steps=num_steps, max_points=max_points, seed=seed, scenes=[s.name for s in scenes],
                   baseline_constants={"roughness": rough, "metallic": metal},
                   baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
                   lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"])
