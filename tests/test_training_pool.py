@@ -108,3 +108,17 @@ def test_other_seed_other_scenes(pool, tmp_path):
     a = np.load(pool / read_splits(pool)["train"][0] / "gt_points.npz")["xyz"]
     b = np.load(other / read_splits(other)["train"][0] / "gt_points.npz")["xyz"]
     assert a.shape != b.shape or not np.allclose(a, b)
+
+
+def test_pool_indices_make_the_same_scenes_as_the_whole_pool(pool, tmp_path):
+    """data.pool_indices renders only the named index ranges, byte-identical to the whole pool's."""
+    part = tmp_path / "part"
+    run(make_config(part, extra=["data.pool_indices=[[2,3]]"]))
+    whole = read_splits(pool)["train"]
+    assert read_splits(part)["train"] == [whole[2]]
+    assert hashes(part / whole[2]) == hashes(pool / whole[2])
+    assert [r["index"] for r in pool_recipes(0, 256, [128], [[0, 2], [250, 256], [1, 3]])] == \
+        [0, 1, 2, 250, 251, 252, 253, 254, 255]
+    for bad in ([[3, 2]], [[0, 300]], [[5]]):
+        with pytest.raises(ValueError, match="data.pool_indices"):
+            pool_recipes(0, 256, [128], bad)

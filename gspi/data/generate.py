@@ -66,6 +66,7 @@ class BenchmarkConfig:
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
     training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
+    pool_indices: Optional[list] = None       # training pool: only these [start, stop) index ranges
     capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
     relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
     renderer: str = "splitsum"                # input views: splitsum | pathtraced
@@ -234,7 +235,8 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
     if cfg.only_splits or cfg.num_val_scenes or cfg.num_test_scenes:
         raise ValueError("a training pool has train scenes only: set data.num_val_scenes=0, "
                          "data.num_test_scenes=0 and no data.only_splits")
-    recipes = pool_recipes(seed, cfg.num_train_scenes, list(cfg.image_sizes or [cfg.image_size]))
+    recipes = pool_recipes(seed, cfg.num_train_scenes, list(cfg.image_sizes or [cfg.image_size]),
+                           cfg.pool_indices)
     if not is_default(cfg.capture_envs):  # e.g. polyhaven: cycle through that capture set
         names = sorted(environment_sets(cfg.capture_envs, cfg.relight_envs)[0])
         recipes = [{**r, "capture_env": names[r["index"] % len(names)]} for r in recipes]

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -64,12 +65,33 @@ def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int]) -> dict
     }
 
 
-def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int]) -> list[dict]:
+def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int],
+                 indices: Optional[list] = None) -> list[dict]:
+    """Recipes of pool scenes ``0 .. num_scenes - 1``, or only those in ``indices``.
+
+    ``indices`` (``data.pool_indices``): ``[[start, stop], ...]`` half-open index ranges inside
+    ``num_scenes``, e.g. ``[[0, 64], [224, 256]]`` for a training subset and the held-out scenes
+    without rendering the 160 between them. Scene ``i`` is the same whichever others are made.
+    """
     if num_scenes < 1:
         raise ValueError(f"data.num_train_scenes must be >= 1 for a training pool, got {num_scenes}")
     if not image_sizes or any(int(s) < 8 for s in image_sizes):
         raise ValueError(f"data.image_sizes must be a non-empty list of sizes >= 8, got {image_sizes}")
-    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes)) for i in range(num_scenes)]
+    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes))
+            for i in selected_indices(num_scenes, indices)]
+
+
+def selected_indices(num_scenes: int, indices: Optional[list]) -> list[int]:
+    """Sorted pool indices named by ``data.pool_indices`` (all ``num_scenes`` when None)."""
+    if indices is None:
+        return list(range(num_scenes))
+    chosen: set[int] = set()
+    for r in indices:
+        if len(r) != 2 or not 0 <= int(r[0]) < int(r[1]) <= num_scenes:
+            raise ValueError(f"data.pool_indices: {list(r)} is not a [start, stop] range with "
+                             f"0 <= start < stop <= data.num_train_scenes ({num_scenes})")
+        chosen.update(range(int(r[0]), int(r[1])))
+    return sorted(chosen)
 
 
 def is_complete(scene_dir: Path) -> bool:
