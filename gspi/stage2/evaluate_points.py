@@ -84,6 +84,7 @@ def evaluate_scenes(scenes: list[ScenePoints], predict: Callable[[ScenePoints], 
 
     net = lpips_net if lpips_net is not None else load_lpips()
     per_scene: dict[str, dict] = {"stage2": {}, "no_decomposition": {}}
+    metal_iou: dict[str, dict] = {"stage2": {}, "no_decomposition": {}}
     timings = {}
     for scene in scenes:
         gt = read_gt_view_maps(scene.root)[0]
@@ -93,11 +94,21 @@ def evaluate_scenes(scenes: list[ScenePoints], predict: Callable[[ScenePoints], 
         for method, values in (("stage2", pred), ("no_decomposition", baseline(scene))):
             maps, mask = scatter_to_views(values, scene)
             per_scene[method][scene.name] = score_maps(maps, gt, mask, net)
+            metal_iou[method][scene.name] = point_metal_iou(values[:, 4], scene)
         log.info("%s: %d points, predicted in %.1f s; albedo PSNR %.2f (baseline %.2f)", scene.name,
                  scene.num_points, timings[scene.name], per_scene["stage2"][scene.name]["albedo"]["psnr"],
                  per_scene["no_decomposition"][scene.name]["albedo"]["psnr"])
     mean = {m: average_scores(list(s.values())) for m, s in per_scene.items()}
-    return {"per_scene": per_scene, "mean": mean, "predict_time_s": timings}
+    return {"per_scene": per_scene, "mean": mean, "predict_time_s": timings, "metal_iou": metal_iou}
+
+
+def point_metal_iou(metallic: np.ndarray, scene: ScenePoints, threshold: float = 0.5) -> float | None:
+    """IoU of {metallic > threshold} between a prediction [P] and the GT points (one point per
+    lattice pixel, so it is the pixel IoU over the 32 views); None when neither has metal."""
+    gt = pbr_from_model(torch.from_numpy(scene.f0[:, 4])).numpy() > threshold
+    pred = np.asarray(metallic) > threshold
+    union = int(np.count_nonzero(gt | pred))
+    return None if union == 0 else float(np.count_nonzero(gt & pred)) / union
 
 
 def average_scores(scores: list[dict]) -> dict[str, dict[str, float]]:

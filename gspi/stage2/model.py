@@ -146,20 +146,27 @@ class RCWDenoiser(nn.Module):
             DenoiserOutput(eps [B, N, 5], latents [B, L, latent_dim]),
             L = num_latents + 25 V + 1.
         """
+        t = torch.as_tensor(t, device=f_t.device).expand(inputs.xyz.shape[0])
+        head, latents = self.head(f_t, t, inputs, prev_latents=prev_latents, cond_keep=cond_keep,
+                                  write_chunk=write_chunk)
+        eps = head if self.config.prediction == "eps" else self.eps_from_x0(head, f_t, t)
+        return DenoiserOutput(eps=eps, latents=latents)
+
+    def head(self, f_t: Tensor, t: Tensor, inputs: Stage2Inputs, *, prev_latents: Optional[Tensor] = None,
+             cond_keep: Optional[Tensor] = None, write_chunk: Optional[int] = None) -> tuple[Tensor, Tensor]:
+        """(raw head output [B, N, 5], final latents): eps or x0 as ``config.prediction`` says.
+        The ladder's direct regressor (``gspi.stage2.regressors.RCWRegressor``) reads it as x0."""
         b, n = inputs.xyz.shape[:2]
         if f_t.shape != (b, n, self.config.feature_dim):
             raise ValueError(f"f_t must be [B, N, {self.config.feature_dim}] = {(b, n)}, got {tuple(f_t.shape)}")
         keep = None if cond_keep is None else cond_keep.to(f_t.dtype).reshape(b, 1, 1)
-        t = torch.as_tensor(t, device=f_t.device).expand(b)
         points = self.embed_points(f_t, inputs, keep)
         latents = torch.cat([self.latents.expand(b, -1, -1), *self.embed_global(inputs, keep),
                              self.embed_time(t)], dim=1)
         latents = self.add_self_condition(latents, prev_latents)
         for block in self.blocks:
             latents, points = block(latents, points, write_chunk=write_chunk)
-        head = self.out(self.out_norm(points))
-        eps = head if self.config.prediction == "eps" else self.eps_from_x0(head, f_t, t)
-        return DenoiserOutput(eps=eps, latents=latents)
+        return self.out(self.out_norm(points)), latents
 
     def eps_from_x0(self, f0_hat: Tensor, f_t: Tensor, t: Tensor) -> Tensor:
         """An x0-predicting head read as eps (:func:`~gspi.stage2.schedule.eps_from_f0` at ``t``).

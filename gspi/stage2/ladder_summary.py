@@ -1,0 +1,82 @@
+"""The ladder's table: each rung over its seeds, per channel, per material class, metal IoU.
+
+Reads ``scores.json`` folders (format gspi-points-eval) of ``gspi.stage2.ladder`` rungs and of
+``gspi.stage2.evaluate_points`` (R5); the no-decomposition baseline (R0) is the same in every
+folder of one evaluation and is read once. For each rung: the mean over seeds of the per-seed
+scene means (PSNR dB) per channel and their average, the seed spread (max - min of the per-seed
+average), the metallic PSNR and metal IoU over the metal-class scenes, and the average per
+material class.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+CHANNELS = ("albedo", "roughness", "metallic")
+CLASSES = ("rough_plastic", "glossy_plastic", "painted_metal", "metal", "fabric", "ceramic")
+BASELINE = "no_decomposition"
+
+
+def scene_class(name: str) -> str:
+    return next((c for c in CLASSES if name.endswith("_" + c)), "other")
+
+
+def seed_row(per_scene: dict, metal_iou: dict) -> dict[str, float]:
+    """One evaluated model: the scene means it is summarised by."""
+    scenes = sorted(per_scene)
+    row = {c: float(np.mean([per_scene[s][c]["psnr"] for s in scenes])) for c in CHANNELS}
+    row["avg"] = float(np.mean([row[c] for c in CHANNELS]))
+    metal = [s for s in scenes if scene_class(s) == "metal"]
+    if metal:
+        row["metallic@metal"] = float(np.mean([per_scene[s]["metallic"]["psnr"] for s in metal]))
+        ious = [metal_iou.get(s) for s in metal]
+        row["metal_iou@metal"] = float(np.mean([0.0 if v is None else v for v in ious]))
+    for cls in CLASSES:
+        group = [s for s in scenes if scene_class(s) == cls]
+        if group:
+            row[f"avg@{cls}"] = float(np.mean([np.mean([per_scene[s][c]["psnr"] for c in CHANNELS]) for s in group]))
+    return row
+
+
+def summarise(folders: list[Path]) -> dict[str, dict]:
+    """{rung: {"seeds": [...], "mean": {key: value}, "spread": avg max - min}}."""
+    rows: dict[str, list[dict]] = {}
+    seeds: dict[str, list] = {}
+    for folder in folders:
+        data = json.loads((Path(folder) / "scores.json").read_text())
+        iou = data.get("metal_iou", {})
+        rung = str(data["ablation"]) if "ladder" in data else "r5"  # evaluate_points: the diffusion model
+        rows.setdefault(rung, []).append(seed_row(data["per_scene"]["stage2"], iou.get("stage2", {})))
+        seeds.setdefault(rung, []).append(data.get("train_seed"))
+        if BASELINE not in rows:
+            rows[BASELINE] = [seed_row(data["per_scene"][BASELINE], iou.get(BASELINE, {}))]
+            seeds[BASELINE] = [None]
+    out = {}
+    for rung, rs in rows.items():
+        keys = sorted(set().union(*rs))
+        avgs = [r["avg"] for r in rs]
+        out[rung] = {"seeds": seeds[rung], "mean": {k: float(np.mean([r[k] for r in rs if k in r])) for k in keys},
+                     "spread": float(max(avgs) - min(avgs))}
+    return out
+
+
+def to_markdown(summary: dict[str, dict]) -> str:
+    cols = ["albedo", "roughness", "metallic", "avg", "spread", "metallic@metal", "metal_iou@metal",
+            *[f"avg@{c}" for c in CLASSES]]
+    lines = ["| rung | seeds | " + " | ".join(cols) + " |", "|---" * (len(cols) + 2) + "|"]
+    order = sorted(summary, key=lambda r: ("0" if r == BASELINE else r))
+    for rung in order:
+        s = summary[rung]
+        cells = []
+        for c in cols:
+            v = s["spread"] if c == "spread" else s["mean"].get(c)
+            cells.append("" if v is None else (f"{v:.2f}" if "iou" in c else f"{v:.2f}"))
+        name = "R0 no decomposition" if rung == BASELINE else rung.upper()
+        lines.append(f"| {name} | {len(s['seeds'])} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def print_summary(folders: list[Path]) -> None:
+    print(to_markdown(summarise(folders)))
