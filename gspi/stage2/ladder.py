@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 LADDER_RECIPE = "table2_cpu"  # the Stage II recipe every rung shares (R5 is trained with it)
 MLP_STEPS = 4000
+RUNG_FORMAT = "gspi-ladder-rung"
 
 
 def ladder_config(data_dir: str | Path, seed: int, overrides: tuple[str, ...] = ()) -> dict:
@@ -140,6 +141,44 @@ def train_rung(rung: str, cfg: Mapping[str, Any], scenes: list[ScenePoints], pri
     return ema, stats
 
 
+def save_rung(model: nn.Module, rung: str, cfg: Mapping[str, Any], stats: Mapping[str, Any], path: Path) -> Path:
+    from gspi.stage2.checkpoint import save_atomic
+
+    prior_dim = int(stats.get("prior_dim", 0))
+    return save_atomic({"format": RUNG_FORMAT, "rung": rung, "prior_dim": prior_dim, "state_dict": model.state_dict(),
+                        "config": dict(cfg), "stats": dict(stats)}, path)
+
+
+def load_rung(path: str | Path) -> tuple[nn.Module, str, dict]:
+    """(EMA model in eval mode, rung, config) of a ``model.pt`` the ladder wrote; errors name the file."""
+    from gspi.stage2.checkpoint import CheckpointError
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such ladder model")
+    saved = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(saved, dict) or saved.get("format") != RUNG_FORMAT:
+        raise CheckpointError(f"{path}: not a ladder model (format {RUNG_FORMAT!r})")
+    model = build_rung(saved["rung"], saved["config"], _prior_dim(saved))
+    try:
+        model.load_state_dict(saved["state_dict"])
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path}: weights do not fit rung {saved['rung']}: {exc}") from exc
+    return model.requires_grad_(False).eval(), saved["rung"], saved["config"]
+
+
+def _prior_dim(saved: Mapping[str, Any]) -> int:
+    """The pooled prior's width: recorded, or (files of the first ladder run) read off the weights."""
+    if "prior_dim" in saved:
+        return int(saved["prior_dim"])
+    weights = saved["state_dict"]
+    if "denoiser.global_norm.weight" in weights:
+        return int(weights["denoiser.global_norm.weight"].shape[0])
+    if saved["rung"] == "r2":
+        return int(weights["net.0.weight"].shape[0]) - rung_features("r1").width(0)
+    return 0
+
+
 def eval_features(scene: ScenePoints, index: int, data_cfg: PointDataConfig, seed: int = 0) -> np.ndarray:
     """The evaluation's perturbed positions of every point: the draw ``subset_prediction`` makes."""
     rng = np.random.default_rng([seed, index])
@@ -217,8 +256,8 @@ def run_train(args: argparse.Namespace) -> None:
     steps = args.steps or (MLP_STEPS if args.rung in MLP_RUNGS else int(cfg["stage2"]["train"]["steps"]))
     model, stats = train_rung(args.rung, cfg, scenes, prior_dim, steps=steps, cpu_minutes=args.cpu_minutes,
                               metrics_path=out / "metrics.jsonl")
-    torch.save({"format": "gspi-ladder-rung", "rung": args.rung, "state_dict": model.state_dict(),
-                "config": cfg, "stats": stats}, out / "model.pt")
+    stats["prior_dim"] = prior_dim
+    save_rung(model, args.rung, cfg, stats, out / "model.pt")
     write_json_atomic(out / "stats.json", stats)
     log.info("trained %s: %s", args.rung, stats)
     for name, data, split in _eval_sets(args.eval):

@@ -1,0 +1,80 @@
+"""Training and inference see the same Stage II condition (issue 24, item 2).
+
+One lattice scene is read twice: through the training path (``gt_points.npz`` ->
+``gspi.stage2.data``) and through the inference path (its lattice views as Stage I's renders ->
+Stage I's unprojection ``gspi.stage1.extract.unproject_renders`` -> ``gspi.stage2.infer``). A
+mismatch in any of Top-RGB, source view, one-hot, A5's multi-view condition, the prior tokens or
+the unit-sphere frame would look exactly like a model that "does not learn"."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from eval.layout import read_scene, read_view_file
+from gspi.gaussians.lattice_render import LatticeRenders
+from gspi.stage1.extract import unproject_renders
+from gspi.stage2.data import load_scene_points, local_condition
+from gspi.stage2.encoders import build_encoder, lattice_images_srgb
+from gspi.stage2.feature_cache import scene_prior_features
+from gspi.stage2.infer import lattice_srgb, point_conditions, prior_features
+from gspi.stage2.normalize import fit_unit_sphere, to_unit_sphere
+from tests.test_stage2_data import make_lattice_scene
+
+
+def gt_views_as_renders(root) -> LatticeRenders:
+    """The scene's 32 lattice views in the form Stage I renders them (alpha = the GT mask)."""
+    scene = read_scene(root)
+    views = scene.split_views("train")
+    dirs = [scene.view_dir("train", v.id) for v in views]
+    return LatticeRenders(rgb=np.stack([read_view_file(d, "rgb.exr") for d in dirs]).astype(np.float32),
+                          alpha=np.stack([read_view_file(d, "mask.png")[..., 0] for d in dirs]).astype(np.float32),
+                          depth=np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs]).astype(np.float32),
+                          K=np.stack([v.K for v in views]), w2c=np.stack([v.w2c for v in views]))
+
+
+@pytest.fixture(scope="module")
+def both_paths(tmp_path_factory):
+    root = make_lattice_scene(tmp_path_factory.mktemp("parity"), "sphere", seed=3)
+    encoder = build_encoder({"encoder": "alexnet"})
+    train_scene = load_scene_points(root, scene_prior_features(root, encoder, root / "cache"))
+    renders = gt_views_as_renders(root)
+    points = unproject_renders(renders, alpha_threshold=0.5)
+    return train_scene, points, renders, encoder
+
+
+def test_stage1_cloud_is_the_training_cloud(both_paths):
+    scene, points, _, _ = both_paths
+    assert len(points) == scene.num_points
+    np.testing.assert_array_equal(points.view, scene.view)
+    np.testing.assert_array_equal(points.pixel, scene.pixel)
+    np.testing.assert_allclose(points.xyz, scene.xyz, atol=1e-5)
+
+
+@pytest.mark.parametrize("mode", ["top_rgb_onehot", "top_rgb", "multiview"])
+def test_local_condition_is_the_same(both_paths, mode):
+    scene, points, renders, _ = both_paths
+    train = local_condition(scene, np.arange(scene.num_points), scene.xyz, mode)
+    infer = point_conditions(points, mode, renders)
+    assert train.shape == infer.shape
+    if mode == "multiview":  # float32 vs float64 positions: a visibility test at its threshold may flip
+        assert np.mean(np.abs(train - infer) > 1e-5) < 1e-3
+    else:
+        np.testing.assert_allclose(infer, train, atol=1e-6)
+    if mode == "top_rgb_onehot":
+        np.testing.assert_array_equal(np.argmax(infer[:, 3:], axis=1), scene.view)
+
+
+def test_prior_tokens_are_the_same(both_paths):
+    scene, _, renders, encoder = both_paths
+    at_inference = prior_features(encoder, renders.rgb)        # [32, D, 5, 5] from the renders
+    torch.testing.assert_close(lattice_srgb(renders.rgb), lattice_images_srgb(scene.root))  # encoder input
+    np.testing.assert_allclose(at_inference.numpy(), scene.prior_grid().numpy(), rtol=1e-5, atol=1e-5)
+
+
+def test_unit_sphere_frame_is_the_same(both_paths):
+    scene, points, _, _ = both_paths
+    frame = fit_unit_sphere(torch.as_tensor(points.xyz, dtype=torch.float64))  # predict_point_pbr's frame=None
+    a = to_unit_sphere(torch.from_numpy(scene.xyz), scene.frame)
+    b = to_unit_sphere(torch.as_tensor(points.xyz, dtype=torch.float64), frame)
+    torch.testing.assert_close(b, a, atol=1e-5, rtol=0)
