@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # The learnability ladder (docs/STAGE2.md "Where the signal is lost"): R1-R5 x 3 seeds, each
 # trained on the same 64 pool scenes with one thread, then scored with Table 2's measure on
-# the 32 held-out pool scenes and the 4 `small` test scenes. Two lanes run side by side (one
-# per core): lane A the diffusion model R5 (gspi-train, stage2=table2_cpu) and its evaluation,
-# lane B the direct regressors R1-R4 (python -m gspi.stage2.ladder). Finished runs are skipped,
-# so a rerun continues. Data (once, ~5 min on 2 cores):
+# the 32 held-out pool scenes and the 4 `small` test scenes. Two workers (one per core) take
+# jobs from one ordered list (a job is claimed by creating $RUNS/.claims/<job> atomically):
+# the diffusion model R5 (gspi-train, stage2=table2_cpu) and its evaluation, and the direct
+# regressors R1-R4 (python -m gspi.stage2.ladder). Finished jobs are skipped, so a rerun
+# continues (remove $RUNS/.claims first if a run was killed). Data (once, ~5 min on 2 cores):
 #   gspi-data preset=stage2_pool out=$POOL_ROOT seed=0 'data.pool_indices=[[0,64],[224,256]]' data.workers=2
 #   python -m gspi.data.pool_split $POOL_ROOT $POOL --train 0:64 --test 224:256
 #   gspi-data preset=small out=$SMALL seed=0 'data.only_splits=[test]'
@@ -13,40 +14,49 @@ set -u
 POOL=$1; SMALL=$2; RUNS=$3; shift 3
 SEEDS=${*:-0 1 2}
 PY=${PY:-.venv/bin/python}
+WORKERS=${WORKERS:-2}
 export OMP_NUM_THREADS=1
-mkdir -p "$RUNS"
+mkdir -p "$RUNS/.claims"
 
-lane_a() {
-  for s in $SEEDS; do
-    d=$RUNS/r5_s$s
-    [ -f "$d/stats.json" ] || $PY -m gspi.cli.train data="$POOL" out="$d" stage2=table2_cpu ablation=full seed=$s \
-      > "$RUNS/r5_s$s.log" 2>&1 || echo "r5 seed $s failed (see $RUNS/r5_s$s.log)"
-  done
-  for s in $SEEDS; do
-    d=$RUNS/r5_s$s
+JOBS=()
+for s in $SEEDS; do JOBS+=("train r5 $s"); done
+for r in r1 r2 r3 r4; do for s in $SEEDS; do JOBS+=("train $r $s"); done; done
+for s in $SEEDS; do JOBS+=("eval r5 $s"); done
+
+done_already() {  # kind rung seed
+  if [ $1 = train ] && [ $2 = r5 ]; then [ -f "$RUNS/r5_s$3/stats.json" ]
+  elif [ $1 = train ]; then [ -f "$RUNS/$2_s$3/eval_small/scores.json" ]
+  else [ -f "$RUNS/r5_s$3/eval_small/scores.json" ]; fi
+}
+
+run_job() {  # kind rung seed
+  local d=$RUNS/$2_s$3
+  if [ $1 = train ] && [ $2 = r5 ]; then
+    $PY -m gspi.cli.train data="$POOL" out="$d" stage2=table2_cpu ablation=full seed=$3 > "$d.log" 2>&1
+  elif [ $1 = train ]; then
+    $PY -m gspi.stage2.ladder train --rung $2 --seed $3 --data "$POOL" --out "$d" \
+      --eval heldout="$POOL":test --eval small="$SMALL":test > "$d.log" 2>&1
+  else
+    while [ ! -f "$d/stats.json" ]; do sleep 20; done  # its training, on the other worker
     for e in heldout small; do
-      [ -f "$d/eval_$e/scores.json" ] && continue
       if [ $e = heldout ]; then data=$POOL; else data=$SMALL; fi
       $PY -m gspi.stage2.evaluate_points "$d/checkpoint.pt" "$data" "$d/eval_$e" --num-steps 10 \
-        --max-points 20000 --baseline-train "$POOL" >> "$RUNS/r5_s$s.eval.log" 2>&1 \
-        || echo "r5 seed $s eval $e failed"
+        --max-points 20000 --baseline-train "$POOL" >> "$d.eval.log" 2>&1 || return 1
     done
+  fi
+}
+
+worker() {
+  for job in "${JOBS[@]}"; do
+    set -- $job
+    done_already "$@" && continue
+    mkdir "$RUNS/.claims/$1_$2_$3" 2>/dev/null || continue
+    run_job "$@" || echo "$job failed (see $RUNS/$2_s$3*.log)"
   done
 }
 
-lane_b() {
-  for r in r1 r2 r3 r4; do
-    for s in $SEEDS; do
-      d=$RUNS/${r}_s$s
-      [ -f "$d/eval_small/scores.json" ] && continue
-      $PY -m gspi.stage2.ladder train --rung $r --seed $s --data "$POOL" --out "$d" \
-        --eval heldout="$POOL":test --eval small="$SMALL":test > "$RUNS/${r}_s$s.log" 2>&1 \
-        || echo "$r seed $s failed (see $RUNS/${r}_s$s.log)"
-    done
-  done
-}
-
-lane_a & lane_b & wait
+for w in $(seq "$WORKERS"); do worker & done
+wait
 $PY -m gspi.stage2.ladder summary "$RUNS"/*/eval_heldout > "$RUNS/summary_heldout.md"
 $PY -m gspi.stage2.ladder summary "$RUNS"/*/eval_small > "$RUNS/summary_small.md"
 cat "$RUNS/summary_heldout.md" "$RUNS/summary_small.md"

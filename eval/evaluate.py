@@ -20,15 +20,11 @@ import numpy as np
 import torch
 
 from eval.colorspace import srgb_to_linear
-from eval.imageio import read_exr
-from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, material_file, no_images_message,
-                         read_meta, read_scene, read_splits, read_view_file)
-from eval.metrics import erode_mask
-from eval.protocol import apply_albedo_scale, fit_albedo_scale
+from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_message, read_meta,
+                         read_scene, read_splits)
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
-from eval.unpremultiply import unpremultiply
-from eval.scoring import has_metal, metal_scores, score_pair, score_relit
-from eval.views import relight_view, view_directions
+from eval.scored_view import CPU, EnvironmentCache, scene_scored_views
+from eval.scoring import has_metal, metal_scores, score_pair, score_relit_pair
 
 log = logging.getLogger(__name__)
 METRICS = ("psnr", "ssim", "lpips")
@@ -85,57 +81,12 @@ def expected_scenes(gt_root: Path, present: list[str], gt_scenes: dict[str, Path
     return sorted({n for names in splits.values() if set(names) & set(present) for n in names} & set(gt_scenes))
 
 
-CPU = torch.device("cpu")
-
-
-def _tensor(arr: np.ndarray, device: torch.device = CPU) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(arr)).to(device)
-
-
-def _load_gt_view(scene: Scene, view, device: torch.device = CPU) -> dict:
-    vdir = scene.view_dir(view.split, view.id)
-    size = (scene.height, scene.width)
-    out = {name: _tensor(read_view_file(vdir, f"{name}.png", size), device) for name in MATERIAL_CHANNELS}
-    out["normal"] = _tensor(read_view_file(vdir, "normal.exr", size), device)
-    out["mask"] = _tensor(read_view_file(vdir, "mask.png", size), device)[..., 0] > 0.5
-    if not out["mask"].any():
-        raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
-    for name, t in out.items():
-        if t.shape[:2] != (scene.height, scene.width):
-            raise LayoutError(f"{vdir}/{name}: size {tuple(t.shape[:2])} != scene "
-                              f"{scene.height}x{scene.width} in scene.json")
-    out["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width).to(device)
-    return out
-
-
-def _load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device = CPU) -> dict:
-    out = {}
-    for name in MATERIAL_CHANNELS:
-        path = pred_dir / material_file(name)
-        if path.exists() or path.is_symlink():  # a broken or looping link is an error, not "absent"
-            arr = read_view_file(pred_dir, material_file(name), shape)
-            if arr.shape[:2] != shape:
-                raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
-            out[name] = _tensor(arr, device)
-    if (pred_dir / "alpha.png").exists():  # the method's own opacity (eval.unpremultiply)
-        out["alpha"] = _tensor(read_view_file(pred_dir, "alpha.png", shape), device)
-    return out
-
-
 def _score_channel(channel: str, pred, gt, mask, protocol, net) -> dict:
     """Scores of one material map; albedo in the protocol's colour space."""
     if channel == "albedo" and protocol.albedo_space == "linear":
         pred, gt = srgb_to_linear(pred.double()), srgb_to_linear(gt.double())
         return score_pair(pred, gt, mask, protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
     return score_pair(pred, gt, mask, protocol, net)
-
-
-def _scored_mask(vdir_name: str, mask, protocol):
-    """The GT mask eroded by `mask_erosion_px`; an error naming the view if nothing is left."""
-    eroded = erode_mask(mask, int(protocol.mask_erosion_px))
-    if not eroded.any():
-        raise LayoutError(f"{vdir_name}: mask empty after eroding {protocol.mask_erosion_px} px")
-    return eroded
 
 
 def _named(where: Path, score, *args) -> dict:
@@ -149,96 +100,34 @@ def _named(where: Path, score, *args) -> dict:
         raise LayoutError(f"{where / 'mask.png'}: {exc}") from exc
 
 
-class EnvironmentCache:
-    """Prefiltered environments, one per EXR file, built on first use on ``device``."""
-
-    def __init__(self, device: torch.device = CPU):
-        self._envs: dict[Path, object] = {}
-        self.device = torch.device(device)
-
-    def get(self, path: Path):
-        if path not in self._envs:
-            from eval.relight import prefilter_environment
-            self._envs[path] = prefilter_environment(_tensor(read_exr(path), self.device))
-        return self._envs[path]
-
-
 def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: EnvironmentCache
                    ) -> tuple[list[dict], list[dict]]:
     """Rows for one scene and the list of missing (view, channel) entries; the tensors live
-    on ``envs.device``."""
-    split = scored_split(protocol)
-    views = scene.split_views(split)
-    gt = {v.id: _load_gt_view(scene, v, envs.device) for v in views}
-    for v in views:
-        gt[v.id]["mask"] = _scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol)
-    metal = protocol.metallic.extra_metrics and has_metal(
-        [g["metallic"] for g in gt.values()], [g["mask"] for g in gt.values()],
-        float(protocol.metallic.threshold))
-    preds, missing = {}, []
-    for v in views:
-        pdir = pred_scene / split / v.id
-        preds[v.id] = _load_pred_view(pdir, (scene.height, scene.width), envs.device) if pdir.is_dir() else {}
-    divided = set()  # views whose maps were divided by the method's alpha.png
-    for v in views:
-        alpha = preds[v.id].pop("alpha", None)
-        if getattr(protocol, "unpremultiply", False) and alpha is not None:
-            preds[v.id].update(unpremultiply(preds[v.id], alpha, gt[v.id]["mask"]))
-            divided.add(v.id)
-    modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
-    for v in views:
-        for c in modelled:
-            if c not in preds[v.id]:
-                missing.append({"scene": scene.name, "view": v.id, "channel": c})
+    on ``envs.device``. The images scored are ``eval.scored_view``'s."""
+    views, missing = scene_scored_views(scene, pred_scene, protocol, envs)
     if protocol.fail_on_missing_view and missing:
         raise LayoutError(f"{pred_scene}: missing prediction files: {missing[:5]} ...")
-
-    have = [v.id for v in views if "albedo" in preds[v.id]]
-    scale = fit_albedo_scale([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have],
-                             [gt[i]["mask"] for i in have],
-                             protocol.albedo_alignment if protocol.alignment_scope == "scene"
-                             else "none")
+    metal = protocol.metallic.extra_metrics and has_metal(
+        [sv.gt["metallic"] for sv in views], [sv.mask for sv in views], float(protocol.metallic.threshold))
+    split = scored_split(protocol)
     rows = []
-    for v in views:
-        g, p = gt[v.id], preds[v.id]
-        if "albedo" in p:
-            s = scale if protocol.alignment_scope == "scene" else fit_albedo_scale(
-                [p["albedo"]], [g["albedo"]], [g["mask"]], protocol.albedo_alignment)
-            p = dict(p, albedo_aligned=apply_albedo_scale(p["albedo"], s))
+    for sv in views:
+        where = scene.view_dir(split, sv.view)
         for c in MATERIAL_CHANNELS:
-            if c in protocol.channels and c in p:
-                pred = p["albedo_aligned"] if c == "albedo" else p[c]
-                row = {"scene": scene.name, "view": v.id, "channel": c, "env": "",
-                       **_named(scene.view_dir(v.split, v.id), _score_channel, c, pred, g[c], g["mask"],
-                                protocol, net)}
+            if c in protocol.channels and c in sv.pred:
+                row = {"scene": scene.name, "view": sv.view, "channel": c, "env": "",
+                       **_named(where, _score_channel, c, sv.pred[c], sv.gt[c], sv.mask, protocol, net)}
                 if c == "metallic" and metal:
-                    row.update(metal_scores(pred, g[c], g["mask"], protocol.metallic))
+                    row.update(metal_scores(sv.pred[c], sv.gt[c], sv.mask, protocol.metallic))
                 rows.append(row)
-        if "relight" in protocol.channels and "albedo" in p and \
-                all(c in p for c in modelled):
-            rows += _relight_rows(scene, v, g, p, protocol, net, envs)
+        for env_name, pair in sv.relit.items():
+            rows.append({"scene": scene.name, "view": sv.view, "channel": "relight", "env": env_name,
+                         **_named(where, score_relit_pair, pair, sv.mask, protocol, net)})
+    divided = {sv.view for sv in views if sv.unpremultiplied}
     for row in rows:
         if row["view"] in divided:
             row["unpremultiplied"] = True
     return rows, missing
-
-
-def _relight_rows(scene, view, g, p, protocol, net, envs) -> list[dict]:
-    cfg = protocol.relight
-    h, w = g["mask"].shape
-    albedo = p["albedo_aligned"] if cfg.apply_albedo_alignment else p["albedo"]
-    fill = dict(device=g["mask"].device)
-    rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness), **fill))
-    metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic), **fill))
-    rows = []
-    for env_name in (cfg.envs or scene.relight_envs):
-        env = envs.get(scene.envmap_path(env_name))
-        ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
-        out = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
-        rows.append({"scene": scene.name, "view": view.id, "channel": "relight", "env": env_name,
-                     **_named(scene.view_dir(view.split, view.id), score_relit, out, ref, g["mask"],
-                              protocol, net)})
-    return rows
 
 
 def summarise(rows: list[dict]) -> dict:

@@ -7,15 +7,12 @@ IoU. The mask passed in is already the scored (possibly eroded) ground-truth mas
 """
 from __future__ import annotations
 
-import torch
 from torch import Tensor
 
 from eval.colorspace import linear_to_srgb
 from eval.metrics import (grey_psnr, masked_iou, masked_lpips, masked_mae, masked_mse,
                           masked_ssim, psnr_from_mse)
-from eval.protocol import display_relit
-
-SCALE_EPS = 1e-6  # Stanford-ORB: a channel with sum(pred^2) <= 1e-6 is left unscaled
+from eval.scored_view import RelitPair, relit_pair
 
 
 def psnr_scores(pred: Tensor, gt: Tensor, mask: Tensor, psnr_cfg) -> tuple[float, bool]:
@@ -47,15 +44,6 @@ def score_pair(pred: Tensor, gt: Tensor, mask: Tensor, protocol, net, *,
                                   normalize=bool(protocol.lpips.normalize))}
 
 
-def relit_scale(out_linear: Tensor, ref_linear: Tensor, mask: Tensor) -> Tensor:
-    """Per-channel least-squares scale of the relit prediction over masked pixels [3]
-    (Stanford-ORB `calc_PSNR(scale_invariant=True)`)."""
-    p, g = out_linear.double()[mask], ref_linear.double().clamp_min(0.0)[mask]
-    den = (p * p).sum(0)
-    return torch.where(den > SCALE_EPS, (p * g).sum(0) / den.clamp_min(1e-30),
-                       torch.ones(3, dtype=torch.float64, device=den.device))
-
-
 def psnr_hdr(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg, psnr_cfg
              ) -> float:
     """Stanford-ORB's PSNR-H on linear radiance: both images multiplied by the mask, optionally
@@ -75,15 +63,14 @@ def psnr_hdr(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg, 
 def score_relit(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, protocol, net) -> dict:
     """Scores of one relit view: the prediction `out_linear` against `ref_linear` ([H, W, 3]
     linear radiance), after the protocol's scale fit and tone map; `psnr_h` if asked."""
-    cfg = protocol.relight
-    if cfg.scale_fit == "lstsq":
-        out_linear = out_linear.double() * relit_scale(out_linear, ref_linear, mask)
-        ref_linear = ref_linear.double()
-    # tone-mapped in the shader's dtype (float32) as protocol v1 did: same numbers bit for bit
-    row = score_pair(display_relit(out_linear, cfg), display_relit(ref_linear, cfg), mask,
-                     protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
-    if cfg.psnr_hdr:
-        row["psnr_h"] = psnr_hdr(out_linear, ref_linear, mask, cfg, protocol.psnr)
+    return score_relit_pair(relit_pair(out_linear, ref_linear, mask, protocol.relight), mask, protocol, net)
+
+
+def score_relit_pair(pair: RelitPair, mask: Tensor, protocol, net) -> dict:
+    """Scores of a relit view already through the protocol's steps (``eval.scored_view.relit_pair``)."""
+    row = score_pair(pair.pred, pair.gt, mask, protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
+    if protocol.relight.psnr_hdr:
+        row["psnr_h"] = psnr_hdr(pair.pred_linear, pair.gt_linear, mask, protocol.relight, protocol.psnr)
     return row
 
 

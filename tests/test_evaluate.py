@@ -211,7 +211,7 @@ def test_what_evaluate_reads_lands_on_the_requested_device(sphere_dataset):
     all made on the device asked for."""
     import torch
 
-    from eval.evaluate import EnvironmentCache, _load_pred_view
+    from eval.scored_view import EnvironmentCache, load_pred_view as _load_pred_view
     from eval.metrics import erode_mask
     from eval.protocol import fit_albedo_scale
 

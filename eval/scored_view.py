@@ -1,0 +1,203 @@
+"""A view *as the protocol scores it*: the one definition that the scorer (``eval.evaluate``),
+the HTML report's panels (``eval.report_site.panels``) and the run figure
+(``eval.report_site.run_figure``) all consume, so that what a user sees is what was scored.
+
+For one scene and prediction folder, ``scene_scored_views`` reads the ground truth and the
+prediction of every view of the scored split and applies, in the protocol's order:
+
+1. the scored mask: the GT mask eroded by ``mask_erosion_px``;
+2. ``unpremultiply`` by the prediction's ``alpha.png`` where the protocol asks for it;
+3. the albedo alignment (``align_albedo``: ``albedo_alignment`` pooled over the scene's views or
+   per view, ``alignment_scope``);
+4. per relighting environment: the GT and predicted relit radiance (GT normals, the aligned or
+   raw albedo as ``relight.apply_albedo_alignment`` says, fills for unmodelled channels), the
+   relit scale fit (``relight.scale_fit``) and the display transform (``relight.tonemap``):
+   ``RelitPair``, the images ``score_pair`` receives.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from eval.imageio import read_exr
+from eval.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
+from eval.metrics import erode_mask
+from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
+from eval.protocol_id import scored_split
+from eval.unpremultiply import unpremultiply
+from eval.views import relight_view, view_directions
+
+CPU = torch.device("cpu")
+SCALE_EPS = 1e-6  # Stanford-ORB: a channel with sum(pred^2) <= 1e-6 is left unscaled
+
+
+def as_tensor(arr: np.ndarray, device: torch.device = CPU) -> Tensor:
+    return torch.from_numpy(np.ascontiguousarray(arr)).to(device)
+
+
+@dataclass
+class RelitPair:
+    """One environment's relit images: display values as scored, and the linear radiance
+    after the scale fit (what Stanford-ORB's PSNR-H reads)."""
+
+    pred: Tensor         # [H, W, 3] display values of the prediction
+    gt: Tensor           # [H, W, 3] display values of the ground truth
+    pred_linear: Tensor  # [H, W, 3] predicted radiance after the scale fit
+    gt_linear: Tensor    # [H, W, 3] GT radiance
+
+
+@dataclass
+class ScoredView:
+    """The ground truth and prediction of one view exactly as the protocol scores them."""
+
+    scene: str
+    view: str
+    mask: Tensor                  # [H, W] bool: the scored (eroded) GT mask
+    gt: dict[str, Tensor]         # albedo, roughness, metallic, normal, view_dir
+    pred: dict[str, Tensor]       # the channels present; albedo = the aligned albedo as scored
+    relit: dict[str, RelitPair] = field(default_factory=dict)  # env -> images ("relight" scored)
+    unpremultiplied: bool = False
+
+
+class EnvironmentCache:
+    """Prefiltered environments, one per EXR file, built on first use on ``device``."""
+
+    def __init__(self, device: torch.device = CPU):
+        self._envs: dict[Path, object] = {}
+        self.device = torch.device(device)
+
+    def get(self, path: Path):
+        if path not in self._envs:
+            from eval.relight import prefilter_environment
+            self._envs[path] = prefilter_environment(as_tensor(read_exr(path), self.device))
+        return self._envs[path]
+
+
+def load_gt_view(scene: Scene, view, device: torch.device = CPU) -> dict:
+    vdir = scene.view_dir(view.split, view.id)
+    size = (scene.height, scene.width)
+    out = {name: as_tensor(read_view_file(vdir, f"{name}.png", size), device) for name in MATERIAL_CHANNELS}
+    out["normal"] = as_tensor(read_view_file(vdir, "normal.exr", size), device)
+    out["mask"] = as_tensor(read_view_file(vdir, "mask.png", size), device)[..., 0] > 0.5
+    if not out["mask"].any():
+        raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
+    for name, t in out.items():
+        if t.shape[:2] != (scene.height, scene.width):
+            raise LayoutError(f"{vdir}/{name}: size {tuple(t.shape[:2])} != scene "
+                              f"{scene.height}x{scene.width} in scene.json")
+    out["view_dir"] = view_directions(view.K, view.w2c, scene.height, scene.width).to(device)
+    return out
+
+
+def load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device = CPU) -> dict:
+    out = {}
+    for name in MATERIAL_CHANNELS:
+        path = pred_dir / material_file(name)
+        if path.exists() or path.is_symlink():  # a broken or looping link is an error, not "absent"
+            arr = read_view_file(pred_dir, material_file(name), shape)
+            if arr.shape[:2] != shape:
+                raise LayoutError(f"{path}: size {arr.shape[:2]} != ground truth {shape}")
+            out[name] = as_tensor(arr, device)
+    if (pred_dir / "alpha.png").exists():  # the method's own opacity (eval.unpremultiply)
+        out["alpha"] = as_tensor(read_view_file(pred_dir, "alpha.png", shape), device)
+    return out
+
+
+def scored_mask(where: str, mask: Tensor, protocol) -> Tensor:
+    """The GT mask eroded by `mask_erosion_px`; an error naming the view if nothing is left."""
+    eroded = erode_mask(mask, int(protocol.mask_erosion_px))
+    if not eroded.any():
+        raise LayoutError(f"{where}: mask empty after eroding {protocol.mask_erosion_px} px")
+    return eroded
+
+
+def align_albedo(pred: list[Tensor], gt: list[Tensor], masks: list[Tensor], mode: str, scope: str
+                 ) -> list[Tensor]:
+    """The predicted albedos [H, W, 3] (sRGB) of a scene's views after the protocol's alignment:
+    one linear scale fitted over all views (``scope="scene"``) or one per view (``"view"``)."""
+    if scope == "scene":
+        scale = fit_albedo_scale(pred, gt, masks, mode)
+        return [apply_albedo_scale(p, scale) for p in pred]
+    if scope != "view":
+        raise ValueError(f"eval.alignment_scope={scope!r}; allowed: scene, view")
+    return [apply_albedo_scale(p, fit_albedo_scale([p], [g], [m], mode)) for p, g, m in zip(pred, gt, masks)]
+
+
+def relit_scale(out_linear: Tensor, ref_linear: Tensor, mask: Tensor) -> Tensor:
+    """Per-channel least-squares scale of the relit prediction over masked pixels [3]
+    (Stanford-ORB `calc_PSNR(scale_invariant=True)`)."""
+    p, g = out_linear.double()[mask], ref_linear.double().clamp_min(0.0)[mask]
+    den = (p * p).sum(0)
+    return torch.where(den > SCALE_EPS, (p * g).sum(0) / den.clamp_min(1e-30),
+                       torch.ones(3, dtype=torch.float64, device=den.device))
+
+
+def relit_pair(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg) -> RelitPair:
+    """The protocol's relighting steps on one relit prediction: scale fit, then display."""
+    if relight_cfg.scale_fit == "lstsq":
+        out_linear = out_linear.double() * relit_scale(out_linear, ref_linear, mask)
+        ref_linear = ref_linear.double()
+    # tone-mapped in the shader's dtype (float32) as protocol v1 did: same numbers bit for bit
+    return RelitPair(pred=display_relit(out_linear, relight_cfg), gt=display_relit(ref_linear, relight_cfg),
+                     pred_linear=out_linear, gt_linear=ref_linear)
+
+
+def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, mask: Tensor, protocol,
+                envs: EnvironmentCache) -> dict[str, RelitPair]:
+    """env -> RelitPair of one view (GT normals; unmodelled channels filled with constants)."""
+    cfg = protocol.relight
+    h, w = mask.shape
+    albedo = p["albedo"] if cfg.apply_albedo_alignment else raw_albedo
+    fill = dict(device=mask.device)
+    rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness), **fill))
+    metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic), **fill))
+    out = {}
+    for env_name in (cfg.envs or scene.relight_envs):
+        env = envs.get(scene.envmap_path(env_name))
+        ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
+        pred = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
+        out[env_name] = relit_pair(pred, ref, mask, cfg)
+    return out
+
+
+def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: EnvironmentCache,
+                       views: Optional[list] = None) -> tuple[list[ScoredView], list[dict]]:
+    """Every view of the scored split (or ``views`` of it) as scored; and the missing
+    (view, channel) entries. Alignment always pools over ALL the split's views (scene scope),
+    whichever views are returned."""
+    split = scored_split(protocol)
+    all_views = scene.split_views(split)
+    gt = {v.id: load_gt_view(scene, v, envs.device) for v in all_views}
+    masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol) for v in all_views}
+    preds, divided = {}, set()
+    for v in all_views:
+        pdir = Path(pred_scene) / split / v.id
+        preds[v.id] = load_pred_view(pdir, (scene.height, scene.width), envs.device) if pdir.is_dir() else {}
+        alpha = preds[v.id].pop("alpha", None)
+        if getattr(protocol, "unpremultiply", False) and alpha is not None:
+            preds[v.id].update(unpremultiply(preds[v.id], alpha, masks[v.id]))
+            divided.add(v.id)
+    modelled = [c for c in MATERIAL_CHANNELS if any(c in p for p in preds.values())]
+    missing = [{"scene": scene.name, "view": v.id, "channel": c}
+               for v in all_views for c in modelled if c not in preds[v.id]]
+    have = [v.id for v in all_views if "albedo" in preds[v.id]]
+    aligned = dict(zip(have, align_albedo([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have],
+                                          [masks[i] for i in have], protocol.albedo_alignment,
+                                          protocol.alignment_scope)))
+    wanted = all_views if views is None else views
+    out = []
+    for v in wanted:
+        p = dict(preds[v.id])
+        relit = {}
+        if v.id in aligned:
+            raw, p["albedo"] = p["albedo"], aligned[v.id]
+            if "relight" in protocol.channels and all(c in p for c in modelled):
+                relit = relit_pairs(scene, gt[v.id], p, raw, masks[v.id], protocol, envs)
+        out.append(ScoredView(scene=scene.name, view=v.id, mask=masks[v.id], gt=gt[v.id], pred=p, relit=relit,
+                              unpremultiplied=v.id in divided))
+    return out, missing
