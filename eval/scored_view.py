@@ -120,6 +120,8 @@ def align_albedo(pred: list[Tensor], gt: list[Tensor], masks: list[Tensor], mode
                  ) -> list[Tensor]:
     """The predicted albedos [H, W, 3] (sRGB) of a scene's views after the protocol's alignment:
     one linear scale fitted over all views (``scope="scene"``) or one per view (``"view"``)."""
+    if not pred:
+        return []
     if scope == "scene":
         scale = fit_albedo_scale(pred, gt, masks, mode)
         return [apply_albedo_scale(p, scale) for p in pred]
@@ -189,7 +191,8 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
     aligned = dict(zip(have, align_albedo([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have],
                                           [masks[i] for i in have], protocol.albedo_alignment,
                                           protocol.alignment_scope)))
-    wanted = all_views if views is None else views
+    ids = None if views is None else {v.id for v in views}  # views of another split are not scored
+    wanted = [v for v in all_views if ids is None or v.id in ids]
     out = []
     for v in wanted:
         p = dict(preds[v.id])

@@ -1,16 +1,15 @@
 """The images of one scene view: ground truth and every method, with error maps and scores.
 
-Relit images are the evaluator's: `eval.views.relight_view` with ground-truth normals, the
-predicted maps (albedo aligned as the job's protocol says, unmodelled roughness/metallic
-filled with the protocol's constants) and the protocol's display transform, so the PSNR,
-SSIM and LPIPS printed under a panel (read from the job's `per_view.csv`, never recomputed)
-are those of exactly that image. Ground-truth relit images are `relit_<env>.exr` when the
+A job's panels are the views as its protocol scored them (`eval.scored_view`: the scored,
+eroded mask, the aligned albedo, the relit images after the scale fit and the display
+transform), so the PSNR, SSIM and LPIPS printed under a panel (read from the job's
+`per_view.csv`, never recomputed) are those of exactly that image; error maps are taken
+inside the scored mask. Ground-truth relit images are `relit_<env>.exr` when the
 scene has them (bit-exact with the shader, docs/FORMAT.md), else shaded from the GT maps.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -18,11 +17,11 @@ import torch
 from omegaconf import OmegaConf
 
 from eval.config import RelightConfig
-from eval.evaluate import EnvironmentCache
 from eval.imageio import read_exr
 from eval.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
-from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
+from eval.protocol import display_relit
 from eval.report_site.collect import Job
+from eval.scored_view import EnvironmentCache, scene_scored_views
 from eval.views import relight_view, view_directions
 
 ERROR_MAX = 0.5   # error maps: |pred - gt| (mean over colour channels) from 0 to this, clipped
@@ -103,41 +102,21 @@ class SceneRenderer:
         return display_relit(radiance, cfg).numpy()
 
 
-def load_predictions(scene: Scene, pred_dir: Path, split: str) -> dict[str, dict[str, np.ndarray]]:
-    """view id -> {channel: map} for the files present (a bad file raises LayoutError)."""
-    out = {}
-    for view in scene.split_views(split):
-        vdir = pred_dir / split / view.id
-        out[view.id] = {c: read_view_file(vdir, material_file(c)) for c in MATERIAL_CHANNELS
-                        if (vdir / material_file(c)).is_file()}
-        for c, arr in out[view.id].items():
-            if arr.shape[:2] != (scene.height, scene.width):
-                raise LayoutError(f"{vdir / material_file(c)}: size {arr.shape[:2]} != ground "
-                                  f"truth {(scene.height, scene.width)}")
-    return out
+def protocol_config(protocol: dict):
+    """The job's protocol (eval_meta.json protocol_config) as the scorer reads it, defaults filled."""
+    from eval.config import ProtocolConfig
+
+    return OmegaConf.merge(OmegaConf.structured(ProtocolConfig), protocol or {})
 
 
-def albedo_scales(scene: Scene, preds: dict, gts: dict, protocol: dict) -> dict[str, torch.Tensor]:
-    """view id -> linear albedo scale, as gspi-eval fits it (scene or view scope)."""
-    mode = protocol.get("albedo_alignment", "none")
-    have = [v for v in preds if "albedo" in preds[v]]
-
-    def fit(ids):
-        return fit_albedo_scale([_t(preds[i]["albedo"]) for i in ids],
-                                [_t(gts[i]["albedo"]) for i in ids],
-                                [_t(gts[i]["mask"]) for i in ids], mode)
-
-    if not have or mode == "none":
-        return {v: torch.ones(3, dtype=torch.float64) for v in have}
-    if protocol.get("alignment_scope", "scene") == "scene":
-        scale = fit(have)
-        return {v: scale for v in have}
-    return {v: fit([v]) for v in have}
+def _np(t: torch.Tensor) -> np.ndarray:
+    return t.detach().cpu().numpy().astype(np.float32)
 
 
-def job_panels(renderer: SceneRenderer, job: Job, views: list, gts: dict, per_view: pd.DataFrame
+def job_panels(renderer: SceneRenderer, job: Job, views: list, per_view: pd.DataFrame
                ) -> dict[str, dict[str, Panel]]:
-    """view id -> key -> Panel for one job; every failure becomes a note, never an exception."""
+    """view id -> key -> Panel for one job, from the views as the job's protocol scored them
+    (``eval.scored_view``); every failure becomes a note, never an exception."""
     scene, keys = renderer.scene, list(MATERIAL_CHANNELS) + [f"relit:{e}" for e in renderer.env_names]
     pred_dir = job.prediction(scene.name)
     if pred_dir is None:
@@ -145,43 +124,37 @@ def job_panels(renderer: SceneRenderer, job: Job, views: list, gts: dict, per_vi
         note = f"missing: {why}" if why else "missing: no prediction for this scene"
         return {v.id: {k: Panel(note=note) for k in keys} for v in views}
     try:
-        preds = load_predictions(scene, pred_dir, renderer.split)
-    except LayoutError as exc:
+        scored, missing = scene_scored_views(scene, pred_dir, protocol_config(job.protocol), renderer.cache,
+                                             views=views)
+    except (LayoutError, ValueError) as exc:
         return {v.id: {k: Panel(note=f"unreadable: {exc}") for k in keys} for v in views}
-    modelled = {c for p in preds.values() for c in p}
-    scales = albedo_scales(scene, preds, gts, job.protocol)
-    cfg = relight_config(job.protocol)
+    modelled = {c for sv in scored for c in sv.pred} | {m["channel"] for m in missing}
+    by_id = {sv.view: sv for sv in scored}
     out = {}
     for view in views:
-        gt, pred = gts[view.id], dict(preds[view.id])
-        if "albedo" in pred and cfg.apply_albedo_alignment:
-            pred["albedo"] = apply_albedo_scale(_t(pred["albedo"]), scales[view.id]).numpy()
+        sv = by_id.get(view.id)
+        if sv is None:
+            out[view.id] = {k: Panel(note="not a scored view of this job's protocol") for k in keys}
+            continue
+        mask = _np(sv.mask).astype(bool)
         panels = {}
         for c in MATERIAL_CHANNELS:
-            if c in pred:
-                panels[c] = Panel(_rgb(pred[c]), _error(pred[c], gt[c], gt["mask"]),
-                                  _metrics(per_view, scene.name, view.id, c))
+            if c in sv.pred:
+                image, gt = _np(sv.pred[c]), _np(sv.gt[c])
+                panels[c] = Panel(_rgb(image), _error(image, gt, mask), _metrics(per_view, scene.name, view.id, c))
             else:
                 panels[c] = Panel(note="not modelled" if c not in modelled else "missing view")
         for env in renderer.env_names:
-            panels[f"relit:{env}"] = _relit_panel(renderer, view, gt, pred, modelled, env, cfg,
-                                                  per_view)
+            pair = sv.relit.get(env)
+            if pair is None:
+                note = "no relit image (no albedo)" if "albedo" not in modelled else "missing view"
+                panels[f"relit:{env}"] = Panel(note=note)
+                continue
+            image = _np(pair.pred)
+            panels[f"relit:{env}"] = Panel(image, _error(image, _np(pair.gt), mask),
+                                           _metrics(per_view, scene.name, view.id, "relight", env))
         out[view.id] = panels
     return out
-
-
-def _relit_panel(renderer, view, gt, pred, modelled, env, cfg, per_view) -> Panel:
-    if "albedo" not in pred or any(c not in pred for c in modelled):
-        return Panel(note="no relit image (no albedo)" if "albedo" not in modelled
-                     else "missing view")
-    h, w = gt["mask"].shape
-    rough = pred.get("roughness", np.full((h, w, 1), float(cfg.fill_roughness), np.float32))
-    metal = pred.get("metallic", np.full((h, w, 1), float(cfg.fill_metallic), np.float32))
-    radiance = relight_view(_t(pred["albedo"]), _t(rough), _t(metal), _t(gt["normal"]),
-                            gt["view_dir"], renderer.environment(env))
-    image = display_relit(radiance, cfg).numpy()
-    return Panel(image, _error(image, gt[f"relit:{env}"], gt["mask"]),
-                 _metrics(per_view, renderer.scene.name, view.id, "relight", env))
 
 
 def scene_panels(scene: Scene, jobs: list[Job], per_view: dict[str, pd.DataFrame], *,
@@ -198,14 +171,12 @@ def scene_panels(scene: Scene, jobs: list[Job], per_view: dict[str, pd.DataFrame
         for env in envs:
             gt[f"relit:{env}"] = renderer.gt_relit(view, gt, env, cfg)
         gts[view.id] = gt
-    all_gts = {v.id: gts.get(v.id) or renderer.gt_view(v) for v in scene.split_views(split)}
     panels = [ViewPanels(v.id, {k: (_rgb(a) if k not in ("normal", "mask", "view_dir") else a)
                                 for k, a in gts[v.id].items()}) for v in views]
     keys = list(MATERIAL_CHANNELS) + [f"relit:{e}" for e in envs]
     for job in jobs:
         try:
-            by_view = job_panels(renderer, job, views, all_gts,
-                                 per_view.get(job.label, pd.DataFrame()))
+            by_view = job_panels(renderer, job, views, per_view.get(job.label, pd.DataFrame()))
         except (LayoutError, ValueError, RuntimeError) as exc:  # one bad job, not a bad page
             by_view = {v.id: {k: Panel(note=f"unreadable: {exc}") for k in keys} for v in views}
         for vp in panels:

@@ -332,7 +332,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
 def write_figures(cfg: Mapping[str, Any], data_dir: Path, out: Path, names: list[str], tracker) -> None:
     from omegaconf import OmegaConf
 
-    from gspi.run.figure import scene_figure
+    from eval.report_site.run_figure import scene_figure
 
     protocol = OmegaConf.create(cfg["eval"])
     for name in names:
