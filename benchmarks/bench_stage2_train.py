@@ -116,7 +116,7 @@ def time_ddp(procs: int, threads: int, batch: int, *, repeats: int) -> dict:
 def time_sampling(data_dir: str, batch: int, repeats: int) -> float:
     from gspi.stage2.data import PointDataConfig, sample_batch
     from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.train import load_split
+    from gspi.stage2.splits import load_split
 
     cfg = train_config([f"data_dir={data_dir}"])
     scenes = load_split(cfg, "train", build_encoder(cfg["stage2"]["prior"]))

@@ -14,7 +14,7 @@ from gspi.gaussians.ply import write_ply
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import maybe_subsample
 from gspi.point_cloud import PointCloud
-from gspi.stage2.evaluate_points import PSNR_CAP_DB
+from gspi.stage2.points_measure import PSNR_CAP_DB
 from gspi.point_cloud import nearest_fill, scatter_pixel_values
 from gspi.stage2.score_generated import gt_oracle_pbr, scatter_point_values, score_generated_points
 from tests.fixtures import surfel_sphere
@@ -173,7 +173,7 @@ class TestScoreGenerated:
 
 def test_evaluate_points_scatter_is_the_same_code(lattice_scene):
     from gspi.stage2.data import load_scene_points
-    from gspi.stage2.evaluate_points import scatter_to_views
+    from gspi.stage2.points_measure import scatter_to_views
 
     scene = load_scene_points(lattice_scene, None)
     points, pbr = gt_points_and_pbr(lattice_scene)

@@ -12,7 +12,7 @@ from gspi.stage2.encoders import build_encoder
 from gspi.stage2.ladder import (build_rung, ladder_config, load_rung, predict_rung, rung_loss, save_rung,
                                 score_rung)
 from gspi.stage2.regressors import pooled_prior, rung_features
-from gspi.stage2.train import load_split
+from gspi.stage2.splits import load_split
 from tests.test_stage2_data import make_lattice_dataset
 
 RUNGS = ("r1", "r2", "r3", "r4")
@@ -122,7 +122,7 @@ def test_summary_pools_seeds_and_reports_metal(tmp_path):
 
 
 def test_point_metal_iou(ladder_data):
-    from gspi.stage2.evaluate_points import point_metal_iou
+    from gspi.stage2.points_measure import point_metal_iou
     from gspi.stage2.normalize import pbr_from_model
 
     _, _, scenes, _ = ladder_data

@@ -67,16 +67,6 @@ def test_an_empty_validation_split_is_refused(dataset, tmp_path):  # noqa: F811
         train(cfg, tmp_path)
 
 
-def test_a_saved_checkpoint_scores_as_it_did_while_training(dataset, runs):  # noqa: F811
-    """score_checkpoint(best.pt) reproduces the score logged at the best step."""
-    from gspi.stage2.validate import ValidationConfig, score_checkpoint
-
-    _, checked, stats = runs
-    cfg = ValidationConfig(every=4, split="test", num_steps=2, max_points=300)
-    scores = score_checkpoint(checked / "best.pt", dataset, cfg)
-    assert scores[SCORE_KEY] == pytest.approx(stats["best_validation"]["score"], abs=1e-9)
-
-
 def test_evaluate_points_with_max_points_is_the_validation_measure(dataset, runs, tmp_path):  # noqa: F811
     """One prediction path: evaluate_points with --max-points scores best.pt exactly as the
     validation did, and without it predicts every point (another, recorded measure)."""

@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from gspi.gaussians.projection import project_surfels
+from gspi.gaussians.render_output import RenderOutput
 
 _MAX_EXACT_ID = 1 << 24
 
@@ -90,7 +91,6 @@ def rasterize_gsplat(
     """
     from gsplat import rasterization_2dgs
 
-    from gspi.gaussians.rasterize import RenderOutput
 
     n_cams, n = viewmats.shape[0], means.shape[0]
     if n + 1 >= _MAX_EXACT_ID:

@@ -1,121 +1,31 @@
-"""Table 2's measure: Stage II on the generated point cloud, scored in the lattice views.
+"""Table 2's measure of a saved Stage II model: the one CLI (the measure itself is
+``gspi.stage2.points_measure``).
 
-For each scene of a split: its GT point cloud (the lattice-view unprojection, perturbed as in
-training with a seeded generator), Stage II predictions for all points at once
-(``predict_point_pbr``, EMA weights), scattered back into the per-view maps of the 32 lattice
-views through the stored source pixels, and scored against the GT maps (``albedo.png``,
-``roughness.png``, ``metallic.png``) with ``eval.metrics`` (masked PSNR / SSIM / LPIPS; mask =
-the pixels that received a point). The same is done for the no-decomposition baseline:
-albedo = the observed colour ``sRGB(clamp(rgb_linear))`` (the Top-RGB), roughness and
-metallic = the mean of the training points' values (the L2-optimal constants).
-
-Per view and channel scores are averaged over the 32 views, then over scenes; "avg" is the
-mean of the three channels (Table 2 reports averages over albedo, roughness, metallic). A
-per-view PSNR is capped at ``PSNR_CAP_DB``: an exact match (e.g. metallic 0 predicted on a
-plastic) is otherwise inf and would make every mean inf.
+``evaluate_checkpoint`` scores a model on a split's GT point clouds and writes ``scores.json``
+(format ``gspi-points-eval``: the model's ablation, training seed, checkpoint, the dataset and
+the sampling, so ``gspi-table`` builds Table 2 from such folders) and ``table.md``.
+``--max-points N --num-steps 10 --split val`` is the validation's measure while training
+(``gspi.stage2.validate``), so a saved ``best.pt`` scores here as it did when it was kept.
 
     python -m gspi.stage2.evaluate_points CHECKPOINT DATASET_DIR OUT_DIR [--num-steps 50]
+        [--split test] [--max-points N] [--baseline-train DATA]
 """
 from __future__ import annotations
 
 import argparse
 import logging
-import time
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
-import numpy as np
 import torch
 
 from eval.atomic import write_json_atomic
 from gspi.stage2.data import PointDataConfig, ScenePoints
-from gspi.stage2.normalize import pbr_from_model
-from gspi.data.gt_maps import read_gt_view_maps
-from gspi.point_cloud import scatter_pixel_values
+from gspi.stage2.points_measure import (CHANNELS, PSNR_CAP_DB, PointSampling, baseline_prediction,
+                                        evaluate_scenes, subset_prediction, training_constants)
+from gspi.stage2.splits import load_split
 
 log = logging.getLogger(__name__)
-CHANNELS = {"albedo": slice(0, 3), "roughness": slice(3, 4), "metallic": slice(4, 5)}
-PSNR_CAP_DB = 60.0
-METRICS = ("psnr", "ssim", "lpips")
-
-
-def scatter_to_views(values: np.ndarray, scene: ScenePoints) -> tuple[np.ndarray, np.ndarray]:
-    """Per-point values [P, C] -> per-view maps [V, H, W, C] and mask [V, H, W] (pixels hit)."""
-    cams = scene.cameras
-    return scatter_pixel_values(scene.view, scene.pixel, values, height=cams.height, width=cams.width,
-                                num_views=len(cams.K))
-
-
-def score_maps(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray, lpips_net) -> dict[str, dict[str, float]]:
-    """Scores [V, H, W, 5] predictions: {channel: {metric: mean over views}}."""
-    from eval.metrics import masked_lpips, masked_psnr, masked_ssim
-
-    out = {}
-    for channel, sl in CHANNELS.items():
-        rows = []
-        for v in range(len(pred)):
-            if not mask[v].any():
-                continue
-            p, g, m = (torch.from_numpy(pred[v, ..., sl]), torch.from_numpy(gt[v, ..., sl]),
-                       torch.from_numpy(mask[v]))
-            rows.append((min(masked_psnr(p, g, m), PSNR_CAP_DB), masked_ssim(p, g, m),
-                         masked_lpips(p, g, m, net=lpips_net)))
-        out[channel] = dict(zip(METRICS, np.mean(rows, axis=0).tolist()))
-    return out
-
-
-def training_constants(train_scenes: list[ScenePoints]) -> tuple[float, float]:
-    """Mean roughness and metallic over all training points (the L2-optimal constants)."""
-    f0 = np.concatenate([s.f0 for s in train_scenes])
-    pbr = pbr_from_model(torch.from_numpy(f0)).numpy()
-    return float(pbr[:, 3].mean()), float(pbr[:, 4].mean())
-
-
-def baseline_prediction(scene: ScenePoints, roughness: float, metallic: float) -> np.ndarray:
-    """[P, 5] no-decomposition prediction: albedo = Top-RGB (sRGB), constant roughness/metallic."""
-    const = np.broadcast_to(np.array([roughness, metallic], dtype=np.float32), (scene.num_points, 2))
-    return np.concatenate([scene.top_rgb, const], axis=1)
-
-
-def evaluate_scenes(scenes: list[ScenePoints], predict: Callable[[ScenePoints], np.ndarray],
-                    baseline: Callable[[ScenePoints], np.ndarray], *, lpips_net=None) -> dict[str, Any]:
-    """{"stage2": {scene: scores}, "no_decomposition": {...}, "mean": {method: scores}}."""
-    from eval.lpips_net import load_lpips
-
-    net = lpips_net if lpips_net is not None else load_lpips()
-    per_scene: dict[str, dict] = {"stage2": {}, "no_decomposition": {}}
-    metal_iou: dict[str, dict] = {"stage2": {}, "no_decomposition": {}}
-    timings = {}
-    for scene in scenes:
-        gt = read_gt_view_maps(scene.root)[0]
-        t0 = time.perf_counter()
-        pred = predict(scene)
-        timings[scene.name] = round(time.perf_counter() - t0, 2)
-        for method, values in (("stage2", pred), ("no_decomposition", baseline(scene))):
-            maps, mask = scatter_to_views(values, scene)
-            per_scene[method][scene.name] = score_maps(maps, gt, mask, net)
-            metal_iou[method][scene.name] = point_metal_iou(values[:, 4], scene)
-        log.info("%s: %d points, predicted in %.1f s; albedo PSNR %.2f (baseline %.2f)", scene.name,
-                 scene.num_points, timings[scene.name], per_scene["stage2"][scene.name]["albedo"]["psnr"],
-                 per_scene["no_decomposition"][scene.name]["albedo"]["psnr"])
-    mean = {m: average_scores(list(s.values())) for m, s in per_scene.items()}
-    return {"per_scene": per_scene, "mean": mean, "predict_time_s": timings, "metal_iou": metal_iou}
-
-
-def point_metal_iou(metallic: np.ndarray, scene: ScenePoints, threshold: float = 0.5) -> float | None:
-    """IoU of {metallic > threshold} between a prediction [P] and the GT points (one point per
-    lattice pixel, so it is the pixel IoU over the 32 views); None when neither has metal."""
-    gt = pbr_from_model(torch.from_numpy(scene.f0[:, 4])).numpy() > threshold
-    pred = np.asarray(metallic) > threshold
-    union = int(np.count_nonzero(gt | pred))
-    return None if union == 0 else float(np.count_nonzero(gt & pred)) / union
-
-
-def average_scores(scores: list[dict]) -> dict[str, dict[str, float]]:
-    """Mean over scenes per channel and metric, plus "avg" = mean over the three channels."""
-    out = {c: {m: float(np.mean([s[c][m] for s in scores])) for m in METRICS} for c in CHANNELS}
-    out["avg"] = {m: float(np.mean([out[c][m] for c in CHANNELS])) for m in METRICS}
-    return out
 
 
 def markdown_table(result: Mapping[str, Any], *, caption: str) -> str:
@@ -149,8 +59,6 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
     from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.train import load_split
-    from gspi.stage2.validate import ValidationConfig, subset_prediction
 
     run_cfg = {**cfg, "data_dir": str(data_dir)}
     stage2 = cfg["stage2"]
@@ -166,9 +74,9 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                          "data)") from exc
     rough, metal = training_constants(train_scenes)
 
-    sampling = ValidationConfig(num_steps=num_steps, max_points=max_points, seed=seed)
+    sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed)
 
-    def predict(scene: ScenePoints) -> np.ndarray:
+    def predict(scene: ScenePoints):
         return subset_prediction(model, scene, scenes.index(scene), data_cfg, sampling, write_chunk=write_chunk)
 
     result = evaluate_scenes(scenes, predict, lambda s: baseline_prediction(s, rough, metal))

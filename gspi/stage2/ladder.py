@@ -209,9 +209,9 @@ def score_rung(model: nn.Module, rung: str, cfg: Mapping[str, Any], data_dir: st
     """Table 2's measure of a trained rung on ``split`` of ``data_dir``; writes scores.json."""
     from eval.atomic import write_json_atomic
     from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.evaluate_points import (PSNR_CAP_DB, baseline_prediction, evaluate_scenes,
+    from gspi.stage2.points_measure import (PSNR_CAP_DB, baseline_prediction, evaluate_scenes,
                                              training_constants)
-    from gspi.stage2.train import load_split
+    from gspi.stage2.splits import load_split
 
     encoder = build_encoder(cfg["stage2"]["prior"])
     data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
@@ -245,7 +245,7 @@ def _eval_sets(specs: list[str]) -> list[tuple[str, str, str]]:
 def run_train(args: argparse.Namespace) -> None:
     from eval.atomic import write_json_atomic
     from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.train import load_split
+    from gspi.stage2.splits import load_split
 
     cfg = ladder_config(args.data, args.seed, tuple(args.override))
     out = Path(args.out)

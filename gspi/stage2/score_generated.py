@@ -78,7 +78,7 @@ def score_generated_points(points: PointCloud, pbr: np.ndarray, scene_dir: Path,
         ValueError: size mismatch, bad shapes, or no pixel where GT mask and points overlap.
     """
     from eval.lpips_net import load_lpips
-    from gspi.stage2.evaluate_points import CHANNELS, METRICS, score_maps
+    from gspi.stage2.points_measure import CHANNELS, METRICS, score_maps
 
     scene_dir = Path(scene_dir)
     height, width = check_lattice_size(points, scene_dir)

@@ -25,14 +25,13 @@ from gspi.stage2.checkpoint import (CheckpointError, ema_only, load_weights, rcw
                                     read_checkpoint, save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
 from gspi.stage2.config import complete_stage2
 from gspi.stage2.distributed import DistContext
-from gspi.stage2.data import (PointDataConfig, ScenePoints, load_scene_points, local_condition_dim,
-                              sample_batch)
+from gspi.stage2.data import PointDataConfig, local_condition_dim, sample_batch
 from gspi.stage2.encoders import build_encoder
-from gspi.stage2.feature_cache import scene_prior_features
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.loss import denoising_loss
 from gspi.stage2.model import RCWConfig, RCWDenoiser, count_parameters
 from gspi.stage2.schedule import cosine_alphas_cumprod
+from gspi.stage2.splits import load_split
 from gspi.stage2.train_log import JsonlMetrics, plot_loss_curve
 
 log = logging.getLogger(__name__)
@@ -46,23 +45,6 @@ def rcw_config(stage2: Mapping[str, Any], global_token_dim: int) -> RCWConfig:
     return RCWConfig(**stage2["model"], local_cond_dim=local_condition_dim(local),
                      use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim,
                      prediction=diffusion["prediction"], num_train_timesteps=diffusion["num_train_timesteps"])
-
-
-def cache_dir(cfg: Mapping[str, Any]) -> Path:
-    """``stage2.prior.cache_dir``, default ``<data>/.cache/stage2_prior``."""
-    return Path(cfg["stage2"]["prior"]["cache_dir"] or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
-
-
-def load_split(cfg: Mapping[str, Any], split: str, encoder) -> list[ScenePoints]:
-    """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``."""
-    from eval.layout import read_splits
-
-    data_dir = Path(cfg["data_dir"])
-    names = read_splits(data_dir).get(split, [])
-    if not names:
-        raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} is empty")
-    return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)))
-            for n in names]
 
 
 def learning_rate(step: int, train: Mapping[str, Any]) -> float:

@@ -3,7 +3,7 @@
 ``best.pt`` (issue #15: "keep a validation score in the training log so a run's best
 checkpoint is known").
 
-The measure is ``gspi.stage2.evaluate_points``'s (per-view masked PSNR capped at 60 dB, SSIM,
+The measure is ``gspi.stage2.points_measure``'s (per-view masked PSNR capped at 60 dB, SSIM,
 LPIPS of the predictions scattered into the 32 lattice views), made cheap enough to repeat:
 ``num_steps`` DDIM steps (10 by default) on a seeded subset of ``max_points`` points per
 scene whose values are propagated to the whole cloud by 1-NN (``gspi.point_cloud
@@ -11,17 +11,16 @@ scene whose values are propagated to the whole cloud by 1-NN (``gspi.point_cloud
 seeded generators and reads only the EMA weights, so a run with validation trains exactly as
 one without (tested). The selection score is the mean PSNR over albedo, roughness, metallic.
 
-    python -m gspi.stage2.validate CHECKPOINT DATASET [--split val]   # a saved model, same measure
+A saved model under the same measure: ``python -m gspi.stage2.evaluate_points CHECKPOINT DATASET
+OUT --split val --num-steps 10 --max-points 20000`` (the one CLI of the measure).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping, Optional
 
-import numpy as np
-
-from gspi.point_cloud import nearest_fill
-from gspi.stage2.data import PointDataConfig, ScenePoints, whole_scene_inputs
+from gspi.stage2.data import PointDataConfig, ScenePoints
+from gspi.stage2.points_measure import average_scores, scatter_to_views, score_maps, subset_prediction
 
 SCORE_KEY = "stage2/val/avg_psnr"
 
@@ -42,26 +41,6 @@ class ValidationConfig:
     CHOICES: ClassVar[dict] = {"split": ("train", "val", "test")}
 
 
-def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointDataConfig,
-                      cfg: ValidationConfig, *, write_chunk: int | None = 32768) -> np.ndarray:
-    """[P, 5] PBR of every point of ``scene``: sampled on a seeded subset, 1-NN filled (every
-    point when ``cfg.max_points`` is None: then this is Table 2's measure proper, the
-    prediction of ``gspi.stage2.evaluate_points``)."""
-    from gspi.stage2.sampler import predict_point_pbr
-
-    rng = np.random.default_rng([cfg.seed, index])
-    xyz, cond = whole_scene_inputs(scene, data_cfg, rng)
-    keep = np.arange(scene.num_points)
-    if cfg.max_points is not None and scene.num_points > cfg.max_points:
-        keep = np.sort(rng.choice(scene.num_points, cfg.max_points, replace=False))
-    feats = scene.prior_grid()
-    device = next(model.parameters()).device
-    values = predict_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
-                               num_steps=cfg.num_steps, seed=cfg.seed, frame=scene.frame,
-                               write_chunk=write_chunk).cpu().numpy()
-    return values if len(keep) == scene.num_points else nearest_fill(scene.xyz[keep], values, scene.xyz)
-
-
 class Validator:
     """Scores a model on fixed validation scenes; remembers the best score."""
 
@@ -80,7 +59,6 @@ class Validator:
         """{"stage2/val/<channel>_<metric>": mean over scenes} for albedo, roughness, metallic
         and their "avg"; model: the EMA denoiser (eval mode)."""
         from gspi.data.gt_maps import read_gt_view_maps
-        from gspi.stage2.evaluate_points import average_scores, scatter_to_views, score_maps
 
         scores = []
         for i, scene in enumerate(self.scenes):
@@ -94,39 +72,3 @@ def validation_config(stage2: Mapping[str, Any]) -> ValidationConfig:
     from gspi.strict_config import dataclass_from_dict
 
     return dataclass_from_dict(ValidationConfig, stage2["validate"], "stage2.validate")
-
-
-def score_checkpoint(path, data_dir, cfg: ValidationConfig) -> dict[str, float]:
-    """The validation scores of a saved Stage II model (a reference line for training curves)."""
-    from gspi.stage2.checkpoint import load_stage2_checkpoint
-    from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.train import load_split
-
-    model, saved = load_stage2_checkpoint(path)
-    encoder = build_encoder(saved["stage2"]["prior"])
-    scenes = load_split({**saved, "data_dir": str(data_dir)}, cfg.split, encoder)
-    return Validator(cfg, scenes, PointDataConfig.from_mapping(saved["stage2"]["data"])).score(model)
-
-
-def main(argv: list[str] | None = None) -> None:
-    """python -m gspi.stage2.validate CHECKPOINT DATASET [--split val] [--num-steps 10] [--max-points 20000]"""
-    import argparse
-    import json
-
-    import torch
-
-    parser = argparse.ArgumentParser(description="Stage II validation scores of a checkpoint")
-    parser.add_argument("checkpoint")
-    parser.add_argument("data")
-    parser.add_argument("--split", default="val")
-    parser.add_argument("--num-steps", type=int, default=10)
-    parser.add_argument("--max-points", type=int, default=20000)
-    parser.add_argument("--threads", type=int, default=1)
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    cfg = ValidationConfig(every=1, split=args.split, num_steps=args.num_steps, max_points=args.max_points)
-    print(json.dumps(score_checkpoint(args.checkpoint, args.data, cfg), indent=2))
-
-
-if __name__ == "__main__":
-    main()

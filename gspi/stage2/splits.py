@@ -1,0 +1,27 @@
+"""The scenes of one dataset split as Stage II reads them: ``ScenePoints`` with their cached
+global-prior features (``gspi.stage2.feature_cache``). Training, validation, Table 2's measure
+and the ladder all load their scenes here."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+from gspi.stage2.data import ScenePoints, load_scene_points
+from gspi.stage2.feature_cache import scene_prior_features
+
+
+def cache_dir(cfg: Mapping[str, Any]) -> Path:
+    """``stage2.prior.cache_dir``, default ``<data>/.cache/stage2_prior``."""
+    return Path(cfg["stage2"]["prior"]["cache_dir"] or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
+
+
+def load_split(cfg: Mapping[str, Any], split: str, encoder) -> list[ScenePoints]:
+    """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``."""
+    from eval.layout import read_splits
+
+    data_dir = Path(cfg["data_dir"])
+    names = read_splits(data_dir).get(split, [])
+    if not names:
+        raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} is empty")
+    return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)))
+            for n in names]
