@@ -190,3 +190,66 @@ def test_cli_imports_a_folder_with_splits(tmp_path):
     want = linear_to_srgb(torch.tensor(FACTOR)).numpy()
     assert mask.any() and np.abs(albedo[mask] - want).max() <= 1 / 255 + 1e-6
     assert json.loads((scene.root / "scene.json").read_text())["generator"]["family"] == "glb"
+
+
+def test_16_bit_greyscale_texture_is_read_at_full_depth():
+    from gspi.data.gltf import image_rgb
+
+    grey = Image.fromarray(np.array([[0, 32768], [65535, 13107]], np.uint16))   # mode I;16
+    assert grey.mode.startswith("I;16")
+    np.testing.assert_allclose(image_rgb(grey)[..., 0], [[0, 32768 / 65535], [1, 0.2]], atol=1e-9)
+    assert image_rgb(grey).shape == (2, 2, 3)
+    rgb8 = Image.fromarray(np.full((1, 1, 3), 51, np.uint8))
+    np.testing.assert_allclose(image_rgb(rgb8), 0.2)
+
+
+def test_a_node_scaled_to_zero_is_skipped_and_named(tmp_path):
+    doc, pos = _triangle_doc()
+    doc["scenes"] = [{"nodes": [0, 1]}]
+    doc["nodes"] = [{"mesh": 0}, {"mesh": 0, "scale": [0.0, 0.0, 0.0]}]
+    (tmp_path / "zero.glb").write_bytes(_glb(doc, pos))
+    asset = read_gltf(tmp_path / "zero.glb")
+    assert len(asset.primitives) == 1
+    assert any("nodes[1]: degenerate transform" in s for s in asset.ignored)
+    doc["scenes"] = [{"nodes": [1]}]
+    (tmp_path / "only_zero.glb").write_bytes(_glb(doc, pos))
+    with pytest.raises(GLTFError, match="only_zero.glb.*no triangle primitives"):
+        read_gltf(tmp_path / "only_zero.glb")
+
+
+def _tiny_import_cfg(tmp_path, src):
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    cfg = OmegaConf.load(conf / "gspi_data.yaml")
+    cfg.data = OmegaConf.load(conf / "data" / "tiny.yaml")
+    cfg.out = str(tmp_path / "out")
+    cfg["import"].glb = str(src)
+    cfg.data.update(image_size=16, num_test_views=1, num_val_views=0, num_relight_envs=1,
+                    point_clouds=False, contact_sheets=False)
+    cfg.lattice.num_views = 4
+    return cfg
+
+
+def test_folder_import_recurses_skips_a_bad_file_and_keeps_the_rest(tmp_path):
+    """Sub-folders are searched, a bad file is named and skipped, every good asset is written
+    with splits.json, and each asset's environments do not depend on its neighbours."""
+    from gspi.cli.data import run
+
+    src = tmp_path / "objects"
+    (src / "bottle").mkdir(parents=True)
+    quad_glb(src / "bottle" / "quad_sub.glb")
+    quad_glb(src / "quad_top.glb", textured=False)
+    (src / "broken.glb").write_bytes(b"not a gltf file at all")
+    result = run(_tiny_import_cfg(tmp_path, src))
+    assert [f["file"] for f in result["failed"]] == [str(src / "broken.glb")]
+    assert "broken.glb" in result["failed"][0]["error"]
+    assert read_splits(tmp_path / "out")["test"] == ["quad_sub", "quad_top"]
+    gen = json.loads((tmp_path / "out" / "quad_sub" / "scene.json").read_text())["generator"]
+    assert gen["name"] == "quad_sub" and gen["importer"] == "gspi-glb-import"
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    quad_glb(alone / "quad_sub.glb")
+    run(_tiny_import_cfg(tmp_path / "second", alone))
+    a = read_scene(tmp_path / "out" / "quad_sub")
+    b = read_scene(tmp_path / "second" / "out" / "quad_sub")
+    assert (a.capture_env, a.relight_envs) == (b.capture_env, b.relight_envs)
+    np.testing.assert_array_equal(a.views["test"][0].w2c, b.views["test"][0].w2c)

@@ -75,6 +75,9 @@ def run(cfg: DictConfig) -> dict:
 
         stats = import_glb(cfg["import"].glb, out, benchmark_config(cfg), seed=int(cfg.seed))
         result = {"mode": "import_glb", **stats}
+        if stats["failed"]:
+            log.error("%d of %d assets could not be imported: %s", len(stats["failed"]),
+                      len(stats["failed"]) + len(stats["scenes"]), ", ".join(f["file"] for f in stats["failed"]))
         for s in stats["scenes"]:
             log.info("imported %s (%s) in %.1f s (input renderer %s: %.1f s)", s["name"],
                      s["split"], s["seconds"], cfg.data.renderer, s["retrace_seconds"])
@@ -109,7 +112,9 @@ def run(cfg: DictConfig) -> dict:
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_data")
 def _hydra_main(cfg: DictConfig) -> None:
-    run(cfg)
+    result = run(cfg)
+    if result.get("failed"):  # the good assets are written; the status says one failed
+        sys.exit(1)
 
 
 def alias_preset(argv: list[str]) -> list[str]:

@@ -12,12 +12,19 @@ held-out val/test views with the preset's image size and supersampling
 (gspi.data.mesh_render: GT albedo, roughness, metallic, normals, depth, masks and the
 split-sum input; `data.renderer=pathtraced` replaces the input by a Mitsuba rendering),
 lit by the capture environment, relit under the held-out ones (`data.capture_envs`,
-`data.relight_envs`). Scene `i` (files sorted by split then name) draws its views and
-environments from `scene_rng(seed, i, ...)` like the procedural scenes.
+`data.relight_envs`). An asset draws its views and environments from `scene_rng(seed, k, ...)`
+like the procedural scenes, with k a stable number of its file name (`asset_stream`), so they do
+not depend on the other files or their order. Folders are searched recursively (a `.gltf` sits
+in a sub-folder with its textures). A file that cannot be read is skipped and named in one log
+line; every other asset is written, with `splits.json`, and the result lists the failures
+(`gspi-data` then exits with status 1). scene.json's `generator` holds the recipe (its `name`
+is the scene's) and `importer: gspi-glb-import`.
 """
 from __future__ import annotations
 
+import logging
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +34,7 @@ from gspi.data.lattice import fibonacci_hemisphere_lattice, held_out_directions
 from gspi.data.scene_recipe import scene_rng
 
 EXTENSIONS = (".glb", ".gltf")
+log = logging.getLogger(__name__)
 
 
 def glb_sources(src: str | Path) -> dict[str, list[Path]]:
@@ -39,8 +47,8 @@ def glb_sources(src: str | Path) -> dict[str, list[Path]]:
     if not src.is_dir():
         raise FileNotFoundError(f"{src}: no such file or folder")
 
-    def assets(folder: Path) -> list[Path]:
-        return sorted(p for p in folder.iterdir() if p.suffix.lower() in EXTENSIONS)
+    def assets(folder: Path) -> list[Path]:  # sub-folders too: a .gltf sits beside its textures
+        return sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in EXTENSIONS)
 
     if any((src / s).is_dir() for s in SPLITS):
         out = {s: assets(src / s) for s in SPLITS if (src / s).is_dir()}
@@ -56,20 +64,29 @@ def glb_sources(src: str | Path) -> dict[str, list[Path]]:
     return out
 
 
+def asset_stream(path: Path) -> int:
+    """The asset's random stream: a stable number of its file name, so that its views and
+    environments do not depend on which other files are imported beside it, or their order."""
+    return zlib.crc32(path.stem.encode("utf-8")) & 0x7FFFFFFF
+
+
 def glb_recipe(path: Path, index: int, seed: int, cfg) -> dict:
-    """Views and environments of asset scene `index` (the procedural recipe's fields)."""
+    """Views and environments of asset scene `index` (the procedural recipe's fields), drawn
+    from the asset's own stream (``asset_stream``), not its position in the folder."""
     from gspi.data.env_sets import assign_environments, environment_sets
 
+    stream = asset_stream(path)
     lattice = fibonacci_hemisphere_lattice(
         cfg.lattice["num_views"], min_elevation_deg=cfg.lattice.get("min_elevation_deg", 0.0))
-    test_dirs = held_out_directions(cfg.num_test_views, scene_rng(seed, index, 1), lattice=lattice)
-    val_dirs = held_out_directions(cfg.num_val_views, scene_rng(seed, index, 2),
+    test_dirs = held_out_directions(cfg.num_test_views, scene_rng(seed, stream, 1), lattice=lattice)
+    val_dirs = held_out_directions(cfg.num_val_views, scene_rng(seed, stream, 2),
                                    lattice=np.concatenate([lattice, test_dirs]))
-    recipe = {"index": index, "name": path.stem, "family": "glb", "source": str(path.resolve()),
+    recipe = {"index": index, "stream": stream, "name": path.stem, "family": "glb", "source": str(path.resolve()),
               "test_directions": test_dirs.tolist(), "val_directions": val_dirs.tolist(),
-              "view_seed": int(scene_rng(seed, index).integers(0, 2**31 - 1))}
+              "view_seed": int(scene_rng(seed, stream).integers(0, 2**31 - 1))}
     capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)
-    return assign_environments(recipe, seed, list(capture), list(relight), cfg.num_relight_envs)
+    return {**assign_environments({**recipe, "index": stream}, seed, list(capture), list(relight),
+                                  cfg.num_relight_envs), "index": index}
 
 
 def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> dict:
@@ -83,7 +100,7 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
     from eval.relight import prefilter_environment
     from gspi.data.env_sets import environment_sets, make_named_environment
     from gspi.data.generate import merge_splits
-    from gspi.data.gltf import read_gltf
+    from gspi.data.gltf import GLTFError, read_gltf
     from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
     from gspi.data.pathtrace import retracer
     from gspi.data.render_scene import generate_scene
@@ -94,10 +111,16 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
     env_sources = {**capture, **relight}
     envs, pre, stats = {}, {}, []
     files = [(split, p) for split in SPLITS for p in sources.get(split, [])]
+    failed: list[dict] = []
     for index, (split, path) in enumerate(files):
         start = time.perf_counter()
-        asset = read_gltf(path)
-        mesh = unit_frame_mesh(asset)
+        try:
+            asset = read_gltf(path)
+            mesh = unit_frame_mesh(asset)
+        except (GLTFError, ValueError) as exc:  # one bad asset: named, skipped; the others go on
+            log.error("skipped %s: %s", path, exc)
+            failed.append({"file": str(path), "error": str(exc)})
+            continue
         recipe = glb_recipe(path, index, seed, cfg)
         for name in [recipe["capture_env"], *recipe["relight_envs"]]:
             if name not in envs:
@@ -113,7 +136,7 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
             recipe, out_dir, envs=envs, prefiltered=pre, width=cfg.image_size,
             height=cfg.image_size, supersample=cfg.supersample, lattice=cfg.lattice,
             render=render, retrace=retracer(cfg.renderer, cfg.pathtrace, mesh=mesh),
-            extra={"name": "gspi-glb-import", "version": 1, "seed": seed, "preset": cfg.name,
+            extra={"importer": "gspi-glb-import", "importer_version": 1, "seed": seed, "preset": cfg.name,
                    "supersample": cfg.supersample, "lattice": cfg.lattice,
                    "renderer": cfg.renderer, "ignored": asset.ignored,
                    "unit_frame": {"center": mesh.center.tolist(), "scale": mesh.scale}})
@@ -127,5 +150,7 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
             if cfg.contact_sheets:
                 write_contact_sheet(scene)
         stats.append({**s, "split": split, "seconds": time.perf_counter() - start})
-    splits = merge_splits(out_dir, {split: [p.stem for p in ps] for split, ps in sources.items()})
-    return {"splits": splits, "scenes": stats}
+    bad = {f["file"] for f in failed}
+    splits = merge_splits(out_dir, {split: [p.stem for p in ps if str(p) not in bad]
+                                    for split, ps in sources.items()})
+    return {"splits": splits, "scenes": stats, "failed": failed}

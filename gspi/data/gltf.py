@@ -210,8 +210,16 @@ class _Reader:
             pil.load()
         except Exception as e:  # Pillow raises many types for bad images
             raise self.fail(f"images[{tex['source']}] is not a readable image ({e})") from e
-        arr = np.asarray(pil.convert("RGB"), dtype=np.float64)
-        return arr / (65535.0 if pil.mode.startswith("I;16") else 255.0)
+        return image_rgb(pil)
+
+
+def image_rgb(pil) -> np.ndarray:
+    """[H, W, 3] float64 in [0, 1] of a decoded texture. 16-bit greyscale PNGs (Pillow modes
+    ``I;16*`` / ``I``) are read at full depth: ``convert("RGB")`` would clip them to 8 bits."""
+    if pil.mode.startswith("I;16") or pil.mode == "I":
+        grey = np.asarray(pil, dtype=np.float64) / 65535.0
+        return np.repeat(np.clip(grey, 0.0, 1.0)[..., None], 3, axis=-1)
+    return np.asarray(pil.convert("RGB"), dtype=np.float64) / 255.0
 
 
 def _node_matrix(node: dict) -> np.ndarray:
@@ -316,6 +324,9 @@ def read_gltf(path: str | Path) -> Asset:
                 if len(faces) == 0 or faces.max() >= len(pos):
                     raise r.fail("primitive indices out of range or empty")
                 lin = Y_UP_TO_Z_UP @ world[:3, :3]
+                if abs(np.linalg.det(lin)) < 1e-12:  # e.g. a node scaled to 0: no visible surface
+                    ignored.append(f"nodes[{idx}]: degenerate transform (scale 0), its mesh is not drawn")
+                    continue
                 v = pos @ lin.T + Y_UP_TO_Z_UP @ world[:3, 3]
                 n = None
                 if "NORMAL" in data:
