@@ -24,6 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from eval.config import CONF_DIR, register_configs, validate_protocol
 from eval.device import resolve_device
+from eval.errors import exit_on_stated_error
 from eval.evaluate import evaluate
 from eval.report import clear_result, format_summary, write_result
 
@@ -59,6 +60,7 @@ def rewrite_method_alias(argv: list[str]) -> list[str]:
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_eval")
+@exit_on_stated_error
 def _hydra_main(cfg: DictConfig) -> None:
     run(cfg)
 

@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import torch
 
+from eval.errors import StatedError
+
 CHOICES = ("auto", "cpu", "cuda")
 
 
-class DeviceError(ValueError):
+class DeviceError(StatedError, ValueError):
     """A ``device`` setting that cannot be honoured on this machine."""
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.errors import MissingInputError
 from eval.layout import LayoutError, read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.sweep import (COLUMNS, RunRecord, Sweep, material_protocol_label, per_scene_rows,
@@ -32,7 +33,7 @@ def find_eval_folders(paths: list[str | Path]) -> tuple[list[Path], list[Path]]:
     found, incomplete = set(), set()
     for p in map(Path, paths):
         if not p.exists():
-            raise FileNotFoundError(f"{p}: run folder not found")
+            raise MissingInputError(f"{p}: run folder not found")
         found |= {s.parent for s in p.rglob("summary.json")}
         incomplete |= {h.parent for h in p.rglob(".hydra") if h.is_dir()
                        and not (h.parent / "summary.json").is_file()

@@ -12,8 +12,10 @@ import numpy as np
 import OpenEXR
 import png  # pypng
 
+from eval.errors import StatedError
 
-class ImageFormatError(ValueError):
+
+class ImageFormatError(StatedError, ValueError):
     """A file of the canonical layout is missing, unreadable or holds invalid values."""
 
 

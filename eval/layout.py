@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.atomic import write_json_atomic  # noqa: F401  (re-exported: its callers import it from here)
+from eval.errors import StatedError
 from eval.imageio import ImageFormatError, read_exr, read_png, write_exr, write_png
 
 FORMAT_VERSION = 1
@@ -37,7 +38,7 @@ PREDICTION_ONLY_FILES = ("alpha.png",)
 GT_VIEW_FILES = tuple(n for n in VIEW_FILES if n not in PREDICTION_ONLY_FILES)  # every GT view has these
 
 
-class LayoutError(ValueError):
+class LayoutError(StatedError, ValueError):
     """A scene, dataset or prediction folder does not follow docs/FORMAT.md."""
 
 

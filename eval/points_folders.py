@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.errors import MissingInputError
 from eval.layout import LayoutError, read_json_object
 from eval.sweep import COLUMNS, RunRecord, Sweep, per_scene_rows
 from eval.tables_sweep import TABLE_SPECS
@@ -40,7 +41,7 @@ def find_points_folders(paths: list[str | Path]) -> list[Path]:
     found = []
     for p in map(Path, paths):
         if not p.exists():
-            raise FileNotFoundError(f"{p}: run folder not found")
+            raise MissingInputError(f"{p}: run folder not found")
         for s in p.rglob(SCORES_NAME):
             if s.is_file() and _is_points_scores(s):
                 found.append(s.parent)

@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
+from eval.errors import StatedError
 from eval.layout import read_json_object
 
 RECORD_NAME = "result.json"
@@ -24,7 +25,7 @@ TABLES = ("table1", "table2", "table3")
 REQUIRED_KEYS = ("format", "format_version", "status", "method", "ablation", "seed", "config_hash")
 
 
-class RecordError(ValueError):
+class RecordError(StatedError, ValueError):
     """A `result.json` does not follow the schema; the message names the file and the key."""
 
 

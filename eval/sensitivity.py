@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.errors import exit_on_stated_error
 from eval.evaluate import EXTRA_METRICS, METRICS, evaluate
 from eval.tables_render import write_text_atomic
 
@@ -163,6 +164,7 @@ def main() -> None:
     from eval.config import CONF_DIR
 
     @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_sensitivity")
+    @exit_on_stated_error
     def _main(cfg) -> None:
         run(cfg)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.errors import MissingInputError, StatedError
 from eval.layout import read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
@@ -32,7 +33,7 @@ COLUMNS = ["method", "ablation", "table", "seed", "scene", "measure", "channel",
 PREDICTION_DIRS = ("predictions", "pred")  # gspi-run writes predictions/; STYLE.md says pred/
 
 
-class SweepError(ValueError):
+class SweepError(StatedError, ValueError):
     """A run record or one of its evaluation files is malformed; the message names the file."""
 
 
@@ -138,7 +139,7 @@ def find_records(paths: list[str | Path]) -> tuple[list[Path], list[Path]]:
     records, hydra_dirs = set(), set()
     for p in map(Path, paths):
         if not p.exists():
-            raise FileNotFoundError(f"{p}: run folder not found")
+            raise MissingInputError(f"{p}: run folder not found")
         records |= {r for r in p.rglob(RECORD_NAME) if r.is_file()}
         hydra_dirs |= {h.parent for h in p.rglob(".hydra") if h.is_dir()}
     owners = hydra_dirs | {r.parent for r in records}

@@ -21,6 +21,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from eval.errors import exit_on_stated_error
+
 
 def is_sweep(paths: list[str | Path]) -> bool:
     """True when the folders hold gspi-run records, or Hydra job folders (even all killed) and
@@ -105,6 +107,7 @@ def main() -> None:
     sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
 
     @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_table")
+    @exit_on_stated_error
     def _main(cfg) -> None:
         run(cfg)
 

@@ -22,9 +22,15 @@ import typing
 from dataclasses import fields, is_dataclass
 from typing import Any, Mapping, Optional, TypeVar
 
+from eval.errors import StatedError
+
 T = TypeVar("T")
 _NAMES = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
 
+
+
+class ConfigError(StatedError, ValueError):
+    """A config value or key that is not allowed (the message names the dotted key)."""
 
 def _range_text(lo, hi) -> str:
     if lo is not None and hi is not None:
@@ -57,7 +63,7 @@ def check_value(key: str, value: Any, kind: type, *, lo: Optional[float] = None,
     if ok and lo is not None and value < lo or ok and hi is not None and value > hi:
         ok = False
     if not ok:
-        raise ValueError(f"{key}={value!r}: must be {allowed}")
+        raise ConfigError(f"{key}={value!r}: must be {allowed}")
     return value
 
 
@@ -85,11 +91,11 @@ def dataclass_from_dict(kind: type[T], values: Mapping[str, Any], where: str) ->
             a value of the wrong type or out of range (the message names the dotted key).
     """
     if not isinstance(values, Mapping):
-        raise ValueError(f"{where}: expected a mapping of keys, got {type(values).__name__}")
+        raise ConfigError(f"{where}: expected a mapping of keys, got {type(values).__name__}")
     known = {f.name: f for f in fields(kind)}
     unknown = sorted(set(values) - set(known))
     if unknown:
-        raise ValueError(f"unknown {where.split('.')[0]} config key(s) {[f'{where}.{k}' for k in unknown]}; "
+        raise ConfigError(f"unknown {where.split('.')[0]} config key(s) {[f'{where}.{k}' for k in unknown]}; "
                          f"allowed in {where}: {sorted(known)}")
     hints = typing.get_type_hints(kind)
     ranges, choices = getattr(kind, "RANGES", {}), getattr(kind, "CHOICES", {})

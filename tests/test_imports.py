@@ -20,7 +20,7 @@ STAGE = LOWER + ("gspi.stage_clock",)
 ALLOWED: dict[str, tuple[str, ...]] = {
     "eval": (),
     "gspi": (),  # gspi/__init__.py
-    "gspi.strict_config": (),
+    "gspi.strict_config": ("eval",),  # eval.errors: ConfigError is a stated error
     "gspi.device": ("eval",),  # device=auto|cpu|cuda (issue #16): re-exports eval.device
     "gspi.stage_clock": (),
     "gspi.data": ("eval", "gspi.strict_config"),

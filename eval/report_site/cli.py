@@ -14,6 +14,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from eval.errors import MissingInputError, exit_on_stated_error
+
 
 def run(cfg):
     """Build the report of `cfg.runs` into `cfg.out`; returns the Site."""
@@ -26,7 +28,7 @@ def run(cfg):
         raise ValueError("give run or sweep folders: gspi-report DIR [DIR ...] out=<dir>")
     missing = [r for r in runs if not Path(r).exists()]
     if missing:
-        raise FileNotFoundError(f"run folder(s) not found: {', '.join(missing)}")
+        raise MissingInputError(f"run folder(s) not found: {', '.join(missing)}")
     site = build_report(runs, cfg.out, data=cfg.gt, max_views=cfg.max_views,
                         thumb=int(cfg.thumb), quality=int(cfg.quality),
                         bootstrap=OmegaConf.to_container(cfg.bootstrap, resolve=True),
@@ -46,6 +48,7 @@ def main() -> None:
     sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
 
     @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_report")
+    @exit_on_stated_error
     def _main(cfg) -> None:
         run(cfg)
 

@@ -32,6 +32,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.errors import exit_on_stated_error
+
 log = logging.getLogger(__name__)
 PRESET_ALIAS = ("preset=", "data=")
 # Absolute: a relative "../../conf" resolves as the Python package `conf` when this module is
@@ -111,6 +113,7 @@ def run(cfg: DictConfig) -> dict:
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_data")
+@exit_on_stated_error
 def _hydra_main(cfg: DictConfig) -> None:
     result = run(cfg)
     if result.get("failed"):  # the good assets are written; the status says one failed

@@ -29,6 +29,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.errors import MissingInputError, exit_on_stated_error
+
 log = logging.getLogger(__name__)
 # Absolute: a relative config_path resolves as a Python package under console scripts.
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
@@ -63,7 +65,7 @@ def run(cfg: DictConfig) -> dict:
     s1 = Stage1Config.from_dict(OmegaConf.to_container(cfg.stage1, resolve=True))
     asset, out = Path(cfg.asset), Path(cfg.out)
     if not asset.is_file():
-        raise FileNotFoundError(f"{asset}: asset file not found (asset= takes a 2DGS .ply)")
+        raise MissingInputError(f"{asset}: asset file not found (asset= takes a 2DGS .ply)")
     gaussians = read_ply(asset)
     reference = ref_view = None
     scene_info = None
@@ -95,6 +97,7 @@ def run(cfg: DictConfig) -> dict:
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_extract")
+@exit_on_stated_error
 def main(cfg: DictConfig) -> None:
     run(cfg)
 

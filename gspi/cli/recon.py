@@ -27,6 +27,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.errors import exit_on_stated_error
+
 log = logging.getLogger(__name__)
 # Absolute: a relative config_path resolves as a Python package under console scripts.
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
@@ -123,6 +125,7 @@ def run(cfg: DictConfig) -> dict:
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_recon")
+@exit_on_stated_error
 def main(cfg: DictConfig) -> None:
     run(cfg)
 

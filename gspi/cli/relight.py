@@ -20,6 +20,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.errors import MissingInputError, exit_on_stated_error
+
 log = logging.getLogger(__name__)
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 SPINS = ("camera", "env")
@@ -84,7 +86,7 @@ def run(cfg: DictConfig) -> dict:
     torch.set_num_threads(int(cfg.threads))
     asset_path, out = Path(cfg.asset), Path(cfg.out)
     if not asset_path.is_file():
-        raise FileNotFoundError(f"{asset_path}: asset file not found (asset= takes GS-PI's pbr_gs.ply)")
+        raise MissingInputError(f"{asset_path}: asset file not found (asset= takes GS-PI's pbr_gs.ply)")
     asset = read_ply(asset_path)
     env_map = rotate_environment(load_environment(cfg.env, height=int(cfg.env_height)),
                                  float(cfg.env_rotation_deg))
@@ -119,6 +121,7 @@ def run(cfg: DictConfig) -> dict:
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_relight")
+@exit_on_stated_error
 def main(cfg: DictConfig) -> None:
     run(cfg)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.errors import exit_on_stated_error
 from gspi.cli.train import rewrite_data_alias
 
 log = logging.getLogger(__name__)
@@ -47,6 +48,7 @@ def is_multirun() -> bool:
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_run")
+@exit_on_stated_error
 def _hydra_main(cfg: DictConfig) -> None:
     from gspi.run.runner import run_job
 

@@ -39,13 +39,18 @@ log = logging.getLogger(__name__)
 
 def glb_sources(src: str | Path) -> dict[str, list[Path]]:
     """split -> asset files (see module docstring)."""
+    from eval.errors import MissingInputError
+    from gspi.data.gltf import GLTFError
+
+    if not str(src).strip():
+        raise GLTFError("import.glb is empty: give a .glb/.gltf file or a folder of them")
     src = Path(src)
     if src.is_file():
         if src.suffix.lower() not in EXTENSIONS:
-            raise ValueError(f"{src}: not a .glb or .gltf file")
+            raise GLTFError(f"{src}: not a .glb or .gltf file")
         return {"test": [src]}
     if not src.is_dir():
-        raise FileNotFoundError(f"{src}: no such file or folder")
+        raise MissingInputError(f"{src}: no such file or folder (import.glb)")
 
     def assets(folder: Path) -> list[Path]:  # sub-folders too: a .gltf sits beside its textures
         return sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in EXTENSIONS)
@@ -56,11 +61,11 @@ def glb_sources(src: str | Path) -> dict[str, list[Path]]:
         out = {"test": assets(src)}
     files = [p for ps in out.values() for p in ps]
     if not files:
-        raise FileNotFoundError(f"{src}: no .glb/.gltf files (flat or in train/val/test/)")
+        raise MissingInputError(f"{src}: no .glb/.gltf files (in it, its sub-folders or train/val/test/)")
     stems = [p.stem for p in files]
     dup = sorted({s for s in stems if stems.count(s) > 1})
     if dup:
-        raise ValueError(f"{src}: several assets share the scene names {dup}")
+        raise GLTFError(f"{src}: several assets share the scene names {dup}")
     return out
 
 

@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.errors import StatedError
+
 log = logging.getLogger(__name__)
 
 GLB_MAGIC = b"glTF"
@@ -52,7 +54,7 @@ DRACO = "KHR_draco_mesh_compression"  # decoded with DracoPy (the package's bunn
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
-class GLTFError(ValueError):
+class GLTFError(StatedError, ValueError):
     """A glTF file is malformed, truncated or uses something this reader cannot honour."""
 
 

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement, PlyParseError
 
+from eval.errors import StatedError
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.sh import MAX_SH_DEGREE, num_sh_bases
 
@@ -52,7 +53,7 @@ PBR_COMMENTS = (
 )
 
 
-class PlyFormatError(ValueError):
+class PlyFormatError(StatedError, ValueError):
     """A file is not a valid 2DGS point_cloud.ply; the message names file and problem."""
 
     def __init__(self, path: PathLike, problem: str) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from eval.atomic import atomic_path
+from eval.errors import StatedError
 from eval.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file, write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import read_ply, write_ply
@@ -27,7 +28,7 @@ from gspi.run.record import config_hash
 log = logging.getLogger(__name__)
 
 
-class AssetError(FileNotFoundError):
+class AssetError(StatedError, FileNotFoundError):
     """The asset a run was given cannot be found or read, or does not cover its scene."""
 
 

@@ -18,13 +18,14 @@ from typing import Any
 import torch
 
 from eval.atomic import atomic_path
+from eval.errors import StatedError
 from gspi.stage2.model import RCWConfig, RCWDenoiser
 
 CHECKPOINT_FORMAT = "gspi-stage2"
 CHECKPOINT_VERSION = 1
 
 
-class CheckpointError(ValueError):
+class CheckpointError(StatedError, ValueError):
     """A Stage II checkpoint is missing, unreadable or incompatible (the message names the file)."""
 
 

@@ -1,0 +1,44 @@
+"""Stated errors: failures whose message already says what is wrong and where (a bad key, a
+bad file, ``device=cuda`` without CUDA, an unsupported glTF feature).
+
+Every project error class derives from ``StatedError`` (beside its usual base, e.g.
+``ValueError``, so callers that catch those keep working). A CLI's task function is wrapped in
+``exit_on_stated_error``: a stated error prints ONE line, ``<program>: error: <message>``, on
+stderr and exits with status 2, with no traceback; any other exception is a bug and keeps its
+traceback.
+"""
+from __future__ import annotations
+
+import functools
+import sys
+from pathlib import Path
+from typing import Callable, TypeVar
+
+EXIT_STATED = 2
+F = TypeVar("F", bound=Callable)
+
+
+class StatedError(Exception):
+    """An error whose message names the key or file and the problem: shown as one line."""
+
+
+class MissingInputError(StatedError, FileNotFoundError):
+    """An input file or folder named on the command line does not exist."""
+
+
+def one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def exit_on_stated_error(task: F) -> F:
+    """Wraps a CLI task function (under ``@hydra.main``): stated errors -> one line, exit 2."""
+
+    @functools.wraps(task)
+    def wrapped(*args, **kwargs):
+        try:
+            return task(*args, **kwargs)
+        except StatedError as exc:
+            print(f"{Path(sys.argv[0]).name}: error: {one_line(exc)}", file=sys.stderr)
+            sys.exit(EXIT_STATED)
+
+    return wrapped  # type: ignore[return-value]
