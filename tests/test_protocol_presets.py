@@ -216,3 +216,19 @@ class TestPaper:
                 for t in (a, b))
         with torch.no_grad():
             assert row["lpips"] == pytest.approx(float(vgg(x, y)), abs=1e-7)
+
+
+def test_protocol_dataclass_equals_default_yaml():
+    """ProtocolConfig() (what code that builds a protocol gets) is conf/eval/default.yaml,
+    key for key: the yaml is read as plain data, without the dataclass as its schema."""
+    import dataclasses
+
+    import yaml
+
+    from eval.config import ProtocolConfig
+
+    from pathlib import Path
+
+    own = yaml.safe_load((Path(CONF_DIR) / "eval" / "default.yaml").read_text())
+    own.pop("defaults")
+    assert own == dataclasses.asdict(ProtocolConfig())

@@ -22,9 +22,11 @@ def test_default_yaml_equals_the_dataclass_defaults():
     assert composed() == complete_stage2({})
 
 
-@pytest.mark.parametrize("overrides", [["stage2=cpu_small"], ["stage2=tiny"], ["stage2=cpu_pool"], ["stage2=capacity_l"],
-                                       ["ablation=a1_no_global_prior"], ["ablation=a5_multiview_injection"],
-                                       ["ablation=a4_npts_1024_nlat_384"]])
+SHIPPED = sorted([[f"stage2={p.stem}"] for p in (ROOT / "conf" / "stage2").glob("*.yaml")]
+                 + [[f"ablation={p.stem}"] for p in (ROOT / "conf" / "ablation").glob("a[1-5]_*.yaml")])
+
+
+@pytest.mark.parametrize("overrides", SHIPPED, ids=lambda o: o[0])
 def test_every_shipped_stage2_config_is_complete_and_valid(overrides):
     node = composed(*overrides)
     assert complete_stage2(node) == node  # nothing missing, nothing unknown

@@ -65,9 +65,18 @@ def test_ablation_configs_change_one_thing(ablation):
 
 
 def test_stage2_presets_compose():
+    import yaml
+
     for preset in ("default", "tiny", "cpu_small"):
         cfg = compose_cfg(["data_dir=d", "out=o", f"stage2={preset}"])
-        assert cfg.stage2.data.num_points > 0 and cfg.stage2.prior.encoder == "alexnet"
+        own = yaml.safe_load((Path(CONF_DIR) / "stage2" / f"{preset}.yaml").read_text())
+        # the preset's own values win over what it inherits (content, not just presence)
+        for section in ("data", "train"):
+            for key, value in (own.get(section) or {}).items():
+                assert cfg.stage2[section][key] == value, (preset, section, key)
+        assert cfg.stage2.prior.encoder == "alexnet"
+    assert compose_cfg(["data_dir=d", "out=o", "stage2=tiny"]).stage2.data.num_points != \
+        compose_cfg(["data_dir=d", "out=o", "stage2=default"]).stage2.data.num_points
     assert rewrite_data_alias(["data=/x", "out=o", "stage2.data.num_points=3"]) == \
         ["data_dir=/x", "out=o", "stage2.data.num_points=3"]
 

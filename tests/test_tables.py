@@ -81,8 +81,15 @@ def test_mixed_protocols_are_refused(tmp_path):
 def test_run_writes_three_formats(runs, tmp_path):
     cfg = OmegaConf.create({"runs": [str(runs)], "out": str(tmp_path / "tables")})
     run(cfg)
-    for suffix in ("md", "tex", "csv"):
-        assert (tmp_path / "tables" / f"table1.{suffix}").stat().st_size > 0
+    import pandas as pd
+
+    md, tex = ((tmp_path / "tables" / f"table1.{s}").read_text() for s in ("md", "tex"))
+    csv = pd.read_csv(tmp_path / "tables" / "table1.csv")
+    assert list(csv["label"]) == ["A", "B", "C"]
+    assert any(c.startswith("psnr/albedo") for c in csv.columns)
+    assert md.count("\n|") >= 2 and "\\begin{tabular}" in tex
+    for label in csv["label"]:  # every row of the csv is in the md and tex tables
+        assert f"| {label} |" in md and f"{label} &" in tex
 
 
 def test_positional_dirs_become_runs_override():
