@@ -253,3 +253,106 @@ def test_folder_import_recurses_skips_a_bad_file_and_keeps_the_rest(tmp_path):
     b = read_scene(tmp_path / "second" / "out" / "quad_sub")
     assert (a.capture_env, a.relight_envs) == (b.capture_env, b.relight_envs)
     np.testing.assert_array_equal(a.views["test"][0].w2c, b.views["test"][0].w2c)
+
+
+def _png(blocks: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    Image.fromarray(_blocky(blocks)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _feature_quad(path, *, texinfo=None, sampler=None, colors=None, uv=None, uv1=None) -> Path:
+    """A 2x2 quad (glTF x-y plane, facing +z) with BLOCKS as its base colour texture; UV (0, 0)
+    at its top-left corner (glTF convention), optional COLOR_0, TEXCOORD_1, sampler, texture info."""
+    pos = np.array([[-1, 1, 0], [1, 1, 0], [-1, -1, 0], [1, -1, 0]], np.float32)
+    uv = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float32) if uv is None else np.asarray(uv, np.float32)
+    idx = np.array([0, 2, 1, 1, 2, 3], np.uint16)
+    arrays = [("VEC3", 5126, pos), ("VEC2", 5126, uv), ("SCALAR", 5123, idx)]
+    attrs = {"POSITION": 0, "TEXCOORD_0": 1}
+    if colors is not None:
+        attrs["COLOR_0"] = len(arrays)
+        arrays.append(("VEC3", 5126, np.asarray(colors, np.float32)))
+    if uv1 is not None:
+        attrs["TEXCOORD_1"] = len(arrays)
+        arrays.append(("VEC2", 5126, np.asarray(uv1, np.float32)))
+    blob, views, accessors = b"", [], []
+    for k, (kind, comp, arr) in enumerate(arrays):
+        data = arr.tobytes()
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
+        accessors.append({"bufferView": k, "componentType": comp, "count": len(arr), "type": kind})
+        blob += data + b"\0" * (-len(data) % 4)
+    png = _png(BLOCKS)
+    views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(png)})
+    blob += png
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "buffers": [{"byteLength": len(blob)}], "bufferViews": views, "accessors": accessors,
+           "images": [{"bufferView": len(views) - 1, "mimeType": "image/png"}],
+           "textures": [{"source": 0, **({"sampler": 0} if sampler else {})}],
+           "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0, **(texinfo or {})},
+                                                   "metallicFactor": 0.0}}],
+           "meshes": [{"primitives": [{"attributes": attrs, "indices": 2, "material": 0}]}]}
+    if sampler:
+        doc["samplers"] = [sampler]
+    if texinfo and "extensions" in texinfo:
+        doc["extensionsUsed"] = ["KHR_texture_transform"]
+        doc["extensionsRequired"] = ["KHR_texture_transform"]
+    path.write_bytes(_glb(doc, blob))
+    return path
+
+
+def _block_colours(path) -> dict:
+    """Rendered sRGB albedo at the centres of the quad's four blocks, keyed like BLOCKS."""
+    r = front_view(unit_frame_mesh(read_gltf(path)))
+    return {(bi, bj): r.albedo_srgb[y, x] for (bi, bj), (y, x) in
+            {(0, 0): (11, 11), (0, 1): (11, 20), (1, 0): (20, 11), (1, 1): (20, 20)}.items()}
+
+
+def test_texture_transform_offset_rotation_scale_and_texcoord(tmp_path):
+    """KHR_texture_transform (required): the fail mark of not honouring it is the untransformed
+    texture, so each case asserts on the block that lands where."""
+    plain = _block_colours(_feature_quad(tmp_path / "plain.glb"))
+    for (bi, bj), got in plain.items():
+        np.testing.assert_allclose(got, BLOCKS[bi, bj] / 255, atol=1e-5)
+    ext = lambda **t: {"extensions": {"KHR_texture_transform": t}}  # noqa: E731
+    shifted = _block_colours(_feature_quad(tmp_path / "shift.glb", texinfo=ext(offset=[0.5, 0.0])))
+    for (bi, bj), got in shifted.items():       # u + 0.5 (REPEAT): left and right swap
+        np.testing.assert_allclose(got, BLOCKS[bi, 1 - bj] / 255, atol=1e-5)
+    flipped = _block_colours(_feature_quad(tmp_path / "flip.glb", texinfo=ext(scale=[-1.0, 1.0])))
+    for (bi, bj), got in flipped.items():       # u -> -u (REPEAT): mirrored left-right
+        np.testing.assert_allclose(got, BLOCKS[bi, 1 - bj] / 255, atol=1e-5)
+    turned = _block_colours(_feature_quad(tmp_path / "rot.glb", texinfo=ext(rotation=np.pi / 2)))
+    for (bi, bj), got in turned.items():        # (u, v) -> (v, -u): a quarter turn
+        np.testing.assert_allclose(got, BLOCKS[1 - bj, bi] / 255, atol=1e-5)
+    uv1 = [[1, 0], [0, 0], [1, 1], [0, 1]]      # TEXCOORD_1 mirrored left-right, selected by the extension
+    by_set = _block_colours(_feature_quad(tmp_path / "uv1.glb", uv1=uv1, texinfo=ext(texCoord=1)))
+    for (bi, bj), got in by_set.items():
+        np.testing.assert_allclose(got, BLOCKS[bi, 1 - bj] / 255, atol=1e-5)
+    asset = read_gltf(tmp_path / "rot.glb")
+    assert not any("KHR_texture_transform" in s for s in asset.ignored)
+
+
+def test_vertex_colours_multiply_the_base_colour(tmp_path):
+    colours = [[0.5, 0.5, 0.5]] * 4
+    got = _block_colours(_feature_quad(tmp_path / "col.glb", colors=colours))
+    for (bi, bj), value in got.items():
+        lin = 0.5 * srgb_to_linear(torch.tensor(BLOCKS[bi, bj] / 255.0)).numpy()
+        np.testing.assert_allclose(value, linear_to_srgb(torch.tensor(lin)).numpy(), atol=1e-5)
+
+
+def test_sampler_wrap_modes(tmp_path):
+    """UVs 0..2 over the quad (covering pixels ~[6.9, 25.1)): at pixel columns 9, 18, 23 u is
+    ~0.29, 1.27, 1.82. REPEAT reads block columns 0, 0, 1; CLAMP_TO_EDGE 0, 1, 1 (the last
+    texels stretched); MIRRORED_REPEAT 0, 1, 0 (the second tile mirrored)."""
+    from gspi.data.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT
+
+    uv = [[0, 0], [2, 0], [0, 1], [2, 1]]
+    want = {None: (0, 0, 1), CLAMP_TO_EDGE: (0, 1, 1), MIRRORED_REPEAT: (0, 1, 0)}
+    for mode, columns in want.items():
+        sampler = None if mode is None else {"wrapS": mode}
+        r = front_view(unit_frame_mesh(read_gltf(_feature_quad(tmp_path / f"w{mode}.glb", uv=uv, sampler=sampler))))
+        for x, bj in zip((9, 18, 23), columns):
+            for y, bi in ((11, 0), (20, 1)):
+                np.testing.assert_allclose(r.albedo_srgb[y, x], BLOCKS[bi, bj] / 255, atol=1e-5,
+                                           err_msg=f"wrapS={mode} pixel ({y}, {x})")

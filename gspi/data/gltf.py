@@ -51,11 +51,39 @@ COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 51
 NORMALISED = {np.int8: 127.0, np.uint8: 255.0, np.int16: 32767.0, np.uint16: 65535.0}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 DRACO = "KHR_draco_mesh_compression"  # decoded with DracoPy (the package's bunny and suzi)
+TEXTURE_TRANSFORM = "KHR_texture_transform"
+SUPPORTED_EXTENSIONS = (DRACO, TEXTURE_TRANSFORM)
+REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648  # sampler wrapS / wrapT
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
 class GLTFError(StatedError, ValueError):
     """A glTF file is malformed, truncated or uses something this reader cannot honour."""
+
+
+@dataclass(frozen=True)
+class TextureSampling:
+    """How a material texture is looked up: which UV set (``texCoord``), the
+    KHR_texture_transform matrix (uv' = M [u, v, 1], M = T R S; identity without it) and the
+    sampler's wrap modes (glTF enums; REPEAT by default)."""
+
+    texcoord: int = 0
+    matrix: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))  # the top 2 x 3 of M
+    wrap_s: int = REPEAT
+    wrap_t: int = REPEAT
+
+    def apply(self, uv: np.ndarray) -> np.ndarray:
+        m = np.asarray(self.matrix, dtype=np.float64)
+        return uv @ m[:, :2].T + m[:, 2]
+
+
+def texture_transform_matrix(ext: dict) -> tuple:
+    """KHR_texture_transform's ``offset``, ``rotation`` (radians), ``scale`` -> (T R S)[:2]."""
+    (ox, oy), rot, (sx, sy) = ext.get("offset", [0, 0]), float(ext.get("rotation", 0.0)), ext.get("scale", [1, 1])
+    c, s = np.cos(rot), np.sin(rot)
+    m = np.array([[1, 0, ox], [0, 1, oy], [0, 0, 1]]) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) \
+        @ np.diag([sx, sy, 1.0])
+    return tuple(map(tuple, m[:2].tolist()))
 
 
 @dataclass
@@ -69,6 +97,8 @@ class Material:
     base_color_texture: np.ndarray | None = None
     metallic_roughness_texture: np.ndarray | None = None
     name: str = ""
+    base_color_sampling: TextureSampling = field(default_factory=TextureSampling)
+    metallic_roughness_sampling: TextureSampling = field(default_factory=TextureSampling)
 
 
 @dataclass
@@ -81,6 +111,8 @@ class Primitive:
     normals: np.ndarray | None
     uv: np.ndarray | None
     material: Material
+    uv1: np.ndarray | None = None      # TEXCOORD_1 [V, 2]
+    color: np.ndarray | None = None    # COLOR_0 RGB [V, 3], linear (multiplies the base colour)
 
 
 @dataclass
@@ -237,7 +269,22 @@ def _node_matrix(node: dict) -> np.ndarray:
     return m
 
 
-def _material(r: _Reader, index: int | None, has_uv: bool, ignored: list[str]) -> Material:
+def _texcoord(info: dict) -> int:
+    """The UV set a texture info reads (KHR_texture_transform's ``texCoord`` overrides)."""
+    ext = info.get("extensions", {}).get(TEXTURE_TRANSFORM, {})
+    return int(ext.get("texCoord", info.get("texCoord", 0)))
+
+
+def _sampling(r: _Reader, info: dict) -> TextureSampling:
+    tex = r._get("textures", int(info["index"]))
+    sampler = r._get("samplers", int(tex["sampler"])) if "sampler" in tex else {}
+    ext = info.get("extensions", {}).get(TEXTURE_TRANSFORM)
+    matrix = TextureSampling().matrix if ext is None else texture_transform_matrix(ext)
+    return TextureSampling(texcoord=_texcoord(info), matrix=matrix, wrap_s=int(sampler.get("wrapS", REPEAT)),
+                           wrap_t=int(sampler.get("wrapT", REPEAT)))
+
+
+def _material(r: _Reader, index: int | None, uv_sets: frozenset, ignored: list[str]) -> Material:
     if index is None:
         ignored.append("primitive without material: glTF default material")
         return Material()
@@ -253,14 +300,16 @@ def _material(r: _Reader, index: int | None, has_uv: bool, ignored: list[str]) -
     out = Material(base_color=np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), float)[:3],
                    roughness=float(pbr.get("roughnessFactor", 1.0)),
                    metallic=float(pbr.get("metallicFactor", 1.0)), name=name)
-    for key, attr in (("baseColorTexture", "base_color_texture"),
-                      ("metallicRoughnessTexture", "metallic_roughness_texture")):
+    for key, attr in (("baseColorTexture", "base_color"),
+                      ("metallicRoughnessTexture", "metallic_roughness")):
         if key not in pbr:
             continue
-        if pbr[key].get("texCoord", 0) != 0 or not has_uv:
-            ignored.append(f"{name}: {key} without TEXCOORD_0, factor only")
+        if _texcoord(pbr[key]) not in uv_sets:
+            ignored.append(f"{name}: {key} without TEXCOORD_{_texcoord(pbr[key])}, factor only")
             continue
-        setattr(out, attr, r.image(int(pbr[key]["index"])))
+        sampling = _sampling(r, pbr[key])
+        setattr(out, f"{attr}_texture", r.image(int(pbr[key]["index"])))
+        setattr(out, f"{attr}_sampling", sampling)
     return out
 
 
@@ -292,10 +341,10 @@ def read_gltf(path: str | Path) -> Asset:
     if not path.is_file():
         raise GLTFError(f"{path}: file not found")
     r = _Reader(path)
-    required = [e for e in r.gltf.get("extensionsRequired", []) if e != DRACO]
+    required = [e for e in r.gltf.get("extensionsRequired", []) if e not in SUPPORTED_EXTENSIONS]
     if required:
         raise r.fail(f"requires glTF extensions {required}, which this reader cannot honour")
-    ignored = [f"extension {e}" for e in r.gltf.get("extensionsUsed", []) if e != DRACO]
+    ignored = [f"extension {e}" for e in r.gltf.get("extensionsUsed", []) if e not in SUPPORTED_EXTENSIONS]
     scenes = r.gltf.get("scenes", [])
     roots = (scenes[int(r.gltf.get("scene", 0))]["nodes"] if scenes else
              list(range(len(r.gltf.get("nodes", [])))))
@@ -319,7 +368,7 @@ def read_gltf(path: str | Path) -> Asset:
                     pos, faces = data["POSITION"], data["indices"]
                 else:
                     data = {k: r.accessor(int(v)) for k, v in attrs.items()
-                            if k in ("NORMAL", "TEXCOORD_0")}
+                            if k in ("NORMAL", "TEXCOORD_0", "TEXCOORD_1", "COLOR_0")}
                     pos = r.accessor(int(attrs["POSITION"]))
                     faces = (r.accessor(int(p["indices"])).reshape(-1, 3) if "indices" in p
                              else np.arange(len(pos)).reshape(-1, 3))
@@ -334,13 +383,15 @@ def read_gltf(path: str | Path) -> Asset:
                 if "NORMAL" in data:
                     n = data["NORMAL"] @ np.linalg.inv(lin)  # rows of (L^-T n)
                     n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-                uv = data.get("TEXCOORD_0")
+                uv, uv1 = data.get("TEXCOORD_0"), data.get("TEXCOORD_1")
+                color = None if data.get("COLOR_0") is None else np.asarray(data["COLOR_0"], np.float64)[:, :3]
                 if np.linalg.det(lin) < 0:  # mirrored node: keep counter-clockwise faces
                     faces = faces[:, ::-1]
-                key = (p.get("material"), uv is not None)
+                uv_sets = frozenset(k for k, a in ((0, uv), (1, uv1)) if a is not None)
+                key = (p.get("material"), uv_sets)
                 if key not in materials:
-                    materials[key] = _material(r, p.get("material"), uv is not None, ignored)
-                prims.append(Primitive(v, faces.astype(np.int64), n, uv, materials[key]))
+                    materials[key] = _material(r, p.get("material"), uv_sets, ignored)
+                prims.append(Primitive(v, faces.astype(np.int64), n, uv, materials[key], uv1=uv1, color=color))
     except (KeyError, IndexError, TypeError) as e:
         raise r.fail(f"malformed glTF ({type(e).__name__}: {e})") from e
     if not prims:

@@ -19,7 +19,7 @@ from eval.relight import split_sum
 from eval.views import pixel_rays
 # `_aggregate` is render_view's per-pixel reduction; reused so both renderers reduce alike.
 from gspi.data.render_view import ViewRender, _aggregate, subpixel_rays
-from gspi.data.gltf import Asset, Material
+from gspi.data.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Asset, Material
 
 
 @dataclass
@@ -38,6 +38,8 @@ class PBRMesh:
     materials: list[Material]
     center: np.ndarray
     scale: float
+    uv1: np.ndarray | None = None    # [V, 2] TEXCOORD_1 (zeros where absent), None if no primitive has it
+    color: np.ndarray | None = None  # [V, 3] COLOR_0 (ones where absent), None if no primitive has it
 
     def trimesh(self):
         import trimesh
@@ -48,7 +50,7 @@ class PBRMesh:
 def unit_frame_mesh(asset: Asset, radius: float = 1.0) -> PBRMesh:
     """Concatenate the primitives; centre the bounding box at the origin, farthest vertex at
     `radius` (the benchmark's unit sphere)."""
-    verts, faces, normals, uvs, fmat, mats = [], [], [], [], [], []
+    verts, faces, normals, uvs, uv1s, colors, fmat, mats = [], [], [], [], [], [], [], []
     offset = 0
     for prim in asset.primitives:
         if all(m is not prim.material for m in mats):
@@ -59,24 +61,42 @@ def unit_frame_mesh(asset: Asset, radius: float = 1.0) -> PBRMesh:
         faces.append(prim.faces + offset)
         normals.append(prim.normals if prim.normals is not None else np.zeros((nv, 3)))
         uvs.append(prim.uv if prim.uv is not None else np.zeros((nv, 2)))
+        uv1s.append(prim.uv1 if prim.uv1 is not None else np.zeros((nv, 2)))
+        colors.append(prim.color if prim.color is not None else np.ones((nv, 3)))
         fmat.append(np.full(len(prim.faces), k))
         offset += nv
     v = np.concatenate(verts)
     center = 0.5 * (v.min(0) + v.max(0))
     scale = radius / max(float(np.linalg.norm(v - center, axis=-1).max()), 1e-12)
+    has_uv1 = any(p.uv1 is not None for p in asset.primitives)
+    has_color = any(p.color is not None for p in asset.primitives)
     return PBRMesh((v - center) * scale, np.concatenate(faces), np.concatenate(normals),
-                   np.concatenate(uvs), np.concatenate(fmat), mats, center, scale)
+                   np.concatenate(uvs), np.concatenate(fmat), mats, center, scale,
+                   uv1=np.concatenate(uv1s) if has_uv1 else None,
+                   color=np.concatenate(colors) if has_color else None)
 
 
-def sample_texture(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear REPEAT lookup, glTF texel convention: pixel (x, y) = (u W - 0.5, v H - 0.5)."""
+def wrap_index(i: np.ndarray, n: int, mode: int) -> np.ndarray:
+    """Texel indices wrapped as a glTF sampler says: REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT."""
+    if mode == CLAMP_TO_EDGE:
+        return np.clip(i, 0, n - 1)
+    if mode == MIRRORED_REPEAT:
+        k = np.mod(i, 2 * n)
+        return np.where(k < n, k, 2 * n - 1 - k)
+    return np.mod(i, n)
+
+
+def sample_texture(tex: np.ndarray, uv: np.ndarray, wrap: tuple[int, int] = (REPEAT, REPEAT)) -> np.ndarray:
+    """Bilinear lookup, glTF texel convention: pixel (x, y) = (u W - 0.5, v H - 0.5); texels
+    outside the image wrapped by ``wrap`` = (wrapS, wrapT) (REPEAT by default)."""
     h, w = tex.shape[:2]
     x = uv[:, 0] * w - 0.5
     y = uv[:, 1] * h - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    xs, ys = (np.mod(x0, w), np.mod(x0 + 1, w)), (np.mod(y0, h), np.mod(y0 + 1, h))
+    xs = (wrap_index(x0, w, wrap[0]), wrap_index(x0 + 1, w, wrap[0]))
+    ys = (wrap_index(y0, h, wrap[1]), wrap_index(y0 + 1, h, wrap[1]))
     top = tex[ys[0], xs[0]] * (1 - fx) + tex[ys[0], xs[1]] * fx
     bot = tex[ys[1], xs[0]] * (1 - fx) + tex[ys[1], xs[1]] * fx
     return top * (1 - fy) + bot * fy
@@ -86,18 +106,31 @@ def evaluate_materials(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray):
     """(albedo linear [N, 3], roughness [N], metallic [N]) at hits (triangle, barycentrics)."""
     n = len(tri)
     albedo, rough, metal = np.zeros((n, 3)), np.zeros(n), np.zeros(n)
-    uv = np.einsum("nk,nkc->nc", bary, mesh.uv[mesh.faces[tri]])
+    def interpolate(attr: np.ndarray) -> np.ndarray:
+        return np.einsum("nk,nkc->nc", bary, attr[mesh.faces[tri]])
+
+    uv_sets = {0: interpolate(mesh.uv)}
+    if mesh.uv1 is not None:
+        uv_sets[1] = interpolate(mesh.uv1)
+    color = None if mesh.color is None else interpolate(mesh.color)
+
+    def lookup(tex: np.ndarray, sampling, sel: np.ndarray) -> np.ndarray:
+        uv = sampling.apply(uv_sets[sampling.texcoord][sel])  # KHR_texture_transform, TEXCOORD_n
+        return sample_texture(tex, uv, (sampling.wrap_s, sampling.wrap_t))
+
     for k, mat in enumerate(mesh.materials):
         sel = mesh.face_material[tri] == k
         if not sel.any():
             continue
         a = np.broadcast_to(mat.base_color, (int(sel.sum()), 3)).copy()
         if mat.base_color_texture is not None:
-            srgb = sample_texture(mat.base_color_texture, uv[sel])
+            srgb = lookup(mat.base_color_texture, mat.base_color_sampling, sel)
             a *= srgb_to_linear(torch.from_numpy(srgb)).numpy()
+        if color is not None:  # base colour = factor x texture x COLOR_0 (glTF 2.0, 3.9.2)
+            a *= color[sel]
         r, m = np.full(int(sel.sum()), mat.roughness), np.full(int(sel.sum()), mat.metallic)
         if mat.metallic_roughness_texture is not None:
-            mr = sample_texture(mat.metallic_roughness_texture, uv[sel])
+            mr = lookup(mat.metallic_roughness_texture, mat.metallic_roughness_sampling, sel)
             r, m = r * mr[:, 1], m * mr[:, 2]
         albedo[sel], rough[sel], metal[sel] = a, r, m
     return np.clip(albedo, 0, 1), np.clip(rough, 0, 1), np.clip(metal, 0, 1)
