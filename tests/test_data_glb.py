@@ -140,6 +140,13 @@ def test_bad_glb_inputs(tmp_path):
     m = asset.primitives[0].material
     assert m.base_color_texture is None and np.allclose(m.base_color, [0.2, 0.4, 0.6])
     assert "extension KHR_materials_transmission" in asset.ignored
+    assert "materials[0]: single-sided, back faces not culled" in asset.ignored
+
+    doc["materials"][0].update(alphaMode="MASK", doubleSided=True)
+    (tmp_path / "mask.glb").write_bytes(_glb(doc, pos))
+    ignored = read_gltf(tmp_path / "mask.glb").ignored
+    assert "materials[0]: alphaMode MASK drawn opaque" in ignored
+    assert not any("single-sided" in s for s in ignored)
     assert any("without TEXCOORD_0" in s for s in asset.ignored)
 
     doc, pos = _triangle_doc(extensionsRequired=["EXT_meshopt_compression"])

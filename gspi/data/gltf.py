@@ -293,6 +293,10 @@ def _material(r: _Reader, index: int | None, uv_sets: frozenset, ignored: list[s
     for key in ("normalTexture", "occlusionTexture", "emissiveTexture"):
         if key in mat:
             ignored.append(f"{name}: {key}")
+    if mat.get("alphaMode", "OPAQUE") != "OPAQUE":  # cut-outs and blending are not drawn (yet)
+        ignored.append(f"{name}: alphaMode {mat['alphaMode']} drawn opaque")
+    if not mat.get("doubleSided", False):
+        ignored.append(f"{name}: single-sided, back faces not culled")
     pbr = mat.get("pbrMetallicRoughness")
     if pbr is None:
         ignored.append(f"{name}: no pbrMetallicRoughness, glTF defaults")
