@@ -23,6 +23,15 @@ CASES = {
     "gspi-report": (["gspi-report", "{tmp}/no_runs", "out={tmp}/rp"], "run folder(s) not found"),
     "gspi-run bad key": (["gspi-run", "data={tmp}/d", "out={tmp}/o", "scene_workers=0"], "scene_workers"),
 }
+# Path keys with characters Hydra's grammar does not take unquoted (eval.argv): the message must
+# carry the whole path, so the CLI quoted it (unquoted, Hydra refuses the override itself).
+ODD = "{tmp}/a=b,c d"
+CASES.update({
+    "gspi-extract odd path": (["gspi-extract", f"asset={ODD}/none.ply", "out={tmp}/x"], "a=b,c d/none.ply"),
+    "gspi-relight odd path": (["gspi-relight", f"asset={ODD}/none.ply", "env=meadow", "out={tmp}/r"],
+                              "a=b,c d/none.ply"),
+    "gspi-recon odd path": (["gspi-recon", f"scene={ODD}/scene", "out={tmp}/rc"], "a=b,c d/scene"),
+})
 if not torch.cuda.is_available():
     CASES["gspi-run device=cuda"] = (["gspi-run", "data={tmp}/d", "out={tmp}/o", "device=cuda"],
                                      "device=cuda: CUDA is not available")

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from gspi.cli.extract import CONF_DIR, run
+from eval.config import CONF_DIR
+from gspi.cli.extract import run
 from gspi.gaussians.ply import write_ply
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import maybe_subsample

@@ -32,13 +32,11 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.config import CONF_DIR  # the one config directory
 from eval.errors import exit_on_stated_error
 
 log = logging.getLogger(__name__)
 PRESET_ALIAS = ("preset=", "data=")
-# Absolute: a relative "../../conf" resolves as the Python package `conf` when this module is
-# imported by the console script (Hydra: "Primary config module 'conf' not found").
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def benchmark_config(cfg: DictConfig):

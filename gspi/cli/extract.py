@@ -26,14 +26,13 @@ import logging
 import time
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.errors import MissingInputError, exit_on_stated_error
+from eval.cli_entry import hydra_cli
+from eval.errors import MissingInputError
 
 log = logging.getLogger(__name__)
 # Absolute: a relative config_path resolves as a Python package under console scripts.
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def read_reference(scene_dir: Path):
@@ -96,10 +95,7 @@ def run(cfg: DictConfig) -> dict:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_extract")
-@exit_on_stated_error
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+main = hydra_cli(run, "gspi_extract", path_keys=("asset", "out", "scene"))  # paths quoted, stated errors as one line
 
 
 if __name__ == "__main__":

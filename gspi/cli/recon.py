@@ -24,14 +24,12 @@ import os
 import time
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.errors import exit_on_stated_error
+from eval.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 # Absolute: a relative config_path resolves as a Python package under console scripts.
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def _finite(obj):
@@ -124,10 +122,7 @@ def run(cfg: DictConfig) -> dict:
     return summary
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_recon")
-@exit_on_stated_error
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+main = hydra_cli(run, "gspi_recon", path_keys=("scene", "out"))  # paths quoted, stated errors as one line
 
 
 if __name__ == "__main__":

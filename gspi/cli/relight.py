@@ -17,13 +17,12 @@ import logging
 import time
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.errors import MissingInputError, exit_on_stated_error
+from eval.cli_entry import hydra_cli
+from eval.errors import MissingInputError
 
 log = logging.getLogger(__name__)
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 SPINS = ("camera", "env")
 ANIMATIONS = ("webp", "none")
 
@@ -120,10 +119,7 @@ def run(cfg: DictConfig) -> dict:
     return record
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_relight")
-@exit_on_stated_error
-def main(cfg: DictConfig) -> None:
-    run(cfg)
+main = hydra_cli(run, "gspi_relight", path_keys=("asset", "env", "out"))  # paths quoted, stated errors as one line
 
 
 if __name__ == "__main__":

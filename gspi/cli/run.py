@@ -16,18 +16,17 @@ from __future__ import annotations
 
 import logging
 import sys
-from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.config import CONF_DIR  # the one config directory
 from eval.errors import exit_on_stated_error
 from gspi.cli.train import rewrite_data_alias
 
 log = logging.getLogger(__name__)
 # Quoted for Hydra's grammar when they hold = , ' spaces or non-ASCII (eval/argv.py).
 PATH_KEYS = ("data_dir", "out", "assets", "cache_dir")
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 def resolved_config(cfg: DictConfig) -> dict:

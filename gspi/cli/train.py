@@ -24,11 +24,10 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from eval.config import CONF_DIR  # the one config directory
 from eval.errors import exit_on_stated_error
 
 log = logging.getLogger(__name__)
-# Absolute: a relative config_path resolves as a Python package under console scripts.
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 # `data=<dir>` is an alias of the key `data_dir=<dir>`: conf/data/ is a config group (dataset
 # presets), so Hydra would read `data=...` as a group override. `main` rewrites the argument.
 DATA_ALIAS = ("data=", "data_dir=")

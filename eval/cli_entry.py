@@ -1,0 +1,31 @@
+"""The one way a gspi CLI starts: one config directory (``eval.config.CONF_DIR``), its argv
+aliases rewritten, its path keys quoted for Hydra's grammar (``eval.argv``), its task run under
+``@hydra.main`` with stated errors as one line (``eval.errors``).
+
+    main = hydra_cli(run_task, "gspi_extract", path_keys=("asset", "out", "scene"))
+"""
+from __future__ import annotations
+
+import sys
+from typing import Callable, Optional
+
+from eval.argv import quote_path_overrides
+from eval.config import CONF_DIR
+from eval.errors import exit_on_stated_error
+
+
+def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = (),
+              rewrite: Optional[Callable[[list[str]], list[str]]] = None) -> Callable[[], None]:
+    """The console-script ``main()`` of a CLI whose Hydra task is ``task(cfg)``."""
+    import hydra
+
+    hydra_main = hydra.main(version_base="1.3", config_path=CONF_DIR, config_name=config_name)(
+        exit_on_stated_error(task))
+
+    def main() -> None:
+        argv = sys.argv[1:] if rewrite is None else rewrite(sys.argv[1:])
+        sys.argv = [sys.argv[0], *quote_path_overrides(argv, path_keys)]
+        hydra_main()
+
+    main.__doc__ = f"{config_name.replace('_', '-')}: see conf/{config_name}.yaml"
+    return main
