@@ -119,6 +119,13 @@ def test_summary_pools_seeds_and_reports_metal(tmp_path):
     assert s["no_decomposition"]["mean"]["metal_iou@metal"] == 0.0   # no metal predicted: IoU 0
     assert s["r5"]["seeds"] == [0]
     assert "| R0 no decomposition | 1 |" in to_markdown(s)
+    from gspi.stage2.ladder_summary import versus
+
+    d = versus(folders, "r1")  # avg over channels, paired over (scene, seed); hand-computed
+    assert d["r5"][0] == pytest.approx((52 / 3 - 12 + 74 / 3 - 64 / 3) / 2)
+    assert d["no_decomposition"][0] == pytest.approx((8 - 12 + 8 - 41 / 3 + 82 / 3 - 64 / 3 + 82 / 3 - 22) / 4)
+    with pytest.raises(ValueError):  # one metal scene of one seed: no interval
+        versus(folders, "r1", "metallic", "metal")
 
 
 def test_point_metal_iou(ladder_data):

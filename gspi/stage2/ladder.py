@@ -282,16 +282,24 @@ def main(argv: list[str] | None = None) -> None:
     tr.add_argument("override", nargs="*", help="gspi-train overrides, e.g. stage2.train.lr=3e-4")
     sm = sub.add_parser("summary", help="per-rung table over seeds, per channel and material class")
     sm.add_argument("folders", nargs="+")
-    sm.add_argument("--markdown", action="store_true")
+    sm.add_argument("--versus", default=None, help="also: paired difference of each rung to this one (e.g. r5)")
+    sm.add_argument("--key", default="avg", help="with --versus: avg | albedo | roughness | metallic")
+    sm.add_argument("--class", dest="scene_class", default=None, help="with --versus: only scenes of this class")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     if args.command == "train":
         torch.set_num_threads(args.threads)
         run_train(args)
     else:
-        from gspi.stage2.ladder_summary import print_summary
+        from gspi.stage2.ladder_summary import print_summary, versus
 
-        print_summary([Path(f) for f in args.folders])
+        folders = [Path(f) for f in args.folders]
+        print_summary(folders)
+        if args.versus:
+            print(f"{args.key} PSNR minus {args.versus}'s, paired over (scene, seed), 95 % bootstrap CI"
+                  + (f", {args.scene_class} scenes" if args.scene_class else "") + ":")
+            for rung, (mean, lo, hi) in versus(folders, args.versus, args.key, args.scene_class).items():
+                print(f"  {rung}: {mean:+.2f} [{lo:+.2f}, {hi:+.2f}]")
 
 
 if __name__ == "__main__":

@@ -80,3 +80,38 @@ def to_markdown(summary: dict[str, dict]) -> str:
 
 def print_summary(folders: list[Path]) -> None:
     print(to_markdown(summarise(folders)))
+
+
+def unit_values(folders: list[Path], key: str = "avg") -> dict[str, dict[tuple, float]]:
+    """{rung: {(scene, seed): PSNR}} of one channel (or "avg"); the baseline under every seed."""
+    out: dict[str, dict[tuple, float]] = {}
+    base: dict[str, float] = {}
+    for folder in folders:
+        data = json.loads((Path(folder) / "scores.json").read_text())
+        rung = str(data["ablation"]) if "ladder" in data else "r5"
+        seed = data.get("train_seed")
+        for scene, ch in data["per_scene"]["stage2"].items():
+            out.setdefault(rung, {})[(scene, seed)] = _value(ch, key)
+        for scene, ch in data["per_scene"][BASELINE].items():
+            base[scene] = _value(ch, key)
+    seeds = {s for values in out.values() for _, s in values}
+    out[BASELINE] = {(scene, s): v for scene, v in base.items() for s in seeds}
+    return out
+
+
+def _value(channels: dict, key: str) -> float:
+    if key == "avg":
+        return float(np.mean([channels[c]["psnr"] for c in CHANNELS]))
+    return float(channels[key]["psnr"])
+
+
+def versus(folders: list[Path], reference: str, key: str = "avg", scenes: str | None = None) -> dict[str, tuple]:
+    """{rung: (mean, lo, hi)} paired difference rung - reference over (scene, seed) units
+    (95 % percentile bootstrap, eval.stats); ``scenes``: only scenes of that material class."""
+    from eval.stats import paired_bootstrap_ci
+
+    values = unit_values(folders, key)
+    if scenes is not None:
+        values = {r: {u: v for u, v in vs.items() if scene_class(u[0]) == scenes} for r, vs in values.items()}
+    ref = values[reference]
+    return {rung: paired_bootstrap_ci(vs, ref) for rung, vs in sorted(values.items()) if rung != reference}
