@@ -199,8 +199,9 @@ class TestMalformed:
         rec = _records(official_attribute_names() + ["albedo_0", "albedo_1", "albedo_2"])
         self._check(_write_records(tmp_path / "x.ply", rec), "incomplete PBR")
 
-    def test_3dgs_file(self, tmp_path):
-        self._check(_write_records(tmp_path / "x.ply", _records(official_attribute_names() + ["scale_2"])), "scale_2")
+    def test_3dgs_file_missing_a_property(self, tmp_path):
+        names = [n for n in official_attribute_names() if n != "rot_3"] + ["scale_2"]
+        self._check(_write_records(tmp_path / "x.ply", _records(names)), "3D Gaussian splatting file")
 
     def test_missing_file_is_not_format_error(self, tmp_path):
         with pytest.raises(FileNotFoundError):

@@ -33,6 +33,7 @@ from typing import Union
 import numpy as np
 import torch
 from plyfile import PlyData, PlyElement, PlyParseError
+from torch import Tensor
 
 from eval.errors import StatedError
 from gspi.gaussians.model import Gaussians2D
@@ -43,6 +44,7 @@ POSITION = ("x", "y", "z")
 NORMAL = ("nx", "ny", "nz")
 F_DC = ("f_dc_0", "f_dc_1", "f_dc_2")
 SCALE = ("scale_0", "scale_1")
+SCALE3 = ("scale_0", "scale_1", "scale_2")  # an official 3D Gaussian splatting file
 ROT = ("rot_0", "rot_1", "rot_2", "rot_3")
 PBR = ("albedo_0", "albedo_1", "albedo_2", "roughness", "metallic")
 REQUIRED = POSITION + F_DC + ("opacity",) + SCALE + ROT
@@ -139,6 +141,65 @@ def _column(path: PathLike, data: np.ndarray, names: list[str]) -> np.ndarray:
 
 
 def read_ply(path: PathLike) -> Gaussians2D:
+    """The surfels of a 2DGS point_cloud.ply, or of a 3DGS one flattened (``read_asset_ply``)."""
+    return read_asset_ply(path)[0]
+
+
+def read_asset_ply(path: PathLike) -> tuple[Gaussians2D, dict]:
+    """(surfels, info) of a Gaussian PLY: 2DGS surfels as stored (info ``source_format: 2dgs``),
+    or an official 3D Gaussian splatting file (detected by ``scale_2`` in its header) turned
+    into surfels by ``gspi.gaussians.splat3d.flatten_3dgs`` (info says how, and is logged)."""
+    data = _load_vertices(path)
+    if "scale_2" in set(data.dtype.names):
+        return _read_3dgs(path, data)
+    return _read_2dgs(path, data), {"source_format": "2dgs", "path": str(path)}
+
+
+def _read_3dgs(path: PathLike, data: np.ndarray) -> tuple[Gaussians2D, dict]:
+    import logging
+
+    from gspi.gaussians.splat3d import flatten_3dgs
+
+    names = set(data.dtype.names)
+    missing = [n for n in POSITION + F_DC + ("opacity",) + SCALE3 + ROT if n not in names]
+    if missing:
+        raise PlyFormatError(path, f"a 3D Gaussian splatting file (has scale_2) missing {missing}")
+    n_rest = _sh_rest_count(path, names)
+    n = len(data)
+    t = torch.from_numpy
+    rest = _column(path, data, [f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, n_rest // 3)
+    log_scales = _column(path, data, list(SCALE3))
+    if len(log_scales) and log_scales.max() > MAX_LOG_SCALE:
+        raise PlyFormatError(path, f"a scale is exp({log_scales.max():.3g}): overflows (scale_* are LOG scales)")
+    surfels, info = flatten_3dgs(t(_column(path, data, list(POSITION))), t(_column(path, data, list(ROT))),
+                                 t(log_scales), t(_column(path, data, ["opacity"])[:, 0].copy()),
+                                 t(_column(path, data, list(F_DC)))[:, None, :].contiguous(),
+                                 t(rest).transpose(1, 2).contiguous())
+    info = {**info, "path": str(path)}
+    logging.getLogger(__name__).info("%s: a 3D Gaussian splatting file, %d Gaussians flattened to 2DGS surfels "
+                                     "(%s; %.1f %% near-isotropic)", path, n, info["rule"],
+                                     100 * info["isotropic_fraction"])
+    return surfels, info
+
+
+def write_3dgs_ply(path: PathLike, means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor,
+                   sh_dc: Tensor, sh_rest: Tensor) -> None:
+    """Writes 3D Gaussians in the official 3DGS layout (graphdeco-inria ``save_ply``):
+    x y z nx ny nz f_dc_0..2 f_rest_* opacity scale_0..2 rot_0..3, float32, little endian."""
+    n = len(means)
+    cols = [means, torch.zeros(n, 3), sh_dc[:, 0, :], sh_rest.transpose(1, 2).reshape(n, 3 * sh_rest.shape[1]),
+            opacity_logits[:, None], log_scales, quats]
+    values = torch.cat([c.detach().float().cpu() for c in cols], dim=1).numpy()
+    names = (list(POSITION) + list(NORMAL) + list(F_DC) + [f"f_rest_{i}" for i in range(3 * sh_rest.shape[1])]
+             + ["opacity"] + list(SCALE3) + list(ROT))
+    records = np.empty(n, dtype=[(name, "<f4") for name in names])
+    for i, name in enumerate(names):
+        records[name] = values[:, i]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    PlyData([PlyElement.describe(records, "vertex")], byte_order="<").write(str(path))
+
+
+def _read_2dgs(path: PathLike, data: np.ndarray) -> Gaussians2D:
     """Loads a 2DGS point_cloud.ply (official layout, optional GS-PI PBR logits).
 
     Args:
@@ -153,13 +214,11 @@ def read_ply(path: PathLike) -> Gaussians2D:
             property, has a wrong number of f_rest properties, is truncated, or holds
             NaN/Inf values.
     """
-    data = _load_vertices(path)
     names = set(data.dtype.names)
     missing = [n for n in REQUIRED if n not in names]
     if missing:
-        raise PlyFormatError(path, f"missing required vertex properties {missing}")
-    if "scale_2" in names:
-        raise PlyFormatError(path, "has 'scale_2': a 3D Gaussian splatting file, not 2DGS surfels")
+        raise PlyFormatError(path, f"missing required vertex properties {missing} (neither a 2DGS nor a "
+                                   "3DGS Gaussian file)")
     n_rest = _sh_rest_count(path, names)
     pbr_present = [n for n in PBR if n in names]
     if pbr_present and len(pbr_present) != len(PBR):

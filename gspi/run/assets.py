@@ -21,7 +21,7 @@ from eval.atomic import atomic_path
 from eval.errors import StatedError
 from eval.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file, write_json_atomic
 from gspi.gaussians.model import Gaussians2D
-from gspi.gaussians.ply import read_ply, write_ply
+from gspi.gaussians.ply import read_asset_ply, read_ply, write_ply
 from gspi.run.locks import file_lock
 from gspi.run.record import config_hash
 
@@ -161,11 +161,12 @@ def scene_asset(scene: Scene, *, assets: Optional[str], num_scenes: int, recon_c
     if assets:
         path = user_asset_path(assets, scene.name, num_scenes)
         try:
-            gaussians = read_ply(path)
+            gaussians, read_info = read_asset_ply(path)  # 2DGS, or 3DGS flattened to surfels (recorded)
         except Exception as exc:
-            raise AssetError(f"{path}: cannot read the 2DGS asset ({exc})") from exc
+            raise AssetError(f"{path}: cannot read the Gaussian asset ({exc})") from exc
         coverage = check_asset_covers_scene(gaussians, scene, str(path))
-        return gaussians, {"source": "user", "path": str(path), "seconds": None, "coverage": coverage}
+        return gaussians, {"source": "user", "path": str(path), "seconds": None, "coverage": coverage,
+                           "asset_format": {k: v for k, v in read_info.items() if k != "path"}}
     gaussians, info = cached_reconstruction(scene, recon_cfg, cache_root, device=device)
     coverage = check_asset_covers_scene(gaussians, scene, f"reconstruction {info.get('path')}")
     return gaussians, {"source": "recon", **info, "coverage": coverage}
