@@ -124,8 +124,8 @@ def test_summary_pools_seeds_and_reports_metal(tmp_path):
     d = versus(folders, "r1")  # avg over channels, paired over (scene, seed); hand-computed
     assert d["r5"][0] == pytest.approx((52 / 3 - 12 + 74 / 3 - 64 / 3) / 2)
     assert d["no_decomposition"][0] == pytest.approx((8 - 12 + 8 - 41 / 3 + 82 / 3 - 64 / 3 + 82 / 3 - 22) / 4)
-    with pytest.raises(ValueError):  # one metal scene of one seed: no interval
-        versus(folders, "r1", "metallic", "metal")
+    mean, lo, hi = versus(folders, "r1", "metallic", "metal")["r5"]  # one metal scene, one seed
+    assert mean == 14.0 and np.isnan(lo) and np.isnan(hi)
 
 
 def test_point_metal_iou(ladder_data):

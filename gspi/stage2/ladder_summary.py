@@ -114,4 +114,15 @@ def versus(folders: list[Path], reference: str, key: str = "avg", scenes: str | 
     if scenes is not None:
         values = {r: {u: v for u, v in vs.items() if scene_class(u[0]) == scenes} for r, vs in values.items()}
     ref = values[reference]
-    return {rung: paired_bootstrap_ci(vs, ref) for rung, vs in sorted(values.items()) if rung != reference}
+    return {rung: _ci(vs, ref) for rung, vs in sorted(values.items()) if rung != reference}
+
+
+def _ci(variant: dict, reference: dict) -> tuple:
+    """The paired mean and CI; with a single pair, its difference and no interval (NaN)."""
+    from eval.stats import paired_bootstrap_ci, paired_differences
+
+    diffs = paired_differences(variant, reference)
+    if len(diffs) < 2:
+        mean = float(np.mean(list(diffs.values()))) if diffs else float("nan")
+        return mean, float("nan"), float("nan")
+    return paired_bootstrap_ci(variant, reference)
