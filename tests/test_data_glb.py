@@ -363,3 +363,17 @@ def test_sampler_wrap_modes(tmp_path):
             for y, bi in ((11, 0), (20, 1)):
                 np.testing.assert_allclose(r.albedo_srgb[y, x], BLOCKS[bi, bj] / 255, atol=1e-5,
                                            err_msg=f"wrapS={mode} pixel ({y}, {x})")
+
+
+def test_real_objects_experiment_composes_the_three_methods():
+    """+experiment=real_objects: GS-PI, no decomposition and joint IR, reconstructing each object."""
+    from hydra import compose, initialize_config_dir
+
+    from eval.config import CONF_DIR, register_configs
+
+    register_configs()
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose("gspi_run", overrides=["data_dir=d", "out=o", "+experiment=real_objects"],
+                      return_hydra_config=True)
+    assert cfg.hydra.sweeper.params.method == "gspi,no_decomposition,joint_ir"
+    assert cfg.assets is None and cfg.table == "table1" and cfg.recon.iterations > 0
