@@ -182,3 +182,24 @@ class TestNormalize:
 
     def test_view_onehot(self):
         assert view_onehot(torch.tensor([0, 31])).sum(-1).tolist() == [1.0, 1.0]
+
+
+def test_point_global_skip_feeds_the_pooled_prior_to_every_point():
+    """stage2.model.point_global_skip: the point tokens see LN(mean of the global tokens); off by
+    default (the paper's model, unchanged), and dropped with the condition (CFG)."""
+    skip = dataclasses.replace(TINY, point_global_skip=True)
+    f_t, inputs = make_inputs(config=skip)
+    model = make_model(skip)
+    assert count_parameters(model) == count_parameters(make_model()) + 2 * 8 + 8 * 16 + 16
+    plain = make_model(TINY)
+    points_plain = plain.embed_points(f_t, inputs, None)
+    points_skip = model.embed_points(f_t, inputs, None)
+    other = dataclasses.replace(inputs, global_tokens=inputs.global_tokens + 1.0)
+    assert torch.equal(plain.embed_points(f_t, other, None), points_plain)   # no path without the skip
+    assert not torch.allclose(model.embed_points(f_t, other, None), points_skip)
+    drop = torch.zeros(2, 1, 1)
+    torch.testing.assert_close(model.embed_points(f_t, other, drop), model.embed_points(f_t, inputs, drop))
+    loss = denoising_loss(model.train(), pbr_to_model(torch.rand(2, 64, 5)), inputs,
+                          generator=torch.Generator().manual_seed(0))
+    loss.backward()
+    assert torch.isfinite(loss) and model.point_global_proj.weight.grad.abs().sum() > 0

@@ -55,6 +55,7 @@ class RCWConfig:
     global_grid_cells: int = 25  # 5 x 5 pooled encoder cells per view
     num_lattice_views: int = 32  # size of the per-view positional embedding table
     self_condition: bool = True  # latent self-conditioning input
+    point_global_skip: bool = False  # also add LN(mean of the global tokens) to every point token (ladder R2)
     cond_drop_prob: float = 0.1  # training probability of the null condition (CFG)
     prediction: str = "eps"  # what the output head predicts: "eps" (paper) or "x0" (see forward)
     num_train_timesteps: int = 1000  # cosine schedule length (the x0 -> eps conversion uses it)
@@ -100,6 +101,9 @@ class RCWDenoiser(nn.Module):
             self.global_proj = nn.Linear(c.global_token_dim, c.latent_dim)
             self.view_embed = nn.Parameter(torch.empty(c.num_lattice_views, c.latent_dim))
             self.cell_embed = nn.Parameter(torch.empty(c.global_grid_cells, c.latent_dim))
+        if c.point_global_skip and c.global_token_dim > 0:  # docs/STAGE2.md "Where the signal is lost"
+            self.point_global_norm = nn.LayerNorm(c.global_token_dim)
+            self.point_global_proj = nn.Linear(c.global_token_dim, c.point_dim)
         hidden = int(c.latent_dim * c.mlp_ratio)
         self.time_mlp = Mlp(in_dim=c.latent_dim, hidden_dim=hidden)
         if c.self_condition:
@@ -196,7 +200,13 @@ class RCWDenoiser(nn.Module):
         if keep is not None:
             local = local * keep
         tokens = torch.cat([fourier_features(inputs.xyz.to(f_t.dtype), self.config.fourier_bands), local, f_t], -1)
-        return self.point_norm(self.point_embed(tokens))
+        points = self.point_norm(self.point_embed(tokens))
+        if hasattr(self, "point_global_proj") and inputs.global_tokens is not None and inputs.global_tokens.shape[1]:
+            pooled = inputs.global_tokens.to(f_t.dtype).mean(dim=(1, 2))  # [B, D]: the scene's pooled prior
+            if keep is not None:
+                pooled = pooled * keep[:, 0]
+            points = points + self.point_global_proj(self.point_global_norm(pooled))[:, None]
+        return points
 
     def embed_global(self, inputs: Stage2Inputs, keep: Optional[Tensor]) -> list[Tensor]:
         """[[B, 25 V, latent_dim]] projected global-prior tokens with view/cell embeddings
