@@ -141,3 +141,11 @@ def test_point_metal_iou(ladder_data):
     else:
         assert point_metal_iou(np.zeros_like(gt), scene) is None
         assert point_metal_iou(np.ones_like(gt), scene) == 0.0
+
+
+def test_rung_of_a_diffusion_run_is_its_folder_name():
+    from gspi.stage2.ladder_summary import rung_of
+
+    assert rung_of({"ladder": {}, "ablation": "r3"}) == "r3"
+    assert rung_of({"ablation": "full", "checkpoint": "/x/runs/r5skip_s2/checkpoint.pt"}) == "r5skip"
+    assert rung_of({"ablation": "full", "checkpoint": "/x/runs/t2cpu/full/checkpoint.pt"}) == "r5"

@@ -23,6 +23,16 @@ def scene_class(name: str) -> str:
     return next((c for c in CLASSES if name.endswith("_" + c)), "other")
 
 
+def rung_of(data: dict) -> str:
+    """A folder's rung: the ladder's own name; for a diffusion model scored by evaluate_points,
+    its run folder's name before ``_s<seed>`` (``runs/ladder/r5skip_s0`` -> ``r5skip``), else r5."""
+    if "ladder" in data:
+        return str(data["ablation"])
+    run = Path(str(data.get("checkpoint", ""))).parent.name
+    stem, sep, seed = run.rpartition("_s")
+    return stem if sep and seed.isdigit() and stem.startswith("r5") else "r5"
+
+
 def seed_row(per_scene: dict, metal_iou: dict) -> dict[str, float]:
     """One evaluated model: the scene means it is summarised by."""
     scenes = sorted(per_scene)
@@ -47,7 +57,7 @@ def summarise(folders: list[Path]) -> dict[str, dict]:
     for folder in folders:
         data = json.loads((Path(folder) / "scores.json").read_text())
         iou = data.get("metal_iou", {})
-        rung = str(data["ablation"]) if "ladder" in data else "r5"  # evaluate_points: the diffusion model
+        rung = rung_of(data)
         rows.setdefault(rung, []).append(seed_row(data["per_scene"]["stage2"], iou.get("stage2", {})))
         seeds.setdefault(rung, []).append(data.get("train_seed"))
         if BASELINE not in rows:
@@ -88,7 +98,7 @@ def unit_values(folders: list[Path], key: str = "avg") -> dict[str, dict[tuple, 
     base: dict[str, float] = {}
     for folder in folders:
         data = json.loads((Path(folder) / "scores.json").read_text())
-        rung = str(data["ablation"]) if "ladder" in data else "r5"
+        rung = rung_of(data)
         seed = data.get("train_seed")
         for scene, ch in data["per_scene"]["stage2"].items():
             out.setdefault(rung, {})[(scene, seed)] = _value(ch, key)
