@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import torch
 
@@ -41,6 +41,39 @@ def markdown_table(result: Mapping[str, Any], *, caption: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, Any], data_dir: str | Path,
+                split: str, out_dir: str | Path, *, baseline_train: str | Path | None = None,
+                record: Mapping[str, Any]) -> dict[str, Any]:
+    """Table 2's measure of ``predict(scene, index) -> [P, 5]`` on ``split`` of ``data_dir``, with
+    the no-decomposition baseline from ``baseline_train``'s train split (default ``data_dir``),
+    written as ``<out_dir>/scores.json`` (format "gspi-points-eval": the dataset, split, scenes,
+    baseline constants and measure, plus ``record``: what was scored). Returns the scores.
+    Stage II models (``evaluate_checkpoint``) and the ladder's rungs (``gspi.stage2.ladder``)
+    are scored here."""
+    from gspi.stage2.encoders import build_encoder
+
+    stage2 = cfg["stage2"]
+    encoder = build_encoder(stage2["prior"])
+    scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder)
+    try:
+        train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder)
+    except ValueError as exc:  # e.g. a test-only dataset
+        raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
+                         "pass a dataset with a train split (--baseline-train, e.g. the model's training "
+                         "data)") from exc
+    rough, metal = training_constants(train_scenes)
+    result = evaluate_scenes(scenes, lambda s: predict(s, scenes.index(s)), lambda s: baseline_prediction(s, rough, metal))
+    result.update(format="gspi-points-eval", version=1, train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
+                  split=split, scenes=[s.name for s in scenes], baseline_constants={"roughness": rough, "metallic": metal},
+                  baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
+                  lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"],
+                  **dict(record))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out_dir / "scores.json", result, allow_nan=True)
+    return result
+
+
 def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out_dir: str | Path, *,
                         split: str = "test", num_steps: int = 50, seed: int = 0,
                         write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
@@ -58,37 +91,18 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
-    from gspi.stage2.encoders import build_encoder
-
-    run_cfg = {**cfg, "data_dir": str(data_dir)}
-    stage2 = cfg["stage2"]
-    encoder = build_encoder(stage2["prior"])
-    data_cfg = PointDataConfig.from_mapping(stage2["data"])
-    scenes = load_split(run_cfg, split, encoder)
-    constants_cfg = run_cfg if baseline_train is None else {**cfg, "data_dir": str(baseline_train)}
-    try:
-        train_scenes = load_split(constants_cfg, "train", encoder)
-    except ValueError as exc:  # e.g. a test-only dataset
-        raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
-                         "pass a dataset with a train split (--baseline-train, e.g. the model's training "
-                         "data)") from exc
-    rough, metal = training_constants(train_scenes)
-
+    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
     sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed)
 
-    def predict(scene: ScenePoints):
-        return subset_prediction(model, scene, scenes.index(scene), data_cfg, sampling, write_chunk=write_chunk)
+    def predict(scene: ScenePoints, index: int):
+        return subset_prediction(model, scene, index, data_cfg, sampling, write_chunk=write_chunk)
 
-    result = evaluate_scenes(scenes, predict, lambda s: baseline_prediction(s, rough, metal))
-    result.update(format="gspi-points-eval", version=1, ablation=str(cfg.get("ablation_name", "full")),
-                  train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()), **dict(source or {}),
-                  split=split, num_steps=num_steps, max_points=max_points, seed=seed, scenes=[s.name for s in scenes],
-                  baseline_constants={"roughness": rough, "metallic": metal},
-                  baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
-                  lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"])
+    result = score_split(predict, cfg, data_dir, split, out_dir, baseline_train=baseline_train,
+                         record={"ablation": str(cfg.get("ablation_name", "full")), **dict(source or {}),
+                                 "num_steps": num_steps, "max_points": max_points, "seed": seed})
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out_dir / "scores.json", result, allow_nan=True)
+    rough, metal = result["baseline_constants"]["roughness"], result["baseline_constants"]["metallic"]
+    scenes = result["scenes"]
     caption = (f"Stage II on the GT point clouds of {len(scenes)} {split} scenes of {Path(data_dir).name} "
                f"({num_steps} DDIM steps, seed {seed}); per-view masked metrics averaged over the 32 lattice "
                f"views and the scenes; PSNR capped at {PSNR_CAP_DB:.0f} dB per view; LPIPS = AlexNet v0.1. "

@@ -36,7 +36,6 @@ from gspi.stage2.regressors import (MLP_RUNGS, PointMLP, RCWRegressor, point_fea
                                     regression_loss, rung_features)
 
 log = logging.getLogger(__name__)
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 LADDER_RECIPE = "table2_cpu"  # the Stage II recipe every rung shares (R5 is trained with it)
 MLP_STEPS = 4000
 RUNG_FORMAT = "gspi-ladder-rung"
@@ -49,7 +48,9 @@ def ladder_config(data_dir: str | Path, seed: int, overrides: tuple[str, ...] = 
 
     from gspi.stage2.config import complete_stage2
 
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+    from eval.config import CONF_DIR
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("gspi_train", overrides=[f"stage2={LADDER_RECIPE}", f"data_dir={data_dir}", "out=unused",
                                                f"seed={seed}", *overrides])
     plain = OmegaConf.to_container(cfg, resolve=True)
@@ -159,24 +160,12 @@ def load_rung(path: str | Path) -> tuple[nn.Module, str, dict]:
     saved = torch.load(path, map_location="cpu", weights_only=False)
     if not isinstance(saved, dict) or saved.get("format") != RUNG_FORMAT:
         raise CheckpointError(f"{path}: not a ladder model (format {RUNG_FORMAT!r})")
-    model = build_rung(saved["rung"], saved["config"], _prior_dim(saved))
+    model = build_rung(saved["rung"], saved["config"], int(saved["prior_dim"]))
     try:
         model.load_state_dict(saved["state_dict"])
     except RuntimeError as exc:
         raise CheckpointError(f"{path}: weights do not fit rung {saved['rung']}: {exc}") from exc
     return model.requires_grad_(False).eval(), saved["rung"], saved["config"]
-
-
-def _prior_dim(saved: Mapping[str, Any]) -> int:
-    """The pooled prior's width: recorded, or (files of the first ladder run) read off the weights."""
-    if "prior_dim" in saved:
-        return int(saved["prior_dim"])
-    weights = saved["state_dict"]
-    if "denoiser.global_norm.weight" in weights:
-        return int(weights["denoiser.global_norm.weight"].shape[0])
-    if saved["rung"] == "r2":
-        return int(weights["net.0.weight"].shape[0]) - rung_features("r1").width(0)
-    return 0
 
 
 def eval_features(scene: ScenePoints, index: int, data_cfg: PointDataConfig, seed: int = 0) -> np.ndarray:
@@ -207,28 +196,13 @@ def predict_rung(model: nn.Module, rung: str, scene: ScenePoints, index: int, da
 def score_rung(model: nn.Module, rung: str, cfg: Mapping[str, Any], data_dir: str | Path, split: str,
                out_dir: Path, *, baseline_train: str | Path, train_stats: Mapping[str, Any]) -> dict:
     """Table 2's measure of a trained rung on ``split`` of ``data_dir``; writes scores.json."""
-    from eval.atomic import write_json_atomic
-    from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.points_measure import (PSNR_CAP_DB, baseline_prediction, evaluate_scenes,
-                                             training_constants)
-    from gspi.stage2.splits import load_split
+    from gspi.stage2.evaluate_points import score_split
 
-    encoder = build_encoder(cfg["stage2"]["prior"])
     data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
-    scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder)
-    rough, metal = training_constants(load_split({**cfg, "data_dir": str(baseline_train)}, "train", encoder))
-    result = evaluate_scenes(scenes, lambda s: predict_rung(model, rung, s, scenes.index(s), data_cfg),
-                             lambda s: baseline_prediction(s, rough, metal))
-    result.update(format="gspi-points-eval", version=1, ablation=rung, train_seed=int(cfg["seed"]),
-                  data=str(Path(data_dir).resolve()), checkpoint=f"ladder:{rung}:seed{cfg['seed']}",
-                  split=split, num_steps=None, max_points=None, seed=0, scenes=[s.name for s in scenes],
-                  baseline_constants={"roughness": rough, "metallic": metal},
-                  baseline_train=str(Path(baseline_train).resolve()), psnr_cap_db=PSNR_CAP_DB,
-                  lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean",
-                  encoder=cfg["stage2"]["prior"]["encoder"], ladder=dict(train_stats))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out_dir / "scores.json", result, allow_nan=True)
-    return result
+    return score_split(lambda scene, index: predict_rung(model, rung, scene, index, data_cfg), cfg, data_dir,
+                       split, out_dir, baseline_train=baseline_train,
+                       record={"ablation": rung, "checkpoint": f"ladder:{rung}:seed{cfg['seed']}", "num_steps": None,
+                               "max_points": None, "seed": 0, "ladder": dict(train_stats)})
 
 
 def _eval_sets(specs: list[str]) -> list[tuple[str, str, str]]:

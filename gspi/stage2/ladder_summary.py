@@ -14,13 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-CHANNELS = ("albedo", "roughness", "metallic")
-CLASSES = ("rough_plastic", "glossy_plastic", "painted_metal", "metal", "fabric", "ceramic")
-BASELINE = "no_decomposition"
-
-
-def scene_class(name: str) -> str:
-    return next((c for c in CLASSES if name.endswith("_" + c)), "other")
+from eval.points_breakdown import MATERIAL_CLASSES as CLASSES
+from eval.points_breakdown import material_class as scene_class
+from eval.points_folders import BASELINE_KEY as BASELINE
+from eval.tables_sweep import AVG_CHANNELS as CHANNELS
 
 
 def rung_of(data: dict) -> str:
@@ -82,7 +79,7 @@ def to_markdown(summary: dict[str, dict]) -> str:
         cells = []
         for c in cols:
             v = s["spread"] if c == "spread" else s["mean"].get(c)
-            cells.append("" if v is None else (f"{v:.2f}" if "iou" in c else f"{v:.2f}"))
+            cells.append("" if v is None else f"{v:.2f}")
         name = "R0 no decomposition" if rung == BASELINE else rung.upper()
         lines.append(f"| {name} | {len(s['seeds'])} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -118,8 +115,6 @@ def _value(channels: dict, key: str) -> float:
 def versus(folders: list[Path], reference: str, key: str = "avg", scenes: str | None = None) -> dict[str, tuple]:
     """{rung: (mean, lo, hi)} paired difference rung - reference over (scene, seed) units
     (95 % percentile bootstrap, eval.stats); ``scenes``: only scenes of that material class."""
-    from eval.stats import paired_bootstrap_ci
-
     values = unit_values(folders, key)
     if scenes is not None:
         values = {r: {u: v for u, v in vs.items() if scene_class(u[0]) == scenes} for r, vs in values.items()}

@@ -28,7 +28,6 @@ from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.model import RCWConfig, RCWDenoiser
 
 MLP_RUNGS = {"r1": ("top_rgb_onehot",), "r2": ("top_rgb_onehot",), "r3": ("top_rgb_onehot", "multiview")}
-RUNGS = ("r0", "r1", "r2", "r3", "r4", "r5")
 
 
 @dataclass(frozen=True)
