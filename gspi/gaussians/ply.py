@@ -164,20 +164,10 @@ def _read_3dgs(path: PathLike, data: np.ndarray) -> tuple[Gaussians2D, dict]:
     missing = [n for n in POSITION + F_DC + ("opacity",) + SCALE3 + ROT if n not in names]
     if missing:
         raise PlyFormatError(path, f"a 3D Gaussian splatting file (has scale_2) missing {missing}")
-    n_rest = _sh_rest_count(path, names)
-    n = len(data)
-    t = torch.from_numpy
-    rest = _column(path, data, [f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, n_rest // 3)
-    log_scales = _column(path, data, list(SCALE3))
-    if len(log_scales) and log_scales.max() > MAX_LOG_SCALE:
-        raise PlyFormatError(path, f"a scale is exp({log_scales.max():.3g}): overflows (scale_* are LOG scales)")
-    surfels, info = flatten_3dgs(t(_column(path, data, list(POSITION))), t(_column(path, data, list(ROT))),
-                                 t(log_scales), t(_column(path, data, ["opacity"])[:, 0].copy()),
-                                 t(_column(path, data, list(F_DC)))[:, None, :].contiguous(),
-                                 t(rest).transpose(1, 2).contiguous())
+    surfels, info = flatten_3dgs(**_gaussian_columns(path, data, _sh_rest_count(path, names), SCALE3))
     info = {**info, "path": str(path)}
     logging.getLogger(__name__).info("%s: a 3D Gaussian splatting file, %d Gaussians flattened to 2DGS surfels "
-                                     "(%s; %.1f %% near-isotropic)", path, n, info["rule"],
+                                     "(%s; %.1f %% near-isotropic)", path, len(data), info["rule"],
                                      100 * info["isotropic_fraction"])
     return surfels, info
 
@@ -189,14 +179,18 @@ def write_3dgs_ply(path: PathLike, means: Tensor, quats: Tensor, log_scales: Ten
     n = len(means)
     cols = [means, torch.zeros(n, 3), sh_dc[:, 0, :], sh_rest.transpose(1, 2).reshape(n, 3 * sh_rest.shape[1]),
             opacity_logits[:, None], log_scales, quats]
-    values = torch.cat([c.detach().float().cpu() for c in cols], dim=1).numpy()
     names = (list(POSITION) + list(NORMAL) + list(F_DC) + [f"f_rest_{i}" for i in range(3 * sh_rest.shape[1])]
              + ["opacity"] + list(SCALE3) + list(ROT))
-    records = np.empty(n, dtype=[(name, "<f4") for name in names])
+    _write_vertices(path, names, torch.cat([c.detach().float().cpu() for c in cols], dim=1).numpy())
+
+
+def _write_vertices(path: PathLike, names: list[str], values: np.ndarray, comments: list[str] = ()) -> None:
+    """One float32 ``vertex`` element, binary little endian, columns ``values[:, i]`` named ``names[i]``."""
+    records = np.empty(len(values), dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         records[name] = values[:, i]
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    PlyData([PlyElement.describe(records, "vertex")], byte_order="<").write(str(path))
+    PlyData([PlyElement.describe(records, "vertex")], byte_order="<", comments=list(comments)).write(str(path))
 
 
 def _read_2dgs(path: PathLike, data: np.ndarray) -> Gaussians2D:
@@ -223,29 +217,30 @@ def _read_2dgs(path: PathLike, data: np.ndarray) -> Gaussians2D:
     pbr_present = [n for n in PBR if n in names]
     if pbr_present and len(pbr_present) != len(PBR):
         raise PlyFormatError(path, f"incomplete PBR attributes: has {pbr_present}, needs all of {list(PBR)}")
-    n = len(data)
-    rest = _column(path, data, [f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, n_rest // 3)
-    t = torch.from_numpy
     pbr = {}
     if pbr_present:
-        values = t(_column(path, data, list(PBR)))
+        values = torch.from_numpy(_column(path, data, list(PBR)))
         pbr = {"albedo_logits": values[:, :3].contiguous(), "roughness_logits": values[:, 3:4].contiguous(),
                "metallic_logits": values[:, 4:5].contiguous()}
-    log_scales = _column(path, data, list(SCALE))
+    return Gaussians2D(**_gaussian_columns(path, data, n_rest, SCALE), **pbr)
+
+
+def _gaussian_columns(path: PathLike, data: np.ndarray, n_rest: int, scale_names: tuple[str, ...]) -> dict:
+    """The raw parameters a 2DGS and a 3DGS file share (``scale_names``: 2 or 3 log scales), as
+    float32 tensors named as ``Gaussians2D``'s fields; a log scale that overflows is refused."""
+    n = len(data)
+    t = torch.from_numpy
+    rest = _column(path, data, [f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, n_rest // 3)
+    log_scales = _column(path, data, list(scale_names))
     if len(log_scales) and log_scales.max() > MAX_LOG_SCALE:
         row = int(np.argmax(log_scales.max(axis=1)))
         raise PlyFormatError(path, f"scale of vertex {row} is exp({log_scales[row].max():.3g}): overflows "
                                    f"(scale_* are LOG scales; above {MAX_LOG_SCALE} the surfel is larger than "
                                    "any scene)")
-    return Gaussians2D(
-        means=t(_column(path, data, list(POSITION))),
-        quats=t(_column(path, data, list(ROT))),
-        log_scales=t(log_scales),
-        opacity_logits=t(_column(path, data, ["opacity"])[:, 0].copy()),
-        sh_dc=t(_column(path, data, list(F_DC)))[:, None, :].contiguous(),
-        sh_rest=t(rest).transpose(1, 2).contiguous(),
-        **pbr,
-    )
+    return {"means": t(_column(path, data, list(POSITION))), "quats": t(_column(path, data, list(ROT))),
+            "log_scales": t(log_scales), "opacity_logits": t(_column(path, data, ["opacity"])[:, 0].copy()),
+            "sh_dc": t(_column(path, data, list(F_DC)))[:, None, :].contiguous(),
+            "sh_rest": t(rest).transpose(1, 2).contiguous()}
 
 
 def write_ply(path: PathLike, gaussians: Gaussians2D) -> None:
@@ -264,11 +259,5 @@ def write_ply(path: PathLike, gaussians: Gaussians2D) -> None:
             g.opacity_logits[:, None], g.log_scales, g.quats]
     if g.has_pbr:
         cols += [g.albedo_logits, g.roughness_logits, g.metallic_logits]
-    values = torch.cat(cols, dim=1).numpy()
-    names = property_names(g.sh_degree, pbr=g.has_pbr)
-    records = np.empty(n, dtype=[(name, "<f4") for name in names])
-    for i, name in enumerate(names):
-        records[name] = values[:, i]
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    comments = list(PBR_COMMENTS) if g.has_pbr else []
-    PlyData([PlyElement.describe(records, "vertex")], byte_order="<", comments=comments).write(str(path))
+    _write_vertices(path, property_names(g.sh_degree, pbr=g.has_pbr), torch.cat(cols, dim=1).numpy(),
+                    list(PBR_COMMENTS) if g.has_pbr else [])
