@@ -19,12 +19,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.colorspace import srgb_to_linear
 from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_message, read_meta,
                          read_scene, read_splits)
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
 from eval.scored_view import CPU, EnvironmentCache, scene_scored_views
-from eval.scoring import has_metal, metal_scores, score_pair, score_relit_pair
+from eval.scoring import has_metal, metal_scores, score_pair, score_relit_pair, scored_space
 
 log = logging.getLogger(__name__)
 METRICS = ("psnr", "ssim", "lpips")
@@ -83,10 +82,8 @@ def expected_scenes(gt_root: Path, present: list[str], gt_scenes: dict[str, Path
 
 def _score_channel(channel: str, pred, gt, mask, protocol, net) -> dict:
     """Scores of one material map; albedo in the protocol's colour space."""
-    if channel == "albedo" and protocol.albedo_space == "linear":
-        pred, gt = srgb_to_linear(pred.double()), srgb_to_linear(gt.double())
-        return score_pair(pred, gt, mask, protocol, net, lpips_srgb=bool(protocol.lpips.encode_srgb))
-    return score_pair(pred, gt, mask, protocol, net)
+    pred, gt, lpips_srgb = scored_space(channel, pred, gt, protocol)
+    return score_pair(pred, gt, mask, protocol, net, lpips_srgb=lpips_srgb)
 
 
 def _named(where: Path, score, *args) -> dict:

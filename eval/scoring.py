@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb
+from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.metrics import (grey_psnr, masked_iou, masked_lpips, masked_mae, masked_mse,
                           masked_ssim, psnr_from_mse)
 from eval.scored_view import RelitPair, relit_pair
@@ -23,6 +23,14 @@ def psnr_scores(pred: Tensor, gt: Tensor, mask: Tensor, psnr_cfg) -> tuple[float
     if psnr_cfg.grey_floor:
         psnr = max(psnr, grey_psnr(gt, mask, region=psnr_cfg.region, mse_floor=floor))
     return psnr, mse <= floor
+
+
+def scored_space(channel: str, pred: Tensor, gt: Tensor, protocol) -> tuple[Tensor, Tensor, bool]:
+    """(pred, gt) in the colour space the protocol scores ``channel`` in (albedo: ``albedo_space``;
+    maps are stored sRGB-encoded), and whether LPIPS sRGB-encodes them again first."""
+    if channel == "albedo" and protocol.albedo_space == "linear":
+        return srgb_to_linear(pred.double()), srgb_to_linear(gt.double()), bool(protocol.lpips.encode_srgb)
+    return pred, gt, False
 
 
 def score_pair(pred: Tensor, gt: Tensor, mask: Tensor, protocol, net, *,

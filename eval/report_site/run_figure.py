@@ -13,24 +13,19 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.colorspace import srgb_to_linear
-from eval.layout import Scene
+from eval.layout import MATERIAL_CHANNELS, Scene
 from eval.scored_view import EnvironmentCache, ScoredView, scene_scored_views
-from eval.scoring import psnr_scores
-
-CHANNELS = ("albedo", "roughness", "metallic")
+from eval.scoring import psnr_scores, scored_space
 
 
 def figure_panels(sv: ScoredView, protocol) -> list[tuple[str, np.ndarray, np.ndarray | None, float | None]]:
     """(title, GT image, predicted image or None, PSNR or None) per column, masked for display."""
     out = []
-    for c in CHANNELS:
+    for c in MATERIAL_CHANNELS:
         pred = sv.pred.get(c)
         psnr = None
         if pred is not None:
-            p, g = pred, sv.gt[c]
-            if c == "albedo" and protocol.albedo_space == "linear":
-                p, g = srgb_to_linear(p.double()), srgb_to_linear(g.double())
+            p, g, _ = scored_space(c, pred, sv.gt[c], protocol)
             psnr = psnr_scores(p, g, sv.mask, protocol.psnr)[0]
         out.append((c, sv.gt[c].cpu().numpy(), None if pred is None else pred.cpu().numpy(), psnr))
     for env, pair in sv.relit.items():
