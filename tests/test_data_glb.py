@@ -177,15 +177,7 @@ def test_cli_imports_a_folder_with_splits(tmp_path):
     (src / "test").mkdir()
     quad_glb(src / "train" / "quad_a.glb")
     quad_glb(src / "test" / "quad_b.glb", textured=False)
-    conf = Path(__file__).resolve().parents[1] / "conf"
-    cfg = OmegaConf.load(conf / "gspi_data.yaml")
-    cfg.data = OmegaConf.load(conf / "data" / "tiny.yaml")
-    cfg.out = str(tmp_path / "out")
-    cfg["import"].glb = str(src)
-    cfg.data.update(image_size=16, num_test_views=2, num_val_views=1, num_relight_envs=1,
-                    point_clouds=False, contact_sheets=False)
-    cfg.lattice.num_views = 4
-    result = run(cfg)
+    result = run(_tiny_import_cfg(tmp_path, src, num_test_views=2, num_val_views=1))
     assert result["mode"] == "import_glb"
     assert read_splits(tmp_path / "out") == {"train": ["quad_a"], "val": [], "test": ["quad_b"]}
     scene = read_scene(tmp_path / "out" / "quad_b")
@@ -224,14 +216,15 @@ def test_a_node_scaled_to_zero_is_skipped_and_named(tmp_path):
         read_gltf(tmp_path / "only_zero.glb")
 
 
-def _tiny_import_cfg(tmp_path, src):
+def _tiny_import_cfg(tmp_path, src, **data):
+    """gspi-data's config importing `src` into tmp_path/out at 16 px, 4 lattice views (`data`: overrides)."""
     conf = Path(__file__).resolve().parents[1] / "conf"
     cfg = OmegaConf.load(conf / "gspi_data.yaml")
     cfg.data = OmegaConf.load(conf / "data" / "tiny.yaml")
     cfg.out = str(tmp_path / "out")
     cfg["import"].glb = str(src)
-    cfg.data.update(image_size=16, num_test_views=1, num_val_views=0, num_relight_envs=1,
-                    point_clouds=False, contact_sheets=False)
+    cfg.data.update({"image_size": 16, "num_test_views": 1, "num_val_views": 0, "num_relight_envs": 1,
+                     "point_clouds": False, "contact_sheets": False, **data})
     cfg.lattice.num_views = 4
     return cfg
 
