@@ -168,7 +168,8 @@ def test_data_device_cuda_fails_at_start_up_before_writing(tmp_path, mode):
     """gspi-data, whatever the mode: refused before the output folder is made."""
     from hydra import compose, initialize_config_dir
 
-    from gspi.cli.data import CONF_DIR, alias_preset, run
+    from eval.config import CONF_DIR
+    from gspi.cli.data import alias_preset, run
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("gspi_data", overrides=alias_preset(["preset=tiny", f"out={tmp_path / 'd'}",

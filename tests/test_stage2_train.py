@@ -10,7 +10,8 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from gspi.cli.train import CONF_DIR, rewrite_data_alias, run
+from eval.config import CONF_DIR
+from gspi.cli.train import rewrite_data_alias, run
 from gspi.stage2.checkpoint import CheckpointError, export_ema_only, load_stage2_checkpoint
 from gspi.stage2.sampler import predict_point_pbr
 from gspi.stage2.train import LOSS_KEY, TrainState, rcw_config, train

@@ -29,11 +29,9 @@ import logging
 import sys
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.config import CONF_DIR  # the one config directory
-from eval.errors import exit_on_stated_error
+from eval.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 PRESET_ALIAS = ("preset=", "data=")
@@ -110,9 +108,7 @@ def run(cfg: DictConfig) -> dict:
     return result
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_data")
-@exit_on_stated_error
-def _hydra_main(cfg: DictConfig) -> None:
+def _task(cfg: DictConfig) -> None:
     result = run(cfg)
     if result.get("failed"):  # the good assets are written; the status says one failed
         sys.exit(1)
@@ -125,11 +121,8 @@ def alias_preset(argv: list[str]) -> list[str]:
             new + a[len(old) + 1:] if a.startswith("+" + old) else a for a in argv]
 
 
-def main() -> None:
-    from eval.argv import quote_path_overrides
-
-    sys.argv = [sys.argv[0], *quote_path_overrides(alias_preset(sys.argv[1:]), ("out", "import.src", "export.src"))]
-    _hydra_main()
+# paths quoted for Hydra's grammar, stated errors as one line
+main = hydra_cli(_task, "gspi_data", path_keys=("out", "import.src", "export.src"), rewrite=alias_preset)
 
 
 if __name__ == "__main__":

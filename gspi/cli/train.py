@@ -18,14 +18,11 @@ dir (`<out>/.hydra/`). Config: conf/gspi_train.yaml, conf/stage2/, conf/ablation
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.config import CONF_DIR  # the one config directory
-from eval.errors import exit_on_stated_error
+from eval.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 # `data=<dir>` is an alias of the key `data_dir=<dir>`: conf/data/ is a config group (dataset
@@ -83,18 +80,13 @@ def run(cfg: DictConfig) -> dict:
     return stats
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_train")
-@exit_on_stated_error
-def _hydra_main(cfg: DictConfig) -> float | None:
+def _task(cfg: DictConfig) -> float | None:
     stats = run(cfg)
     return stats.get("final_loss")
 
 
-def main() -> None:
-    from eval.argv import quote_path_overrides
-
-    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_data_alias(sys.argv[1:]), ("data_dir", "out"))]
-    _hydra_main()
+# paths quoted for Hydra's grammar, stated errors as one line
+main = hydra_cli(_task, "gspi_train", path_keys=("data_dir", "out"), rewrite=rewrite_data_alias)
 
 
 if __name__ == "__main__":
