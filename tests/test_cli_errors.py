@@ -31,6 +31,8 @@ CASES.update({
     "gspi-relight odd path": (["gspi-relight", f"asset={ODD}/none.ply", "env=meadow", "out={tmp}/r"],
                               "a=b,c d/none.ply"),
     "gspi-recon odd path": (["gspi-recon", f"scene={ODD}/scene", "out={tmp}/rc"], "a=b,c d/scene"),
+    "gspi-data import.glb odd path": (["gspi-data", f"import.glb={ODD}/x.glb", "out={tmp}/d"],
+                                      "a=b,c d/x.glb: no such file or folder"),
 })
 if not torch.cuda.is_available():
     CASES["gspi-run device=cuda"] = (["gspi-run", "data={tmp}/d", "out={tmp}/o", "device=cuda"],

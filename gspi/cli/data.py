@@ -122,7 +122,7 @@ def alias_preset(argv: list[str]) -> list[str]:
 
 
 # paths quoted for Hydra's grammar, stated errors as one line
-main = hydra_cli(_task, "gspi_data", path_keys=("out", "import.src", "export.src"), rewrite=alias_preset)
+main = hydra_cli(_task, "gspi_data", path_keys=("out", "import.src", "import.glb", "export.src"), rewrite=alias_preset)
 
 
 if __name__ == "__main__":
