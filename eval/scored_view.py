@@ -168,13 +168,19 @@ def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, mask: Tensor
 
 
 def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: EnvironmentCache,
-                       views: Optional[list] = None) -> tuple[list[ScoredView], list[dict]]:
+                       views: Optional[list] = None, gt_cache: Optional[dict] = None
+                       ) -> tuple[list[ScoredView], list[dict]]:
     """Every view of the scored split (or ``views`` of it) as scored; and the missing
     (view, channel) entries. Alignment always pools over ALL the split's views (scene scope),
-    whichever views are returned."""
+    whichever views are returned. ``gt_cache``: a dict the caller keeps to read each GT view
+    once across several predictions of the scene (the report's jobs)."""
     split = scored_split(protocol)
     all_views = scene.split_views(split)
-    gt = {v.id: load_gt_view(scene, v, envs.device) for v in all_views}
+    cache = {} if gt_cache is None else gt_cache
+    for v in all_views:
+        if (scene.name, split, v.id) not in cache:
+            cache[(scene.name, split, v.id)] = load_gt_view(scene, v, envs.device)
+    gt = {v.id: cache[(scene.name, split, v.id)] for v in all_views}
     masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol) for v in all_views}
     preds, divided = {}, set()
     for v in all_views:

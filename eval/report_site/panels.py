@@ -80,6 +80,7 @@ class SceneRenderer:
     def __init__(self, scene: Scene, envs: list[str], split: str = "test"):
         self.scene, self.env_names, self.split = scene, envs, split
         self.cache = EnvironmentCache()
+        self.gt_cache: dict = {}  # the scored GT views, read once for all jobs
 
     def environment(self, name: str):
         return self.cache.get(self.scene.envmap_path(name))
@@ -125,7 +126,7 @@ def job_panels(renderer: SceneRenderer, job: Job, views: list, per_view: pd.Data
         return {v.id: {k: Panel(note=note) for k in keys} for v in views}
     try:
         scored, missing = scene_scored_views(scene, pred_dir, protocol_config(job.protocol), renderer.cache,
-                                             views=views)
+                                             views=views, gt_cache=renderer.gt_cache)
     except (LayoutError, ValueError) as exc:
         return {v.id: {k: Panel(note=f"unreadable: {exc}") for k in keys} for v in views}
     modelled = {c for sv in scored for c in sv.pred} | {m["channel"] for m in missing}
