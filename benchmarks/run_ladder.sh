@@ -9,30 +9,39 @@
 #   gspi-data preset=stage2_pool out=$POOL_ROOT seed=0 'data.pool_indices=[[0,64],[224,256]]' data.workers=2
 #   python -m gspi.data.pool_split $POOL_ROOT $POOL --train 0:64 --test 224:256
 #   gspi-data preset=small out=$SMALL seed=0 'data.only_splits=[test]'
+# Diffusion rungs are name=recipe pairs (a conf/stage2 preset), e.g. the departures measured
+# after R5: DIFFUSION_RUNGS="r6=table2_cpu_trunc_snr r6skip=table2_cpu_skip_trunc_snr" REGRESSOR_RUNGS=
 # Usage: benchmarks/run_ladder.sh POOL SMALL RUNS [SEEDS...]
 set -u
 POOL=$1; SMALL=$2; RUNS=$3; shift 3
 SEEDS=${*:-0 1 2}
 PY=${PY:-.venv/bin/python}
 WORKERS=${WORKERS:-2}
+DIFFUSION_RUNGS=${DIFFUSION_RUNGS-r5=table2_cpu}
+REGRESSOR_RUNGS=${REGRESSOR_RUNGS-r1 r2 r3 r4}
 export OMP_NUM_THREADS=1
 mkdir -p "$RUNS/.claims"
 
+declare -A RECIPE
 JOBS=()
-for s in $SEEDS; do JOBS+=("train r5 $s"); done
-for r in r1 r2 r3 r4; do for s in $SEEDS; do JOBS+=("train $r $s"); done; done
-for s in $SEEDS; do JOBS+=("eval r5 $s"); done
+for pair in $DIFFUSION_RUNGS; do
+  r=${pair%%=*}; RECIPE[$r]=${pair#*=}
+  for s in $SEEDS; do JOBS+=("train $r $s"); done
+done
+for r in $REGRESSOR_RUNGS; do for s in $SEEDS; do JOBS+=("train $r $s"); done; done
+for r in "${!RECIPE[@]}"; do for s in $SEEDS; do JOBS+=("eval $r $s"); done; done
+
+is_diffusion() { [ -n "${RECIPE[$1]+x}" ]; }
 
 done_already() {  # kind rung seed
-  if [ $1 = train ] && [ $2 = r5 ]; then [ -f "$RUNS/r5_s$3/stats.json" ]
-  elif [ $1 = train ]; then [ -f "$RUNS/$2_s$3/eval_small/scores.json" ]
-  else [ -f "$RUNS/r5_s$3/eval_small/scores.json" ]; fi
+  if [ $1 = train ] && is_diffusion $2; then [ -f "$RUNS/$2_s$3/stats.json" ]
+  else [ -f "$RUNS/$2_s$3/eval_small/scores.json" ]; fi
 }
 
 run_job() {  # kind rung seed
   local d=$RUNS/$2_s$3
-  if [ $1 = train ] && [ $2 = r5 ]; then
-    $PY -m gspi.cli.train data="$POOL" out="$d" stage2=table2_cpu ablation=full seed=$3 > "$d.log" 2>&1
+  if [ $1 = train ] && is_diffusion $2; then
+    $PY -m gspi.cli.train data="$POOL" out="$d" stage2=${RECIPE[$2]} ablation=full seed=$3 > "$d.log" 2>&1
   elif [ $1 = train ]; then
     $PY -m gspi.stage2.ladder train --rung $2 --seed $3 --data "$POOL" --out "$d" \
       --eval heldout="$POOL":test --eval small="$SMALL":test > "$d.log" 2>&1

@@ -55,6 +55,20 @@ class TestMinSnr:
         assert w.dtype == torch.float32 and low.nonzero().min() == 261
         assert w[0].item() == pytest.approx(2.06e-4, rel=0.01)
 
+    def test_floor_keeps_x0_weight(self):
+        # x0-space weight = eps weight * SNR: Min-SNR gives min(SNR, 5), the floor max(., 1)
+        t = torch.arange(1000)
+        s = snr(t)
+        plain, floored = min_snr_eps_weights(t, gamma=5.0), min_snr_eps_weights(t, gamma=5.0, floor=1.0)
+        x0_weight = (floored.double() * s)
+        torch.testing.assert_close(x0_weight, s.clamp(1.0, 5.0), rtol=1e-6, atol=0)
+        above = s >= 1
+        assert torch.equal(plain[above], floored[above]) and above.nonzero().max() == 495
+        assert floored[999].item() > 1e6 * plain[999].item()
+        assert torch.equal(min_snr_eps_weights(t, gamma=5.0, floor=0.0), plain)
+        with pytest.raises(ValueError, match="floor 6.0"):
+            min_snr_eps_weights(t, gamma=5.0, floor=6.0)
+
 
 class TestQSample:
     def test_round_trip(self):

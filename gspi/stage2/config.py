@@ -37,12 +37,18 @@ PREDICTIONS = ("eps", "x0")
 class DiffusionConfig:
     num_train_timesteps: int = 1000   # cosine schedule length T
     min_snr_gamma: float = 5.0        # Min-SNR-gamma loss weights
+    min_snr_floor: float = 0.0        # x0-space weight floor: 0 = Min-SNR (paper), 1 = truncated SNR
     self_condition_prob: float = 0.5  # batches that take the self-conditioning pass
     prediction: str = "eps"           # output head: eps (paper) | x0 (read as eps; docs/STAGE2.md)
 
     RANGES: ClassVar[dict] = {"num_train_timesteps": (2, None), "min_snr_gamma": (0.0, None),
-                              "self_condition_prob": (0.0, 1.0)}
+                              "min_snr_floor": (0.0, None), "self_condition_prob": (0.0, 1.0)}
     CHOICES: ClassVar[dict] = {"prediction": PREDICTIONS}
+
+    def __post_init__(self) -> None:
+        if self.min_snr_floor > self.min_snr_gamma:
+            raise ValueError(f"stage2.diffusion.min_snr_floor={self.min_snr_floor} exceeds "
+                             f"min_snr_gamma={self.min_snr_gamma}: the weight is clamp(SNR, floor, gamma)")
 
 
 @dataclass

@@ -3,6 +3,7 @@ DDPM loss with a cosine schedule and Min-SNR-gamma reweighting).
 
     t ~ U{0, T-1} per sample,  eps ~ N(0, I),  f_t = q_sample(f0, t, eps)
     loss = mean_b [ w(t_b) * mean_{n,c} (eps_hat - eps)^2 ],  w = min(SNR, gamma) / SNR
+                                            (floor > 0: w = clamp(SNR, floor, gamma) / SNR)
 
 plus the two PointInfinity/RIN training tricks (method-notes 1.1, 1.3): conditions dropped
 with probability ``config.cond_drop_prob`` per sample (for classifier-free guidance), and
@@ -35,6 +36,7 @@ def denoising_loss(
     generator: Optional[torch.Generator] = None,
     alphas_cumprod: Optional[Tensor] = None,  # [T]; None = cosine, T = 1000
     min_snr_gamma: float = MIN_SNR_GAMMA,
+    min_snr_floor: float = 0.0,
     self_condition_prob: float = 0.5,
     shard: Optional[tuple[int, int]] = None,
 ) -> Tensor:
@@ -61,5 +63,5 @@ def denoising_loss(
             prev_latents = model(f_t, t, inputs, cond_keep=cond_keep).latents.detach()
     eps_hat = model(f_t, t, inputs, prev_latents=prev_latents, cond_keep=cond_keep).eps
     per_sample = (eps_hat - eps).pow(2).mean(dim=(1, 2))  # [B]
-    weights = min_snr_eps_weights(t, gamma=min_snr_gamma, alphas_cumprod=alphas_cumprod)
+    weights = min_snr_eps_weights(t, gamma=min_snr_gamma, floor=min_snr_floor, alphas_cumprod=alphas_cumprod)
     return (weights * per_sample).mean()

@@ -18,6 +18,12 @@ Formulas (Nichol & Dhariwal 2021; diffusers ``betas_for_alpha_bar``, "squaredcos
     f_t           = sqrt(alpha_bar_t) f_0 + sqrt(1 - alpha_bar_t) eps          (q_sample)
     SNR_t         = alpha_bar_t / (1 - alpha_bar_t)
     w_t (eps)     = min(SNR_t, gamma) / SNR_t                                  (Min-SNR-gamma)
+    w_t (eps)     = clamp(SNR_t, floor, gamma) / SNR_t      (floor > 0: truncated SNR, below)
+
+In x0 terms the eps error is ``SNR_t`` times the x0 error, so Min-SNR weighs the x0 error by
+``min(SNR_t, gamma)``: ~0 at the noisy end (SNR_999 ~ 6e-9), where DDIM's first step reads the
+model's x0. A floor (Salimans & Ho 2022's "truncated SNR", ``max(SNR, 1)``) keeps that weight
+at ``floor``; ``floor = 0`` is the paper's Min-SNR exactly.
 
 The schedule is kept in float64 (diffusers: float32); values are cast to the sample dtype
 where they meet tensors. Timesteps are 0-based integer indices ``t`` in ``[0, T)``.
@@ -157,17 +163,23 @@ def min_snr_eps_weights(
     t: Tensor,  # [B] int timesteps
     *,
     gamma: float = MIN_SNR_GAMMA,
+    floor: float = 0.0,
     alphas_cumprod: Optional[Tensor] = None,
 ) -> Tensor:
-    """Min-SNR-gamma loss weights for eps prediction (Hang et al. 2023): ``min(SNR, gamma) / SNR``.
+    """Min-SNR-gamma loss weights for eps prediction (Hang et al. 2023): ``min(SNR, gamma) / SNR``;
+    with ``floor > 0``, ``clamp(SNR, floor, gamma) / SNR`` (the x0-space weight never below
+    ``floor``; module docstring).
 
-    1 where SNR < gamma (for the T = 1000 cosine schedule: t >= 261), ``gamma / SNR`` else.
+    Min-SNR: 1 where SNR < gamma (for the T = 1000 cosine schedule: t >= 261), ``gamma / SNR``
+    else; with floor 1 also ``1 / SNR`` where SNR < 1 (t >= 496).
 
     Returns:
-        [B] float32 weights in (0, 1], on the device of ``t``.
+        [B] float32 weights, on the device of ``t``.
     """
+    if not 0.0 <= floor <= gamma:
+        raise ValueError(f"Min-SNR floor {floor} must lie in [0, gamma = {gamma}]")
     s = snr(t, alphas_cumprod=alphas_cumprod)
-    return (s.clamp(max=gamma) / s).float().to(torch.as_tensor(t).device)
+    return (s.clamp(min=floor, max=gamma) / s).float().to(torch.as_tensor(t).device)
 
 
 def ddim_timesteps(num_steps: int, num_train_timesteps: int = NUM_TRAIN_TIMESTEPS) -> Tensor:

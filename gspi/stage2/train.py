@@ -121,6 +121,7 @@ def train_step(state: TrainState, f0: Tensor, inputs: Stage2Inputs, cfg: Mapping
     state.model.train()
     loss = denoising_loss(state.model, f0, inputs, generator=state.loss_generator, alphas_cumprod=alphas_cumprod,
                           min_snr_gamma=float(diffusion["min_snr_gamma"]),
+                          min_snr_floor=float(diffusion["min_snr_floor"]),
                           self_condition_prob=float(diffusion["self_condition_prob"]), shard=dist.loss_shard)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"non-finite Stage II loss {float(loss)} at step {state.step}")
