@@ -21,6 +21,7 @@ class LpipsConfig:
     mode: str = "masked_mean"    # masked_mean | composite (see eval/metrics.py)
     normalize: bool = True       # inputs [0,1] -> [-1,1]; false = GS-IR/IRGS scripts' [0,1] input
     encode_srgb: bool = False    # sRGB-encode albedo/relight images before LPIPS (Stanford-ORB)
+    albedo_space: str | None = None  # albedo space LPIPS reads; None = the protocol's albedo_space
 
 
 @dataclass
@@ -28,13 +29,18 @@ class PsnrConfig:
     region: str = "mask"         # mask: MSE over GT-mask pixels | image: whole mask-multiplied image
     mse_floor: float = 1.9403145770321738e-11  # (1/65535)^2/12 (16-bit quantisation): cap 107.12 dB
     grey_floor: bool = False     # Stanford-ORB: PSNR >= that of a constant 0.5 prediction
+    channel_mean: bool = False   # mean of per-channel PSNRs (GS-IR, IRGS) instead of one MSE
+    map_pooling: str = "view"    # view: one PSNR per map | scene: one MSE pooled over a scene's views (TensoIR albedo)
+    albedo_space: str | None = None  # albedo space PSNR reads; None = the protocol's albedo_space
 
 
 @dataclass
 class SsimConfig:
     window: int = 11             # Gaussian window side (sigma 1.5); Stanford-ORB uses 3
     region: str = "mask"         # mask: map averaged in the mask | image: over the whole image
-    padding: str = "valid"       # valid: where the window fits (scikit-image) | same: zero padded
+    padding: str = "valid"       # valid: where the window fits (scikit-image) | same: kornia's
+                                 # reflection padding (Stanford-ORB) | zero: zero padded (3DGS ssim)
+    albedo_space: str | None = None  # albedo space SSIM reads; None = the protocol's albedo_space
 
 
 @dataclass
@@ -53,6 +59,7 @@ class RelightConfig:
     fill_roughness: float = 1.0
     fill_metallic: float = 0.0
     apply_albedo_alignment: bool = True  # relight with the aligned albedo when aligning
+    clamp_albedo: bool = True           # the aligned albedo relit is clamped to [0, 1] (TensoIR: not)
     scale_fit: str = "none"             # none | lstsq: per-image per-channel scale of the relit
                                         # linear prediction (Stanford-ORB `scale_invariant`)
     psnr_hdr: bool = False              # also PSNR-H on linear HDR (Stanford-ORB), metric psnr_h
@@ -70,7 +77,14 @@ class ProtocolConfig:
     background: float = 0.0             # composite value outside the mask for SSIM/LPIPS
     albedo_alignment: str = "none"      # none | scale | lstsq (= per_channel) | median_ratio
     alignment_scope: str = "scene"      # scene (pooled over its views) | view
-    albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear
+    albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear | gamma22
+    alignment_space: str = "linear"     # values the albedo scale is fitted and applied on: linear
+                                        # (decoded sRGB) | stored (the file's values: TensoIR, GS-IR, IRGS)
+    alignment_pixels: str = "mask"      # mask | mask_positive_gt (IRGS: GT > 0 in every channel too)
+    alignment_sampled_views: int | None = None  # None: every view; k: views i * (n // k), i < k (TensoIR: 20)
+    albedo_clamp: bool = True           # clamp the aligned albedo to [0, 1] (GS-IR, IRGS: no)
+    mask_prediction: bool = True        # prediction composited on `background` outside the GT mask
+                                        # (False: scored as it is there, GS-IR)
     mask_erosion_px: int = 0            # erode the GT mask by a (2r+1)^2 square (Stanford-ORB: 2)
     unpremultiply: bool = False         # divide maps by the prediction's alpha.png inside the mask
     fail_on_missing_view: bool = False  # False: report missing views and score the rest
@@ -84,7 +98,11 @@ class ProtocolConfig:
 ALIGNMENTS = ("none", "scale", "lstsq", "per_channel", "median_ratio")  # per_channel = lstsq
 SCOPES = ("scene", "view")
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
-ALBEDO_SPACES = ("srgb", "linear")
+ALBEDO_SPACES = ("srgb", "linear", "gamma22")
+ALIGNMENT_SPACES = ("linear", "stored")
+ALIGNMENT_PIXELS = ("mask", "mask_positive_gt")
+MAP_POOLINGS = ("view", "scene")
+SSIM_PADDINGS = ("valid", "same", "zero")
 REGIONS = ("mask", "image")
 LPIPS_NETS = ("alex", "vgg")
 LPIPS_MODES = ("masked_mean", "composite")
@@ -105,7 +123,18 @@ def validate_protocol(cfg) -> None:
     _allowed("albedo_space", cfg.albedo_space, ALBEDO_SPACES)
     _allowed("psnr.region", cfg.psnr.region, REGIONS)
     _allowed("ssim.region", cfg.ssim.region, REGIONS)
-    _allowed("ssim.padding", cfg.ssim.padding, ("valid", "same"))
+    _allowed("ssim.padding", cfg.ssim.padding, SSIM_PADDINGS)
+    _allowed("alignment_space", cfg.alignment_space, ALIGNMENT_SPACES)
+    _allowed("alignment_pixels", cfg.alignment_pixels, ALIGNMENT_PIXELS)
+    _allowed("psnr.map_pooling", cfg.psnr.map_pooling, MAP_POOLINGS)
+    for metric in ("psnr", "ssim", "lpips"):
+        _allowed(f"{metric}.albedo_space", getattr(cfg, metric).albedo_space, (None, *ALBEDO_SPACES))
+    k = cfg.alignment_sampled_views
+    if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 1):
+        raise ValueError(f"eval.alignment_sampled_views={k!r}: must be null or an integer >= 1")
+    if cfg.psnr.map_pooling == "scene" and cfg.psnr.grey_floor:
+        raise ValueError("eval.psnr.grey_floor applies to one image's PSNR; it cannot be combined "
+                         "with eval.psnr.map_pooling=scene")
     _allowed("lpips.net", cfg.lpips.net, LPIPS_NETS)
     _allowed("lpips.version", str(cfg.lpips.version), ("0.1",))
     _allowed("lpips.mode", cfg.lpips.mode, LPIPS_MODES)

@@ -23,7 +23,7 @@ from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_messag
                          read_scene, read_splits)
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
 from eval.scored_view import CPU, EnvironmentCache, scene_scored_views
-from eval.scoring import has_metal, metal_scores, score_pair, score_relit_pair, scored_space
+from eval.scoring import has_metal, metal_scores, pooled_psnr, score_map, score_relit_pair
 
 log = logging.getLogger(__name__)
 METRICS = ("psnr", "ssim", "lpips")
@@ -80,12 +80,6 @@ def expected_scenes(gt_root: Path, present: list[str], gt_scenes: dict[str, Path
     return sorted({n for names in splits.values() if set(names) & set(present) for n in names} & set(gt_scenes))
 
 
-def _score_channel(channel: str, pred, gt, mask, protocol, net) -> dict:
-    """Scores of one material map; albedo in the protocol's colour space."""
-    pred, gt, lpips_srgb = scored_space(channel, pred, gt, protocol)
-    return score_pair(pred, gt, mask, protocol, net, lpips_srgb=lpips_srgb)
-
-
 def _named(where: Path, score, *args) -> dict:
     """``score(*args)``; a refusal of the metrics (e.g. a mask too close to the border for the
     SSIM window) is re-raised naming ``where`` (the ground-truth view folder's mask)."""
@@ -113,18 +107,34 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
         for c in MATERIAL_CHANNELS:
             if c in protocol.channels and c in sv.pred:
                 row = {"scene": scene.name, "view": sv.view, "channel": c, "env": "",
-                       **_named(where, _score_channel, c, sv.pred[c], sv.gt[c], sv.mask, protocol, net)}
+                       **_named(where, score_map, c, sv.pred[c], sv.gt[c], sv.mask, protocol, net)}
                 if c == "metallic" and metal:
                     row.update(metal_scores(sv.pred[c], sv.gt[c], sv.mask, protocol.metallic))
                 rows.append(row)
         for env_name, pair in sv.relit.items():
             rows.append({"scene": scene.name, "view": sv.view, "channel": "relight", "env": env_name,
                          **_named(where, score_relit_pair, pair, sv.mask, protocol, net)})
+    if protocol.psnr.map_pooling == "scene":
+        pool_map_psnr(rows, views, protocol)
     divided = {sv.view for sv in views if sv.unpremultiplied}
     for row in rows:
         if row["view"] in divided:
             row["unpremultiplied"] = True
     return rows, missing
+
+
+def pool_map_psnr(rows: list[dict], views: list, protocol) -> None:
+    """``psnr.map_pooling: scene``: every material-map row of the scene gets the PSNR of one MSE
+    pooled over the scene's scored views (its own per-view PSNR kept as ``psnr_view``)."""
+    for c in MATERIAL_CHANNELS:
+        mine = [r for r in rows if r["channel"] == c]
+        if not mine:
+            continue
+        have = [sv for sv in views if c in sv.pred]
+        psnr, floored = pooled_psnr(c, [sv.pred[c] for sv in have], [sv.gt[c] for sv in have],
+                                    [sv.mask for sv in have], protocol)
+        for r in mine:
+            r["psnr_view"], r["psnr"], r["psnr_floored"] = r["psnr"], psnr, floored
 
 
 def summarise(rows: list[dict]) -> dict:

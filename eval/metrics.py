@@ -71,14 +71,26 @@ def _region(region: str) -> str:
     return region
 
 
-def masked_mse(pred: Tensor, gt: Tensor, mask: Tensor, *, region: str = "mask") -> float:
-    """Mean squared error over the masked pixels and all channels (`region="mask"`), or over
-    every pixel of the mask-multiplied images (`region="image"`)."""
+def squared_error_terms(pred: Tensor, gt: Tensor, mask: Tensor, *, region: str = "mask",
+                        mask_pred: bool = True) -> tuple[Tensor, int]:
+    """(sum of squared errors per channel [C], pixel count) of one image pair: over the masked
+    pixels (`region="mask"`) or every pixel of the mask-multiplied images (`region="image"`;
+    with ``mask_pred=False`` the prediction is not multiplied, so what it holds outside the
+    mask counts, as GS-IR's evaluation does). Sums of several views give a pooled MSE."""
     pred, gt, mask = _check(pred, gt, mask)
     if _region(region) == "image":
         m = mask[..., None].to(pred)
-        return float(((pred * m - gt * m) ** 2).mean())
-    return float(((pred - gt) ** 2)[mask].mean())
+        diff = (pred if not mask_pred else pred * m) - gt * m
+        return (diff ** 2).sum(dim=(0, 1)), mask.numel()
+    return ((pred - gt) ** 2)[mask].sum(dim=0), int(mask.sum())
+
+
+def masked_mse(pred: Tensor, gt: Tensor, mask: Tensor, *, region: str = "mask",
+               mask_pred: bool = True) -> float:
+    """Mean squared error over the masked pixels and all channels (`region="mask"`), or over
+    every pixel of the mask-multiplied images (`region="image"`; see `squared_error_terms`)."""
+    sse, count = squared_error_terms(pred, gt, mask, region=region, mask_pred=mask_pred)
+    return float(sse.sum() / (count * sse.numel()))
 
 
 def psnr_from_mse(mse: float, *, mse_floor: float = MSE_FLOOR_16BIT,
@@ -117,6 +129,7 @@ def erode_mask(mask: Tensor, radius_px: int) -> Tensor:
 
 
 SSIM_K1, SSIM_K2 = 0.01, 0.03  # scikit-image's (and kornia's) constants, data range 1
+SSIM_PADDINGS = ("valid", "same", "zero")  # same = kornia (reflection), zero = 3DGS loss_utils
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> Tensor:
@@ -129,10 +142,12 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> Tenso
 def ssim_map(pred: Tensor, gt: Tensor, *, window: int = SSIM_WINDOW, padding: str = "valid",
              eps: float = 0.0) -> Tensor:
     """SSIM map of [H, W, C] images, in the inputs' dtype and differentiable (Stage III's loss
-    uses it): [H-w+1, W-w+1, C] for padding "valid", [H, W, C] (zero padding) for "same".
+    uses it): [H-w+1, W-w+1, C] for padding "valid", [H, W, C] for "same" and "zero".
 
-    "same" (Stanford-ORB's call) is kornia.metrics.ssim with `eps` added to the denominator.
-    "valid" with eps 0 (scikit-image's convention, our default and Stage III's loss) is the
+    "same" (Stanford-ORB's call) is kornia.metrics.ssim with `eps` added to the denominator;
+    kornia pads by *reflection*. "zero" pads with zeros (the 3DGS `loss_utils.ssim` that
+    GS-IR and IRGS call: ``F.conv2d(..., padding=window // 2)``), written below because kornia
+    offers no zero padding. "valid" with eps 0 (scikit-image's convention, our default and Stage III's loss) is the
     two separable convolutions below: in float64 kornia agrees with them to 1e-14 (tested), but
     in float32 it differs by ~2e-6, which would move Stage III's optimisation and every number
     of the demo; this form keeps them exactly as they were.
@@ -140,12 +155,14 @@ def ssim_map(pred: Tensor, gt: Tensor, *, window: int = SSIM_WINDOW, padding: st
     if padding == "same" or eps != 0.0:
         x, y = (t.permute(2, 0, 1)[None] for t in (pred, gt))
         return kornia.metrics.ssim(x, y, window, eps=eps, padding=padding)[0].permute(1, 2, 0)
+    if padding not in ("valid", "zero"):
+        raise ValueError(f"unknown SSIM padding {padding!r}; allowed: {', '.join(SSIM_PADDINGS)}")
     w = gaussian_window(window).to(pred)
     x = torch.stack([pred, gt, pred * pred, gt * gt, pred * gt]).permute(0, 3, 1, 2)  # [5,C,H,W]
-    c = x.shape[1]
+    c, r = x.shape[1], (window // 2 if padding == "zero" else 0)
     x = x.reshape(1, 5 * c, *x.shape[2:])
-    x = F.conv2d(x, w.view(1, 1, 1, -1).expand(5 * c, 1, 1, -1), groups=5 * c)
-    x = F.conv2d(x, w.view(1, 1, -1, 1).expand(5 * c, 1, -1, 1), groups=5 * c)
+    x = F.conv2d(x, w.view(1, 1, 1, -1).expand(5 * c, 1, 1, -1), groups=5 * c, padding=(0, r))
+    x = F.conv2d(x, w.view(1, 1, -1, 1).expand(5 * c, 1, -1, 1), groups=5 * c, padding=(r, 0))
     mu_x, mu_y, xx, yy, xy = x.view(5, c, *x.shape[2:])
     var_x, var_y, cov = xx - mu_x**2, yy - mu_y**2, xy - mu_x * mu_y
     c1, c2 = SSIM_K1**2, SSIM_K2**2
@@ -159,13 +176,16 @@ def composite(image: Tensor, mask: Tensor, background: float) -> Tensor:
 
 
 def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, *, background: float = 0.0,
-                window: int = SSIM_WINDOW, region: str = "mask", padding: str = "valid") -> float:
+                window: int = SSIM_WINDOW, region: str = "mask", padding: str = "valid",
+                mask_pred: bool = True) -> float:
     """Mean SSIM over masked pixels or the whole image (see the module docstring).
 
     Args:
         region: "mask" (map averaged over masked pixels) or "image" (over every pixel).
-        padding: "valid" (map where the window fits: scikit-image, TensoIR) or "same" (zero
-            padded: kornia's default, Stanford-ORB, the 3DGS `ssim` GS-IR uses).
+        padding: "valid" (map where the window fits: scikit-image, TensoIR), "same" (kornia's
+            reflection padding: Stanford-ORB) or "zero" (the 3DGS `ssim` GS-IR and IRGS call).
+        mask_pred: composite the prediction on `background` outside the mask too (False: it is
+            scored as it is there, GS-IR's evaluation).
     """
     pred, gt, mask = _check(pred, gt, mask)
     h, w = mask.shape
@@ -173,11 +193,14 @@ def masked_ssim(pred: Tensor, gt: Tensor, mask: Tensor, *, background: float = 0
         raise ValueError(f"SSIM window must be an odd number of pixels, got {window}")
     if min(h, w) < window:
         raise ValueError(f"image {h}x{w} is smaller than the SSIM window {window}")
-    if padding not in ("valid", "same"):
-        raise ValueError(f"unknown SSIM padding {padding!r}; allowed: valid, same")
-    a, b = composite(pred, mask, background), composite(gt, mask, background)
+    if padding not in SSIM_PADDINGS:
+        raise ValueError(f"unknown SSIM padding {padding!r}; allowed: {', '.join(SSIM_PADDINGS)}")
+    a = composite(pred, mask, background) if mask_pred else pred
+    b = composite(gt, mask, background)
     if padding == "same":  # kornia's eps as Stanford-ORB's call (1e-5 in the background)
         s, inner = ssim_map(a, b, window=window, padding="same", eps=1e-12), mask
+    elif padding == "zero":
+        s, inner = ssim_map(a, b, window=window, padding="zero"), mask
     else:
         r = window // 2
         s, inner = ssim_map(a, b, window=window), mask[r:h - r, r:w - r]
@@ -215,13 +238,14 @@ def _to_lpips_input(image: Tensor, normalize: bool = True) -> Tensor:
 
 
 def masked_lpips(pred: Tensor, gt: Tensor, mask: Tensor, *, net=None, mode: str = "masked_mean",
-                 background: float = 0.0, normalize: bool = True) -> float:
+                 background: float = 0.0, normalize: bool = True, mask_pred: bool = True) -> float:
     """LPIPS v0.1 (the network `net` was built with) restricted to the mask (module docstring).
 
     Args:
         net: an `eval.lpips_net.LPIPS`; AlexNet from the local weight cache when None.
         mode: "masked_mean" (spatial map averaged in the mask) or "composite" (full image).
         normalize: map inputs from [0, 1] to [-1, 1] first (the reference usage).
+        mask_pred: composite the prediction on `background` too (False: GS-IR's evaluation).
     """
     if mode not in LPIPS_MODES:
         raise ValueError(f"unknown LPIPS mode {mode!r}; allowed: {', '.join(LPIPS_MODES)}")
@@ -233,7 +257,7 @@ def masked_lpips(pred: Tensor, gt: Tensor, mask: Tensor, *, net=None, mode: str 
         from eval.lpips_net import load_lpips
         net = load_lpips()
     device = next(net.parameters()).device
-    x = _to_lpips_input(composite(pred, mask, background), normalize).to(device)
+    x = _to_lpips_input(composite(pred, mask, background) if mask_pred else pred, normalize).to(device)
     y = _to_lpips_input(composite(gt, mask, background), normalize).to(device)
     with torch.no_grad():
         if mode == "composite":

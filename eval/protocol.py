@@ -14,9 +14,19 @@ ALIGNMENT_ALIASES = {"per_channel": "lstsq"}  # the spelling of protocol v1 docs
 MEDIAN_EPS = 1e-6  # TensoIR's clamp of the prediction before the ratio
 
 
+def _decoder(space: str):
+    if space == "linear":
+        return lambda x: srgb_to_linear(x.double())
+    if space == "stored":
+        return lambda x: x.double()
+    raise ValueError(f"unknown alignment space {space!r}; allowed: linear, stored")
+
+
 def fit_albedo_scale(pred_srgb: list[Tensor], gt_srgb: list[Tensor], masks: list[Tensor],
-                     mode: str) -> Tensor:
-    """Scale of the LINEAR predicted albedo towards the ground truth over masked pixels.
+                     mode: str, space: str = "linear") -> Tensor:
+    """Scale of the predicted albedo towards the ground truth over masked pixels, in LINEAR
+    RGB (``space="linear"``) or on the stored values (``"stored"``: TensoIR, GS-IR and IRGS
+    read their albedo PNGs as linear and fit on what the file holds).
 
     Args:
         pred_srgb, gt_srgb: lists of [H, W, 3] sRGB-encoded albedos (pooled together).
@@ -27,14 +37,15 @@ def fit_albedo_scale(pred_srgb: list[Tensor], gt_srgb: list[Tensor], masks: list
             median of gt / max(pred, 1e-6) (TensoIR `compute_rescale_ratio`, GS-IR, IRGS mode 2;
             torch.median: the lower middle value for an even count, as in TensoIR).
     Returns:
-        [3] scale (linear space), on the masks' device.
+        [3] scale (in ``space``), on the masks' device.
     """
     mode = ALIGNMENT_ALIASES.get(mode, mode)
     ones = dict(dtype=torch.float64, device=masks[0].device if masks else None)
     if mode == "none":
         return torch.ones(3, **ones)
-    p = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(pred_srgb, masks)])  # [P, 3]
-    g = torch.cat([srgb_to_linear(x.double())[m] for x, m in zip(gt_srgb, masks)])
+    decode = _decoder(space)
+    p = torch.cat([decode(x)[m] for x, m in zip(pred_srgb, masks)])  # [P, 3]
+    g = torch.cat([decode(x)[m] for x, m in zip(gt_srgb, masks)])
     if p.shape[0] == 0:
         return torch.ones(3, **ones)
     if mode == "scale":
@@ -50,12 +61,33 @@ def fit_albedo_scale(pred_srgb: list[Tensor], gt_srgb: list[Tensor], masks: list
                      "per_channel (= lstsq), median_ratio")
 
 
-def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor) -> Tensor:
-    """Scale an sRGB-encoded albedo in linear space, clamp to [0, 1], re-encode."""
+def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor, space: str = "linear", clamp: bool = True
+                       ) -> Tensor:
+    """Scale an sRGB-encoded albedo in linear space (re-encoded after) or on its stored values
+    (``space="stored"``), clamped to [0, 1] unless ``clamp`` is False (GS-IR and IRGS keep the
+    scaled values; TensoIR relights with them)."""
     if torch.all(scale == 1):
         return albedo_srgb
-    lin = srgb_to_linear(albedo_srgb.double()) * scale.to(torch.float64)
-    return linear_to_srgb(lin.clamp(0.0, 1.0)).to(albedo_srgb.dtype)
+    if space == "stored":
+        out = albedo_srgb.double() * scale.to(torch.float64)
+        return (out.clamp(0.0, 1.0) if clamp else out).to(albedo_srgb.dtype)
+    lin = _decoder(space)(albedo_srgb) * scale.to(torch.float64)
+    return linear_to_srgb(lin.clamp(0.0, 1.0) if clamp else lin.clamp_min(0.0)).to(albedo_srgb.dtype)
+
+
+def srgb_decode_unclamped(x: Tensor) -> Tensor:
+    """The sRGB decoding curve continued past 1 (for a stored-space aligned albedo relit
+    unclamped; ``eval.colorspace.srgb_to_linear`` clamps to [0, 1] first)."""
+    x = x.double().clamp_min(0.0)
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def unclamped_linear_albedo(albedo_srgb: Tensor, scale: Tensor, space: str = "linear") -> Tensor:
+    """The linear albedo after the alignment scale, not clamped above 1 (TensoIR relights with
+    ``albedo * ratio`` as it is)."""
+    if space == "stored":
+        return srgb_decode_unclamped(albedo_srgb.double() * scale.to(torch.float64))
+    return _decoder(space)(albedo_srgb) * scale.to(torch.float64)
 
 
 def display_relit(radiance_linear: Tensor, relight_cfg) -> Tensor:

@@ -40,7 +40,21 @@ def scored_split(protocol) -> str:
 # Keys added after a protocol was in use, whose default IS the earlier behaviour: at that
 # default they are dropped before hashing, so an evaluation recorded before the key existed
 # and one recorded after hash alike (and tables may mix them); any other value is hashed.
-LATER_KEYS = {"unpremultiply": False}
+# Dotted keys name nested fields. (Issue 28 added the field's conventions as options.)
+LATER_KEYS = {"unpremultiply": False, "alignment_space": "linear", "alignment_pixels": "mask",
+              "alignment_sampled_views": None, "albedo_clamp": True, "mask_prediction": True,
+              "psnr.channel_mean": False, "psnr.map_pooling": "view", "psnr.albedo_space": None,
+              "ssim.albedo_space": None, "lpips.albedo_space": None, "relight.clamp_albedo": True}
+
+
+def _drop_neutral(tree: dict, dotted: str, neutral) -> None:
+    head, _, rest = dotted.partition(".")
+    if rest:
+        if isinstance(tree.get(head), dict):
+            tree[head] = dict(tree[head])
+            _drop_neutral(tree[head], rest, neutral)
+    elif head in tree and (tree[head] is neutral or (type(tree[head]) is type(neutral) and tree[head] == neutral)):
+        del tree[head]
 
 
 def canonical(protocol: dict) -> dict:
@@ -51,8 +65,7 @@ def canonical(protocol: dict) -> dict:
         if out.get(key) in names:
             out[key] = names[out[key]]
     for key, neutral in LATER_KEYS.items():
-        if key in out and out[key] is neutral:
-            del out[key]
+        _drop_neutral(out, key, neutral)
     return out
 
 

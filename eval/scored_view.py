@@ -27,7 +27,7 @@ from torch import Tensor
 from eval.imageio import read_exr
 from eval.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
 from eval.metrics import erode_mask
-from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale
+from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale, unclamped_linear_albedo
 from eval.protocol_id import scored_split
 from eval.unpremultiply import unpremultiply
 from eval.views import relight_view, view_directions
@@ -116,18 +116,55 @@ def scored_mask(where: str, mask: Tensor, protocol) -> Tensor:
     return eroded
 
 
-def align_albedo(pred: list[Tensor], gt: list[Tensor], masks: list[Tensor], mode: str, scope: str
-                 ) -> list[Tensor]:
-    """The predicted albedos [H, W, 3] (sRGB) of a scene's views after the protocol's alignment:
-    one linear scale fitted over all views (``scope="scene"``) or one per view (``"view"``)."""
+def sampled_view_indices(n: int, k: int | None) -> list[int]:
+    """Views the scene-scope alignment pools: all, or TensoIR's ``compute_rescale_ratio``
+    sample ``i * (n // k)`` for ``i < k`` (with fewer than k views that is view 0, k times)."""
+    return list(range(n)) if k is None else [i * (n // k) for i in range(k)]
+
+
+def albedo_scales(pred: list[Tensor], gt: list[Tensor], masks: list[Tensor], mode: str, scope: str, *,
+                  space: str = "linear", pixels: str = "mask", sampled_views: int | None = None
+                  ) -> list[Tensor]:
+    """The [3] alignment scale of each view: one fitted over the scene's (sampled) views
+    (``scope="scene"``) or one per view (``"view"``), on the GT-mask pixels (``pixels="mask"``)
+    or those whose GT is > 0 in every channel too (``"mask_positive_gt"``, IRGS)."""
     if not pred:
         return []
+    if pixels == "mask_positive_gt":
+        masks = [m & (g > 0).all(dim=-1) for m, g in zip(masks, gt)]
+    elif pixels != "mask":
+        raise ValueError(f"eval.alignment_pixels={pixels!r}; allowed: mask, mask_positive_gt")
     if scope == "scene":
-        scale = fit_albedo_scale(pred, gt, masks, mode)
-        return [apply_albedo_scale(p, scale) for p in pred]
+        idx = sampled_view_indices(len(pred), sampled_views)
+        scale = fit_albedo_scale([pred[i] for i in idx], [gt[i] for i in idx], [masks[i] for i in idx],
+                                 mode, space)
+        return [scale] * len(pred)
     if scope != "view":
         raise ValueError(f"eval.alignment_scope={scope!r}; allowed: scene, view")
-    return [apply_albedo_scale(p, fit_albedo_scale([p], [g], [m], mode)) for p, g, m in zip(pred, gt, masks)]
+    return [fit_albedo_scale([p], [g], [m], mode, space) for p, g, m in zip(pred, gt, masks)]
+
+
+def protocol_alignment(protocol) -> dict:
+    """The keyword arguments of ``albedo_scales`` a protocol sets."""
+    return {"space": protocol.alignment_space, "pixels": protocol.alignment_pixels,
+            "sampled_views": protocol.alignment_sampled_views}
+
+
+def align_albedo(pred: list[Tensor], gt: list[Tensor], masks: list[Tensor], mode: str, scope: str, *,
+                 space: str = "linear", clamp: bool = True, pixels: str = "mask",
+                 sampled_views: int | None = None) -> list[Tensor]:
+    """The predicted albedos [H, W, 3] (sRGB) of a scene's views after the protocol's alignment
+    (``albedo_scales``), applied inside the GT mask (outside it the prediction is left as it
+    is, as GS-IR's ``albedo_map[mask] *= ratio``), clamped to [0, 1] unless ``clamp`` is False."""
+    scales = albedo_scales(pred, gt, masks, mode, scope, space=space, pixels=pixels, sampled_views=sampled_views)
+    return apply_scales(pred, scales, masks, space=space, clamp=clamp)
+
+
+def apply_scales(pred: list[Tensor], scales: list[Tensor], masks: list[Tensor], *, space: str = "linear",
+                 clamp: bool = True) -> list[Tensor]:
+    """Each view's albedo scaled inside its GT mask (``eval.protocol.apply_albedo_scale``)."""
+    return [torch.where(m[..., None], apply_albedo_scale(p, s, space, clamp), p)
+            for p, s, m in zip(pred, scales, masks)]
 
 
 def relit_scale(out_linear: Tensor, ref_linear: Tensor, mask: Tensor) -> Tensor:
@@ -150,11 +187,14 @@ def relit_pair(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg
 
 
 def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, mask: Tensor, protocol,
-                envs: EnvironmentCache) -> dict[str, RelitPair]:
-    """env -> RelitPair of one view (GT normals; unmodelled channels filled with constants)."""
+                envs: EnvironmentCache, scale: Optional[Tensor] = None) -> dict[str, RelitPair]:
+    """env -> RelitPair of one view (GT normals; unmodelled channels filled with constants).
+    ``scale``: the view's albedo alignment scale (for ``relight.clamp_albedo: false``)."""
     cfg = protocol.relight
     h, w = mask.shape
-    albedo = p["albedo"] if cfg.apply_albedo_alignment else raw_albedo
+    albedo, albedo_linear = (p["albedo"] if cfg.apply_albedo_alignment else raw_albedo), None
+    if cfg.apply_albedo_alignment and not cfg.clamp_albedo and scale is not None:
+        albedo_linear = unclamped_linear_albedo(raw_albedo, scale, protocol.alignment_space).to(raw_albedo.dtype)
     fill = dict(device=mask.device)
     rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness), **fill))
     metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic), **fill))
@@ -162,7 +202,7 @@ def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, mask: Tensor
     for env_name in (cfg.envs or scene.relight_envs):
         env = envs.get(scene.envmap_path(env_name))
         ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
-        pred = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env)
+        pred = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env, albedo_linear=albedo_linear)
         out[env_name] = relit_pair(pred, ref, mask, cfg)
     return out
 
@@ -194,9 +234,11 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
     missing = [{"scene": scene.name, "view": v.id, "channel": c}
                for v in all_views for c in modelled if c not in preds[v.id]]
     have = [v.id for v in all_views if "albedo" in preds[v.id]]
-    aligned = dict(zip(have, align_albedo([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have],
-                                          [masks[i] for i in have], protocol.albedo_alignment,
-                                          protocol.alignment_scope)))
+    args = ([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have], [masks[i] for i in have],
+            protocol.albedo_alignment, protocol.alignment_scope)
+    scales = dict(zip(have, albedo_scales(*args, **protocol_alignment(protocol))))
+    aligned = dict(zip(have, apply_scales(args[0], [scales[i] for i in have], args[2],
+                                          space=protocol.alignment_space, clamp=bool(protocol.albedo_clamp))))
     ids = None if views is None else {v.id for v in views}  # views of another split are not scored
     wanted = [v for v in all_views if ids is None or v.id in ids]
     out = []
@@ -206,7 +248,7 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         if v.id in aligned:
             raw, p["albedo"] = p["albedo"], aligned[v.id]
             if "relight" in protocol.channels and all(c in p for c in modelled):
-                relit = relit_pairs(scene, gt[v.id], p, raw, masks[v.id], protocol, envs)
+                relit = relit_pairs(scene, gt[v.id], p, raw, masks[v.id], protocol, envs, scales[v.id])
         out.append(ScoredView(scene=scene.name, view=v.id, mask=masks[v.id], gt=gt[v.id], pred=p, relit=relit,
                               unpremultiplied=v.id in divided))
     return out, missing

@@ -10,46 +10,120 @@ from __future__ import annotations
 from torch import Tensor
 
 from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.metrics import (grey_psnr, masked_iou, masked_lpips, masked_mae, masked_mse,
-                          masked_ssim, psnr_from_mse)
+from eval.metrics import (grey_psnr, masked_iou, masked_lpips, masked_mae, masked_ssim,
+                          psnr_from_mse, squared_error_terms)
 from eval.scored_view import RelitPair, relit_pair
 
 
-def psnr_scores(pred: Tensor, gt: Tensor, mask: Tensor, psnr_cfg) -> tuple[float, bool]:
-    """(PSNR in dB, whether the MSE floor was hit) under `protocol.psnr`."""
+def psnr_from_terms(sse: Tensor, count: int, psnr_cfg) -> tuple[float, bool]:
+    """(PSNR in dB, whether the MSE floor was hit) from squared-error sums per channel
+    (``eval.metrics.squared_error_terms``, of one view or pooled over several): one MSE over
+    all channels, or with ``psnr.channel_mean`` the mean of the per-channel PSNRs (GS-IR's and
+    IRGS's ``psnr`` on a [3, H, W] image: ``view(shape[0], -1)`` makes one PSNR per channel)."""
     floor = float(psnr_cfg.mse_floor)
-    mse = masked_mse(pred, gt, mask, region=psnr_cfg.region)
-    psnr = psnr_from_mse(mse, mse_floor=floor)
+    if psnr_cfg.channel_mean:
+        mses = [float(x) / count for x in sse]
+        return sum(psnr_from_mse(m, mse_floor=floor) for m in mses) / len(mses), min(mses) <= floor
+    mse = float(sse.sum()) / (count * sse.numel())
+    return psnr_from_mse(mse, mse_floor=floor), mse <= floor
+
+
+def psnr_scores(pred: Tensor, gt: Tensor, mask: Tensor, psnr_cfg, *, mask_pred: bool = True
+                ) -> tuple[float, bool]:
+    """(PSNR in dB, whether the MSE floor was hit) under `protocol.psnr`."""
+    psnr, floored = psnr_from_terms(*squared_error_terms(pred, gt, mask, region=psnr_cfg.region,
+                                                         mask_pred=mask_pred), psnr_cfg)
     if psnr_cfg.grey_floor:
-        psnr = max(psnr, grey_psnr(gt, mask, region=psnr_cfg.region, mse_floor=floor))
-    return psnr, mse <= floor
+        psnr = max(psnr, grey_psnr(gt, mask, region=psnr_cfg.region, mse_floor=float(psnr_cfg.mse_floor)))
+    return psnr, floored
 
 
-def scored_space(channel: str, pred: Tensor, gt: Tensor, protocol) -> tuple[Tensor, Tensor, bool]:
-    """(pred, gt) in the colour space the protocol scores ``channel`` in (albedo: ``albedo_space``;
-    maps are stored sRGB-encoded), and whether LPIPS sRGB-encodes them again first."""
-    if channel == "albedo" and protocol.albedo_space == "linear":
-        return srgb_to_linear(pred.double()), srgb_to_linear(gt.double()), bool(protocol.lpips.encode_srgb)
-    return pred, gt, False
+METRIC_NAMES = ("psnr", "ssim", "lpips")
+
+
+def encode_albedo(albedo: Tensor, space: str) -> Tensor:
+    """An albedo as stored (sRGB-encoded) in the space a metric reads: ``srgb`` as stored,
+    ``linear`` decoded, ``gamma22`` the stored values raised to 1/2.2 (TensoIR reads its PNG
+    as linear and encodes it with x^(1/2.2) for its albedo PSNR)."""
+    if space == "srgb":
+        return albedo
+    if space == "linear":
+        return srgb_to_linear(albedo.double())
+    if space == "gamma22":
+        return albedo.double().clamp_min(0.0) ** (1.0 / 2.2)
+    raise ValueError(f"unknown albedo space {space!r}; allowed: srgb, linear, gamma22")
+
+
+def metric_space(protocol, metric: str) -> str:
+    """The colour space albedo is scored in by ``metric``: its own ``<metric>.albedo_space``,
+    else the protocol's ``albedo_space``."""
+    own = getattr(getattr(protocol, metric), "albedo_space", None)
+    return own or protocol.albedo_space
+
+
+def scored_space(channel: str, pred: Tensor, gt: Tensor, protocol, metric: str = "psnr"
+                 ) -> tuple[Tensor, Tensor, bool]:
+    """(pred, gt) in the colour space the protocol scores ``channel`` in with ``metric``
+    (albedo: ``metric_space``; maps are stored sRGB-encoded), and whether LPIPS sRGB-encodes
+    them again first (``lpips.encode_srgb``, for albedo scored linear)."""
+    if channel != "albedo":
+        return pred, gt, False
+    space = metric_space(protocol, metric)
+    again = space == "linear" and bool(protocol.lpips.encode_srgb)
+    return encode_albedo(pred, space), encode_albedo(gt, space), again
+
+
+def score_images(images: dict[str, tuple[Tensor, Tensor]], mask: Tensor, protocol, net, *,
+                 lpips_srgb: bool = False) -> dict:
+    """{psnr, psnr_floored, ssim, lpips} of [H, W, C] image pairs, one pair per metric
+    (``images[metric] = (pred, gt)`` in the space that metric reads)."""
+    keep = bool(protocol.mask_prediction)
+    psnr, floored = psnr_scores(*images["psnr"], mask, protocol.psnr, mask_pred=keep)
+    lp_pred, lp_gt = images["lpips"]
+    if lpips_srgb:
+        lp_pred, lp_gt = linear_to_srgb(lp_pred), linear_to_srgb(lp_gt)
+    return {"psnr": psnr, "psnr_floored": floored,
+            "ssim": masked_ssim(*images["ssim"], mask, background=protocol.background,
+                                window=int(protocol.ssim.window), region=protocol.ssim.region,
+                                padding=protocol.ssim.padding, mask_pred=keep),
+            "lpips": masked_lpips(lp_pred, lp_gt, mask, net=net, mode=protocol.lpips.mode,
+                                  background=protocol.background,
+                                  normalize=bool(protocol.lpips.normalize), mask_pred=keep)}
 
 
 def score_pair(pred: Tensor, gt: Tensor, mask: Tensor, protocol, net, *,
                lpips_srgb: bool = False) -> dict:
-    """{psnr, psnr_floored, ssim, lpips} of [H, W, C] images in the scored colour space.
+    """{psnr, psnr_floored, ssim, lpips} of one [H, W, C] image pair in the scored colour space.
 
     Args:
         lpips_srgb: sRGB-encode both images before LPIPS (protocol.lpips.encode_srgb, albedo
             and relight only).
     """
-    psnr, floored = psnr_scores(pred, gt, mask, protocol.psnr)
-    lp_pred, lp_gt = (linear_to_srgb(pred), linear_to_srgb(gt)) if lpips_srgb else (pred, gt)
-    return {"psnr": psnr, "psnr_floored": floored,
-            "ssim": masked_ssim(pred, gt, mask, background=protocol.background,
-                                window=int(protocol.ssim.window), region=protocol.ssim.region,
-                                padding=protocol.ssim.padding),
-            "lpips": masked_lpips(lp_pred, lp_gt, mask, net=net, mode=protocol.lpips.mode,
-                                  background=protocol.background,
-                                  normalize=bool(protocol.lpips.normalize))}
+    return score_images({m: (pred, gt) for m in METRIC_NAMES}, mask, protocol, net, lpips_srgb=lpips_srgb)
+
+
+def score_map(channel: str, pred: Tensor, gt: Tensor, mask: Tensor, protocol, net) -> dict:
+    """Scores of one material map; albedo in each metric's colour space (``scored_space``)."""
+    images, lpips_srgb = {}, False
+    for metric in METRIC_NAMES:
+        p, g, again = scored_space(channel, pred, gt, protocol, metric)
+        images[metric] = (p, g)
+        if metric == "lpips":
+            lpips_srgb = again
+    return score_images(images, mask, protocol, net, lpips_srgb=lpips_srgb)
+
+
+def pooled_psnr(channel: str, preds: list[Tensor], gts: list[Tensor], masks: list[Tensor], protocol
+                ) -> tuple[float, bool]:
+    """PSNR of one MSE pooled over a scene's views (``psnr.map_pooling: scene``: TensoIR's
+    albedo PSNR, ``np.mean`` over the stacked views of a scene)."""
+    total, count = None, 0
+    for pred, gt, mask in zip(preds, gts, masks):
+        p, g, _ = scored_space(channel, pred, gt, protocol, "psnr")
+        sse, n = squared_error_terms(p, g, mask, region=protocol.psnr.region,
+                                     mask_pred=bool(protocol.mask_prediction))
+        total, count = (sse if total is None else total + sse), count + n
+    return psnr_from_terms(total, count, protocol.psnr)
 
 
 def psnr_hdr(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg, psnr_cfg

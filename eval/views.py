@@ -37,12 +37,14 @@ def view_directions(K: np.ndarray, w2c: np.ndarray, height: int, width: int) -> 
     return -pixel_rays(K, w2c, height, width)
 
 
-def relight_view(albedo_srgb: Tensor, roughness: Tensor, metallic: Tensor, normal: Tensor,
-                 view_dir: Tensor, env) -> Tensor:
+def relight_view(albedo_srgb: Tensor | None, roughness: Tensor, metallic: Tensor, normal: Tensor,
+                 view_dir: Tensor, env, *, albedo_linear: Tensor | None = None) -> Tensor:
     """Shade one view's material maps under an environment with the split-sum shader.
 
     Args:
         albedo_srgb: [H, W, 3] sRGB-encoded albedo in [0, 1] (as stored in albedo.png).
+        albedo_linear: [H, W, 3] linear albedo used instead (may exceed 1: an aligned albedo
+            relit unclamped, ``eval.relight.clamp_albedo: false``).
         roughness, metallic: [H, W, 1] linear in [0, 1].
         normal: [H, W, 3] world-space normals (normalised here; zero normals give black).
         view_dir: [H, W, 3] unit vectors surface -> camera.
@@ -55,5 +57,6 @@ def relight_view(albedo_srgb: Tensor, roughness: Tensor, metallic: Tensor, norma
     valid = normal.norm(dim=-1, keepdim=True) > 0.5
     n = torch.nn.functional.normalize(normal, dim=-1)
     n = torch.where(valid, n, view_dir)  # any unit vector; masked out below
-    radiance = split_sum(srgb_to_linear(albedo_srgb), roughness, metallic, n, view_dir, env)
+    base = srgb_to_linear(albedo_srgb) if albedo_linear is None else albedo_linear
+    radiance = split_sum(base, roughness, metallic, n, view_dir, env)
     return torch.where(valid, radiance, torch.zeros_like(radiance))

@@ -96,12 +96,12 @@ class TestPresetsCompose:
 class TestOptions:
     def test_albedo_space_linear_scores_decoded_values(self, lpips_net):
         cfg = preset("default", "eval.albedo_space=linear")
-        from eval.evaluate import _score_channel
+        from eval.scoring import score_map
         mask = square()
-        row = _score_channel("albedo", const(0.5), const(0.6), mask, cfg, lpips_net)
+        row = score_map("albedo", const(0.5), const(0.6), mask, cfg, lpips_net)
         d = float(srgb_to_linear(torch.tensor(0.6, dtype=torch.float64)) - srgb_to_linear(torch.tensor(0.5, dtype=torch.float64)))
         assert row["psnr"] == pytest.approx(-10 * math.log10(d * d), abs=1e-6)
-        srgb = _score_channel("albedo", const(0.5), const(0.6), mask, preset("default"), lpips_net)
+        srgb = score_map("albedo", const(0.5), const(0.6), mask, preset("default"), lpips_net)
         assert srgb["psnr"] == pytest.approx(20.0, abs=1e-9)
 
     def test_alignment_modes_and_the_per_channel_alias(self):

@@ -26,11 +26,11 @@ def figure_panels(sv: ScoredView, protocol) -> list[tuple[str, np.ndarray, np.nd
         psnr = None
         if pred is not None:
             p, g, _ = scored_space(c, pred, sv.gt[c], protocol)
-            psnr = psnr_scores(p, g, sv.mask, protocol.psnr)[0]
+            psnr = psnr_scores(p, g, sv.mask, protocol.psnr, mask_pred=bool(protocol.mask_prediction))[0]
         out.append((c, sv.gt[c].cpu().numpy(), None if pred is None else pred.cpu().numpy(), psnr))
     for env, pair in sv.relit.items():
         out.append((f"relit: {env}", pair.gt.cpu().numpy(), pair.pred.cpu().numpy(),
-                    psnr_scores(pair.pred, pair.gt, sv.mask, protocol.psnr)[0]))
+                    psnr_scores(pair.pred, pair.gt, sv.mask, protocol.psnr, mask_pred=bool(protocol.mask_prediction))[0]))
     return out
 
 
