@@ -149,3 +149,5 @@ def test_rung_of_a_diffusion_run_is_its_folder_name():
     assert rung_of({"ladder": {}, "ablation": "r3"}) == "r3"
     assert rung_of({"ablation": "full", "checkpoint": "/x/runs/r5skip_s2/checkpoint.pt"}) == "r5skip"
     assert rung_of({"ablation": "full", "checkpoint": "/x/runs/t2cpu/full/checkpoint.pt"}) == "r5"
+    assert rung_of({"ablation": "full", "checkpoint": "/x/runs/r6skip_s1/checkpoint.pt"}) == "r6skip"
+    assert rung_of({"ablation": "full", "checkpoint": "/x/runs/rerun_s1/checkpoint.pt"}) == "r5"

@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import re
+
 import numpy as np
 
 from eval.points_breakdown import MATERIAL_CLASSES as CLASSES
@@ -22,12 +24,13 @@ from eval.tables_sweep import AVG_CHANNELS as CHANNELS
 
 def rung_of(data: dict) -> str:
     """A folder's rung: the ladder's own name; for a diffusion model scored by evaluate_points,
-    its run folder's name before ``_s<seed>`` (``runs/ladder/r5skip_s0`` -> ``r5skip``), else r5."""
+    its run folder's name before ``_s<seed>`` when it names a rung (``runs/ladder/r5skip_s0`` ->
+    ``r5skip``, ``r6_s1`` -> ``r6``), else r5."""
     if "ladder" in data:
         return str(data["ablation"])
     run = Path(str(data.get("checkpoint", ""))).parent.name
     stem, sep, seed = run.rpartition("_s")
-    return stem if sep and seed.isdigit() and stem.startswith("r5") else "r5"
+    return stem if sep and seed.isdigit() and re.fullmatch(r"r\d+[a-z0-9_]*", stem) else "r5"
 
 
 def seed_row(per_scene: dict, metal_iou: dict) -> dict[str, float]:
