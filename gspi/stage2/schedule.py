@@ -21,7 +21,7 @@ Formulas (Nichol & Dhariwal 2021; diffusers ``betas_for_alpha_bar``, "squaredcos
     w_t (eps)     = clamp(SNR_t, floor, gamma) / SNR_t      (floor > 0: truncated SNR, below)
 
 In x0 terms the eps error is ``SNR_t`` times the x0 error, so Min-SNR weighs the x0 error by
-``min(SNR_t, gamma)``: ~0 at the noisy end (SNR_999 ~ 6e-9), where DDIM's first step reads the
+``min(SNR_t, gamma)``: ~0 at the noisy end (SNR_999 ~ 2e-9), where DDIM's first step reads the
 model's x0. A floor (Salimans & Ho 2022's "truncated SNR", ``max(SNR, 1)``) keeps that weight
 at ``floor``; ``floor = 0`` is the paper's Min-SNR exactly.
 
