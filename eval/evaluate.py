@@ -27,7 +27,7 @@ from eval.scoring import has_metal, metal_scores, pooled_psnr, score_map, score_
 
 log = logging.getLogger(__name__)
 METRICS = ("psnr", "ssim", "lpips")
-EXTRA_METRICS = ("psnr_h", "mae", "iou")  # present only where the protocol computes them
+EXTRA_METRICS = ("psnr_h", "mae", "iou", "psnr_metal")  # present only where the protocol computes them
 
 
 @dataclass
@@ -116,6 +116,9 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
                          **_named(where, score_relit_pair, pair, sv.mask, protocol, net)})
     if protocol.psnr.map_pooling == "scene":
         pool_map_psnr(rows, views, protocol)
+    for row in rows:  # metallic PSNR again, over the scenes with metal only (a method that
+        if row["channel"] == "metallic" and "mae" in row:  # predicts 0 everywhere scores low here)
+            row["psnr_metal"] = row["psnr"]
     divided = {sv.view for sv in views if sv.unpremultiplied}
     for row in rows:
         if row["view"] in divided:

@@ -58,7 +58,7 @@ def write_result(out_dir: str | Path, result: EvalResult, protocol_dict: dict | 
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    extra = [m for m in ("psnr_h", "mae", "iou") if any(m in r for r in result.rows)]
+    extra = [m for m in ("psnr_h", "mae", "iou", "psnr_metal") if any(m in r for r in result.rows)]
     frame = pd.DataFrame(result.rows, columns=["scene", "view", "channel", "env", "psnr", "ssim",
                                                "lpips", "psnr_floored", *extra])
     write_text_atomic(out / "per_view.csv", frame.to_csv(index=False))
@@ -79,7 +79,7 @@ def format_summary(result: EvalResult) -> str:
     counts = result.info.get("counts", {})
     for channel, m in result.summary.items():
         psnr = "inf" if math.isinf(m["psnr"]) else f"{m['psnr']:.2f}"
-        extra = "  ".join(f"{k} {m[k]:.4g}" for k in ("psnr_h", "mae", "iou") if k in m)
+        extra = "  ".join(f"{k} {m[k]:.4g}" for k in ("psnr_h", "mae", "iou", "psnr_metal") if k in m)
         floored = counts.get(channel, {}).get("psnr_floored", 0)
         lines.append(f"{channel:<10} {psnr:>8} {100 * m['ssim']:>8.2f} {100 * m['lpips']:>9.2f} "
                      f"{floored:>8}  {extra}".rstrip())

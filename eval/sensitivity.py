@@ -23,8 +23,8 @@ from eval.evaluate import EXTRA_METRICS, METRICS, evaluate
 from eval.tables_render import write_text_atomic
 
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False, "psnr_h": True, "mae": False,
-                    "iou": True}
-DISPLAY = {"psnr": 1.0, "ssim": 100.0, "lpips": 100.0, "psnr_h": 1.0, "mae": 100.0, "iou": 100.0}
+                    "iou": True, "psnr_metal": True}
+DISPLAY = {"psnr": 1.0, "ssim": 100.0, "lpips": 100.0, "psnr_h": 1.0, "mae": 100.0, "iou": 100.0, "psnr_metal": 1.0}
 
 
 def compose_protocol(overrides: list[str]):

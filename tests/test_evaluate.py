@@ -156,9 +156,12 @@ def test_metallic_mae_and_iou_on_scenes_with_metal(sphere_dataset, tmp_path, lpi
         # a view that shows metal: IoU 0; one that shows none: both metal sets empty, IoU 1
         assert row["iou"] == (0.0 if row["mae"] > 0 else 1.0) and row["mae"] < 1
     assert sum(r["mae"] > 0 for r in result.rows) >= 3
+    # the metal-scene PSNR is the metallic PSNR of exactly those rows (every scene has metal here)
+    assert all(r["psnr_metal"] == r["psnr"] for r in result.rows)
+    assert result.summary["metallic"]["psnr_metal"] == pytest.approx(result.summary["metallic"]["psnr"])
     off = evaluate(sphere_dataset, pred, protocol(channels=["metallic"],
                                                   **{"metallic.extra_metrics": False}), net=lpips_net)
-    assert "mae" not in off.summary["metallic"]
+    assert "mae" not in off.summary["metallic"] and "psnr_metal" not in off.summary["metallic"]
 
 
 def read_view_metallic(view_dir):
