@@ -22,7 +22,7 @@ from eval.scoring import pooled_psnr, score_map, score_relit_pair
 from tests.preset_fixtures import CASES, RELIT_ENVS, albedo_case, relit_case
 
 GOLDEN = Path(__file__).parent / "golden"
-PROJECTS = ("tensoir", "gs_ir", "irgs")
+PROJECTS = ("tensoir", "gs_ir", "irgs", "r3dg")
 TOL = {"psnr": 1e-3, "ssim": 1e-4, "lpips": 1e-4}
 
 

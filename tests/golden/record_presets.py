@@ -1,6 +1,6 @@
-"""Record what TensoIR's, GS-IR's and IRGS's own evaluation code answers on the preset fixtures,
+"""Record what TensoIR's, GS-IR's, IRGS's and R3DG's own evaluation code answers on the preset fixtures,
 once, as goldens (tests/golden/preset_<project>.json; tests/test_preset_goldens.py compares the
-`eval=tensoir|gs_ir|irgs` presets with them on every commit).
+`eval=tensoir|gs_ir|irgs|r3dg` presets with them on every commit).
 
 Each project's code is run **unchanged** from a checkout at the commit named below (outside this
 repository: none of it is copied here). Functions (``rgb_ssim``, ``rgb_lpips``, 3DGS ``psnr`` /
@@ -16,9 +16,10 @@ eval.lpips_weights installs, handed to torchvision/torch.hub through a temporary
     git clone https://github.com/Haian-Jin/TensoIR /tmp/ext/tensoir   # at 8f7b8dd
     git clone https://github.com/lzhnb/GS-IR /tmp/ext/gs-ir            # at e5a030b
     git clone https://github.com/fudan-zvg/IRGS /tmp/ext/irgs          # at 1461869
+    git clone https://github.com/NJU-3DV/Relightable3DGaussian /tmp/ext/r3dg  # at a102f14
     python -m pip install --target /tmp/oracle --no-deps lpips torchvision==0.29.1 opencv-python-headless
     PYTHONPATH=/tmp/oracle:. python -m tests.golden.record_presets tensoir=/tmp/ext/tensoir \\
-        gs_ir=/tmp/ext/gs-ir irgs=/tmp/ext/irgs
+        gs_ir=/tmp/ext/gs-ir irgs=/tmp/ext/irgs r3dg=/tmp/ext/r3dg
 
 (recorded with lpips 0.1.4, torchvision 0.29.1 on torch 2.13.0+cpu; each golden names its
 producer.) Each project runs in its own process: the three define different top-level `utils`.
@@ -53,6 +54,10 @@ PROJECTS = {  # name -> (repository, commit, {file: sha256})
         "compute_albedo_scale_tensoir.py": "d78501d36b711df18534d39b69552a4cc4b6768e0a7267a479ca40bfaddd7777",
         "eval_material_tensoir.py": "5ab8fbc08900a2a801349abc48b8fe5361f073302ac35b0e0c1439551e70fec9",
         "eval_relighting_tensoir.py": "4176bc4aa202f4b6d03672ae2da13c2611254839ff9d8c44987fe0104a91768f"}),
+    "r3dg": ("NJU-3DV/Relightable3DGaussian", "a102f14", {
+        "eval_relighting_syn4.py": "31404f533fa7b9e869eefc38c3d70e3c9ad4b06c22646593ff46a851f4780de4",
+        "utils/image_utils.py": "f7afb88642756eeb8ae84b7c11c0108b35f57c98250cec1a05f6aecb34dc2efc",
+        "utils/loss_utils.py": "4d6e8d876eb05b02514b2ab5f040bc2d78b4da25f2e3e66e88507c3598c4092d"}),
 }
 
 
@@ -319,7 +324,55 @@ def record_irgs(root: Path) -> dict:
     return out
 
 
-RECORDERS = {"tensoir": record_tensoir, "gs_ir": record_gs_ir, "irgs": record_irgs}
+# ---- Relightable 3D Gaussian ---------------------------------------------------------------------
+
+def record_r3dg(root: Path) -> dict:
+    """eval_relighting_syn4.py: albedo and relit images per view, both composited on the
+    background (0: run_syn4.sh trains without -w); no alignment (its per-scene base-colour
+    scales are constants of the script, applied inside the model before rendering)."""
+    from tests.preset_fixtures import CASES, RELIT_ENVS, albedo_case, relit_case
+
+    files = {rel: Source(root, rel, sha) for rel, sha in PROJECTS["r3dg"][2].items()}
+    sys.path.insert(0, str(root))
+    from lpipsPyTorch import lpips
+    from utils.image_utils import psnr
+    from utils.loss_utils import ssim
+
+    ev = files["eval_relighting_syn4.py"]
+    out = {"albedo": {}, "relight": {}}
+    for case in CASES:
+        c, r = albedo_case(case), relit_case(case)
+        albedo_rows, relit_rows = [], []
+        for v in range(len(c["gt"])):
+            env_rows = []
+            for e, _ in enumerate(RELIT_ENVS):
+                # the relit GT PNG and the rendered images: clamp + sRGB display (eval.colorspace)
+                from eval.colorspace import linear_to_srgb
+                gt_display = linear_to_srgb(r["gt"][v][e].float())
+                ns = {"torch": torch, "psnr": psnr, "ssim": ssim, "lpips": lpips, "bg": 0,
+                      "image": gt_display.numpy(), "mask": r["mask"][v][..., None].float().numpy(),
+                      "capture_list": ["base_color", "pbr"],
+                      "render_pkg": {"pbr": linear_to_srgb(r["pred"][v][e].float()).permute(2, 0, 1),
+                                     "base_color": c["pred"][v].float().permute(2, 0, 1)},
+                      "albedo_rgba": torch.cat([c["gt"][v], c["mask"][v][..., None].double()], -1).numpy(),
+                      "psnr_pbr": 0.0, "ssim_pbr": 0.0, "lpips_pbr": 0.0,
+                      "psnr_albedo": 0.0, "ssim_albedo": 0.0, "lpips_albedo": 0.0}
+                ev.run(144, 145, ns)               # GT image and mask tensors
+                ev.run(157, 169, ns)               # captures composited on bg (170 writes PNGs)
+                ev.run(172, 172, ns)
+                ev.run(176, 177, ns)               # GT albedo composited on bg
+                ev.run(189, 196, ns)               # PSNR / SSIM / LPIPS of pbr and base colour
+                env_rows.append(_row(ns["psnr_pbr"], ns["ssim_pbr"], ns["lpips_pbr"]))
+            albedo_rows.append(_row(ns["psnr_albedo"], ns["ssim_albedo"], ns["lpips_albedo"]))
+            relit_rows.append(env_rows)
+        out["albedo"][case] = {"views": albedo_rows, "scene": {
+            k: float(np.mean([row[k] for row in albedo_rows])) for k in ("psnr", "ssim", "lpips")} | {
+            "ratio": [1.0, 1.0, 1.0]}}
+        out["relight"][case] = {"views": relit_rows}
+    return out
+
+
+RECORDERS = {"tensoir": record_tensoir, "gs_ir": record_gs_ir, "irgs": record_irgs, "r3dg": record_r3dg}
 
 
 def record_one(project: str, root: Path) -> None:
