@@ -133,7 +133,7 @@ def rasterize_view(
     if composite == "numba":
         from gspi.gaussians.numba_composite import composite_view
 
-        return composite_view(table, bins, width, height, intersection_depth)
+        return composite_view(table, bins, lo, hi, width, height, intersection_depth)
     if composite != "torch":
         raise ValueError(f"composite must be 'torch' or 'numba', got {composite!r}")
     n_tiles, p = bins.tiles_x * bins.tiles_y, tile_size * tile_size
