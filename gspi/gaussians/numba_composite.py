@@ -40,8 +40,19 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from gspi.gaussians.composite import (
-    _R3_CAP, ALPHA_MAX, ALPHA_THRESHOLD, COL_A, COL_B, COL_C, COL_CHAN, COL_DET, COL_LOGOP, COL_MEAN2D,
-    COL_ZC, T_MEDIAN, T_STOP,
+    _R3_CAP,
+    ALPHA_MAX,
+    ALPHA_THRESHOLD,
+    COL_A,
+    COL_B,
+    COL_C,
+    COL_CHAN,
+    COL_DET,
+    COL_LOGOP,
+    COL_MEAN2D,
+    COL_ZC,
+    T_MEDIAN,
+    T_STOP,
 )
 from gspi.gaussians.numba_jit import njit_cached, threads
 from gspi.gaussians.tiles import TileBins

@@ -53,7 +53,7 @@ def gsplat_available() -> bool:
     return True
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def numba_available() -> bool:
     """True when numba (and so the compiled CPU compositor) imports."""
     try:
