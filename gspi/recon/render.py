@@ -8,8 +8,8 @@ rule thresholds. gsplat's 2DGS rasterizer exposes instead
 backward sets to ``(dL/dM[0, 2] * z, dL/dM[1, 2] * z)``: the loss gradient of a
 screen-space translation of the splat (M = ray transform, column 2 =
 ``K @ mean_cam``, z = its depth), as hbb1's 2DGS does. The tile rasterizer (torch
-or numba compositing) has no such hook, so :func:`render_views` projects the surfels itself and adds
-``delta * z`` to that column (zero in value, hence the forward is unchanged):
+or numba compositing) has no such hook, so :func:`render_views` projects the
+surfels itself and adds ``delta * z`` to that column (zero in value, hence the forward is unchanged):
 autograd then gives ``delta.grad`` equal to gsplat's ``gradient_2dgs``, which
 ``gsplat.strategy.DefaultStrategy(key_for_gradient="gradient_2dgs")`` consumes.
 """
