@@ -1,15 +1,14 @@
 """Training-time rendering with gsplat's 2DGS densification gradient.
 
-``rasterize_2dgs`` (gspi/gaussians) returns ``meta["means2d"]``, but there the
-2D centre only feeds the screen-space low-pass filter, so its gradient is ~0
-for surfels larger than a pixel: not the signal the 3DGS/2DGS densification
-rule thresholds. gsplat's 2DGS rasterizer exposes instead
-``meta["gradient_2dgs"]``, a zero [C, N, 2] tensor whose gradient its CUDA
-backward sets to ``(dL/dM[0, 2] * z, dL/dM[1, 2] * z)``: the loss gradient of a
-screen-space translation of the splat (M = ray transform, column 2 =
-``K @ mean_cam``, z = its depth), as hbb1's 2DGS does. The tile rasterizer (torch
-or numba compositing) has no such hook, so :func:`render_views` projects the
-surfels itself and adds ``delta * z`` to that column (zero in value, hence the forward is unchanged):
+``rasterize_2dgs`` (gspi/gaussians) returns ``meta["means2d"]``, but there the 2D centre
+only feeds the screen-space low-pass filter, so its gradient is ~0 for surfels larger than
+a pixel: not the signal the 3DGS/2DGS densification rule thresholds. gsplat's 2DGS
+rasterizer exposes instead ``meta["gradient_2dgs"]``, a zero [C, N, 2] tensor whose
+gradient its CUDA backward sets to ``(dL/dM[0, 2] * z, dL/dM[1, 2] * z)``: the loss
+gradient of a screen-space translation of the splat (M = ray transform, column 2 =
+``K @ mean_cam``, z = its depth), as hbb1's 2DGS does. The tile rasterizer (torch or numba
+compositing) has no such hook, so :func:`render_views` projects the surfels itself and
+adds ``delta * z`` to that column (zero in value, hence the forward is unchanged):
 autograd then gives ``delta.grad`` equal to gsplat's ``gradient_2dgs``, which
 ``gsplat.strategy.DefaultStrategy(key_for_gradient="gradient_2dgs")`` consumes.
 """
