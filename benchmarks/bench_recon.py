@@ -1,10 +1,11 @@
 """Times Stage 0 (gspi-recon) training iterations at 64 and 128 px.
 
-One iteration = render one input view (torch 2DGS rasterizer, SH degree 3) + L1/D-SSIM +
-mask + normal-consistency loss + backward + densification bookkeeping + Adam on every
-tensor. Surfels come from the visual-hull initialisation with a fixed count (no growth
-while timed), so the numbers are per-iteration costs at that many surfels; a full run's
-time is about iterations x the cost at its mean surfel count (recon.json reports both).
+One iteration = render one input view (tile 2DGS rasterizer, backend auto: numba
+compositing on CPU; SH degree 3) + L1/D-SSIM + mask + normal-consistency loss + backward +
+densification bookkeeping + Adam on every tensor. Surfels come from the visual-hull
+initialisation with a fixed count (no growth while timed), so the numbers are
+per-iteration costs at that many surfels; a full run's time is about iterations x the cost
+at its mean surfel count (recon.json reports both).
 
 Scenes: one generated scene per size (gspi-data tiny recipe, torus, written to a temp
 folder), or --scene DIR for an existing scene at its own size.

@@ -86,7 +86,7 @@ def render_lattice_views(gaussians: Gaussians2D, *, image_size: int | tuple[int,
         lattice: overrides of ``CANONICAL_LATTICE``.
         background: [3] colour composited behind ``rgb`` (default black, the layout's).
         with_pbr: also composite the PBR channels into ``features``.
-        backend: rasterizer backend ("auto": gsplat on CUDA, else the torch renderer).
+        backend: rasterizer backend ("auto": gsplat on CUDA, numba on CPU, else the torch renderer).
         batch: views per rasterizer call (bounds memory).
         **kwargs: forwarded to ``rasterize_2dgs`` (e.g. ``depth_point``).
 

@@ -8,6 +8,8 @@ batch is evaluated and composited as one [tiles, surfels, pixels] block by
 :class:`~gspi.gaussians.composite.TileComposite` (semantics of gsplat's
 ``RasterizeToPixels2DGSFwd.cu``, see there); lists longer than the batch
 budget are walked in segments carrying the transmittance, never truncated.
+``composite="numba"`` hands the same table and lists to the compiled per-tile
+loops of ``numba_composite.py`` instead (CPU; equal outputs and gradients).
 
 The ray-splat intersection uses the homogeneous-plane method:
 ``h_u x h_v = x (M1 x M2) + y (M2 x M0) + M0 x M1`` is affine in the pixel
@@ -102,6 +104,7 @@ def rasterize_view(
     tile_size: int = 8,
     intersection_depth: bool = True,
     max_elems: int = 1 << 20,
+    composite: str = "torch",
 ) -> Tensor:
     """Rasterizes one view with square tiles of ``tile_size`` pixels.
 
@@ -118,6 +121,9 @@ def rasterize_view(
         intersection_depth: True for hbb1's depth rule (ray-splat intersection depth where
             the surfel kernel wins the low-pass min), False for the centre depth (gsplat).
         max_elems: budget of surfel-pixel pairs per batched op (memory / speed knob).
+        composite: "torch" (batched :class:`TileComposite`, the reference, any device) or
+            "numba" (compiled per-tile loops, ``numba_composite.py``, CPU; same outputs and
+            gradients; ``max_elems`` unused).
 
     Returns:
         [H, W, F + 3]: composited channels (over zero), alpha, sum of w z, median depth.
@@ -126,6 +132,20 @@ def rasterize_view(
         lo, hi, valid = pixel_bounds(ray_transforms, means2d, opacities, width, height)
         bins = bin_splats(lo, hi, valid & in_range, depths, width, height, tile_size)
     table = surfel_table(ray_transforms, means2d, depths, opacities, channels)
+    if composite == "numba":
+        from gspi.gaussians.numba_composite import composite_view
+
+        return composite_view(table, bins, lo, hi, width, height, intersection_depth)
+    if composite != "torch":
+        raise ValueError(f"composite must be 'torch' or 'numba', got {composite!r}")
+    return composite_tiles(table, bins, width, height, intersection_depth, max_elems)
+
+
+def composite_tiles(table: Tensor, bins: TileBins, width: int, height: int, intersection_depth: bool,
+                    max_elems: int = 1 << 20) -> Tensor:
+    """The reference compositing of a binned view: batches of padded tile lists through
+    :class:`TileComposite`. Returns [H, W, F + 3] like :func:`rasterize_view`."""
+    tile_size = bins.tile_size
     n_tiles, p = bins.tiles_x * bins.tiles_y, tile_size * tile_size
     canvas = torch.zeros(n_tiles, p, table.shape[1] - COL_CHAN + 3, dtype=table.dtype, device=table.device)
     basis = pixel_basis(tile_size, table.dtype, table.device)

@@ -1,15 +1,14 @@
 """Training-time rendering with gsplat's 2DGS densification gradient.
 
-``rasterize_2dgs`` (gspi/gaussians) returns ``meta["means2d"]``, but there the
-2D centre only feeds the screen-space low-pass filter, so its gradient is ~0
-for surfels larger than a pixel: not the signal the 3DGS/2DGS densification
-rule thresholds. gsplat's 2DGS rasterizer exposes instead
-``meta["gradient_2dgs"]``, a zero [C, N, 2] tensor whose gradient its CUDA
-backward sets to ``(dL/dM[0, 2] * z, dL/dM[1, 2] * z)``: the loss gradient of a
-screen-space translation of the splat (M = ray transform, column 2 =
-``K @ mean_cam``, z = its depth), as hbb1's 2DGS does. The torch rasterizer has
-no such hook, so :func:`render_views` projects the surfels itself and adds
-``delta * z`` to that column (zero in value, hence the forward is unchanged):
+``rasterize_2dgs`` (gspi/gaussians) returns ``meta["means2d"]``, but there the 2D centre
+only feeds the screen-space low-pass filter, so its gradient is ~0 for surfels larger than
+a pixel: not the signal the 3DGS/2DGS densification rule thresholds. gsplat's 2DGS
+rasterizer exposes instead ``meta["gradient_2dgs"]``, a zero [C, N, 2] tensor whose
+gradient its CUDA backward sets to ``(dL/dM[0, 2] * z, dL/dM[1, 2] * z)``: the loss
+gradient of a screen-space translation of the splat (M = ray transform, column 2 =
+``K @ mean_cam``, z = its depth), as hbb1's 2DGS does. The tile rasterizer (torch or numba
+compositing) has no such hook, so :func:`render_views` projects the surfels itself and
+adds ``delta * z`` to that column (zero in value, hence the forward is unchanged):
 autograd then gives ``delta.grad`` equal to gsplat's ``gradient_2dgs``, which
 ``gsplat.strategy.DefaultStrategy(key_for_gradient="gradient_2dgs")`` consumes.
 """
@@ -22,7 +21,7 @@ import torch
 from torch import Tensor
 
 from gspi.gaussians.projection import project_surfels
-from gspi.gaussians.rasterize import RenderOutput, view_colors
+from gspi.gaussians.rasterize import RenderOutput, tile_backend, view_colors
 from gspi.gaussians.torch_backend import rasterize_view
 
 
@@ -43,14 +42,19 @@ def render_views(
     near_plane: float = 0.01,
     far_plane: float = 1e10,
     tile_size: int = 8,
+    backend: str = "auto",
 ) -> RenderOutput:
-    """Renders activated surfels like ``rasterize_2dgs(backend="torch")``.
+    """Renders activated surfels like ``rasterize_2dgs`` with a tile backend.
+
+    ``backend``: "auto" (numba on CPU when it imports, else torch), "numba" or "torch"
+    (:func:`gspi.gaussians.rasterize.tile_backend`; there is no gsplat path here).
 
     With ``densify_grad`` the output's ``meta`` carries gsplat's training-info keys:
     ``gradient_2dgs`` ([C, N, 2] zeros that require grad; see the module docstring),
     ``radii`` [C, N, 2], ``means2d``, ``depths``, ``width``, ``height``, ``n_cameras``,
     ``gaussian_ids`` (None: not packed).
     """
+    composite = tile_backend(backend, means.device)
     proj = project_surfels(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane)
     rt = proj.ray_transforms  # [C, N, 3, 3], column 2 = K @ mean_cam
     delta = None
@@ -65,7 +69,8 @@ def render_views(
         in_range = (proj.depths[c] > near_plane) & (proj.depths[c] < far_plane)
         chans = torch.cat([rgb[c], proj.normals[c]], dim=-1)
         images.append(rasterize_view(rt[c], proj.means2d[c], proj.depths[c], opacities, chans, in_range,
-                                     width, height, tile_size=tile_size, intersection_depth=True))
+                                     width, height, tile_size=tile_size, intersection_depth=True,
+                                     composite=composite))
     img = torch.stack(images)  # [C, H, W, 3 + 3 + 3]
     alpha = img[..., 6:7]
     depth_expected = torch.where(alpha > 0, img[..., 7:8] / torch.where(alpha > 0, alpha, 1.0), 0.0)

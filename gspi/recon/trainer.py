@@ -25,7 +25,7 @@ from torch import Tensor
 
 from eval.metrics import masked_psnr, masked_ssim
 from gspi.gaussians.model import Gaussians2D
-from gspi.gaussians.rasterize import render_gaussians
+from gspi.gaussians.rasterize import render_gaussians, tile_backend
 from gspi.recon.data import SceneViews
 from gspi.recon.init import init_gaussians
 from gspi.recon.losses import display, normal_consistency, photometric_loss
@@ -142,8 +142,9 @@ def evaluate_views(gaussians: Gaussians2D, views: SceneViews, display_cfg: Displ
     per_view = []
     dcfg = _display_cfg(display_cfg)
     for i in range(views.num_views):
+        # the training renderer's backend (recon.render), not gsplat: held-out views score what was fit
         out = render_gaussians(gaussians, views.viewmats[i:i + 1], views.Ks[i:i + 1], views.width,
-                               views.height, backend="torch")
+                               views.height, backend=tile_backend("auto", gaussians.means.device))
         pred = display(out.rgb[0], **dcfg).clamp(0, 1)
         gt = display(views.images[i], **dcfg).clamp(0, 1)
         mask = views.masks[i]

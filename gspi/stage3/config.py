@@ -58,7 +58,7 @@ class Stage3Config:
     views_per_iteration: int = 1      # lattice views rendered per step (a fresh permutation per epoch)
     seed: int = 0
     log_every: int = 25               # record the loss every this many iterations
-    backend: str = "auto"             # rasterizer backend: auto | torch | gsplat
+    backend: str = "auto"             # rasterizer backend: auto | torch | numba | gsplat
     init: InitConfig = field(default_factory=InitConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     lr: LrConfig = field(default_factory=LrConfig)
@@ -66,7 +66,7 @@ class Stage3Config:
     # Allowed values, checked by gspi.strict_config at start-up (inclusive; None = open).
     RANGES: ClassVar[dict] = {"iterations": (0, None),
                               "views_per_iteration": (1, None), "seed": (0, None), "log_every": (1, None)}
-    CHOICES: ClassVar[dict] = {"backend": ("auto", "torch", "gsplat")}
+    CHOICES: ClassVar[dict] = {"backend": ("auto", "torch", "numba", "gsplat")}
 
     def __post_init__(self) -> None:
         if self.init.fallback not in FALLBACKS:

@@ -30,7 +30,7 @@ def render_materials(asset: Gaussians2D, viewmats: Tensor, Ks: Tensor, width: in
         Ks: [C, 3, 3] intrinsics.
         width: image width W.
         height: image height H.
-        backend: rasterizer backend ("auto", "torch", "gsplat").
+        backend: rasterizer backend ("auto", "torch", "numba", "gsplat").
         min_alpha: pixels with accumulated alpha <= this get 0 in every map.
 
     Returns:
