@@ -9,8 +9,9 @@
 #   gspi-data preset=stage2_pool out=$POOL_ROOT seed=0 'data.pool_indices=[[0,64],[224,256]]' data.workers=2
 #   python -m gspi.data.pool_split $POOL_ROOT $POOL --train 0:64 --test 224:256
 #   gspi-data preset=small out=$SMALL seed=0 'data.only_splits=[test]'
-# Diffusion rungs are name=recipe pairs (a conf/stage2 preset), e.g. the departures measured
-# after R5: DIFFUSION_RUNGS="r6=table2_cpu_trunc_snr r6skip=table2_cpu_skip_trunc_snr" REGRESSOR_RUNGS=
+# Diffusion rungs are name=recipe[:ablation] (a conf/stage2 preset; ablation default full), e.g.
+# the departures measured after R5: DIFFUSION_RUNGS="r6=table2_cpu_trunc_snr r6skip=table2_cpu_skip_trunc_snr"
+# REGRESSOR_RUNGS=; or Table 2's variants on a recipe: "r6a1=table2_cpu_trunc_snr:a1_no_global_prior".
 # Usage: benchmarks/run_ladder.sh POOL SMALL RUNS [SEEDS...]
 set -u
 POOL=$1; SMALL=$2; RUNS=$3; shift 3
@@ -41,7 +42,9 @@ done_already() {  # kind rung seed
 run_job() {  # kind rung seed
   local d=$RUNS/$2_s$3
   if [ $1 = train ] && is_diffusion $2; then
-    $PY -m gspi.cli.train data="$POOL" out="$d" stage2=${RECIPE[$2]} ablation=full seed=$3 > "$d.log" 2>&1
+    local spec=${RECIPE[$2]}; local abl=full
+    [[ $spec == *:* ]] && abl=${spec#*:} && spec=${spec%%:*}
+    $PY -m gspi.cli.train data="$POOL" out="$d" stage2=$spec ablation=$abl seed=$3 > "$d.log" 2>&1
   elif [ $1 = train ]; then
     $PY -m gspi.stage2.ladder train --rung $2 --seed $3 --data "$POOL" --out "$d" \
       --eval heldout="$POOL":test --eval small="$SMALL":test > "$d.log" 2>&1
