@@ -16,15 +16,13 @@ Writes <out>/per_view.csv, <out>/summary.json, <out>/eval_meta.json and <out>/.h
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.config import CONF_DIR, register_configs, validate_protocol
+from eval.cli_entry import hydra_cli
+from eval.config import register_configs, validate_protocol
 from eval.device import resolve_device
-from eval.errors import exit_on_stated_error
 from eval.evaluate import evaluate
 from eval.report import clear_result, format_summary, write_result
 
@@ -59,20 +57,11 @@ def rewrite_method_alias(argv: list[str]) -> list[str]:
     return [new + a[len(old):] if a.startswith(old) else a for a in argv]
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_eval")
-@exit_on_stated_error
-def _hydra_main(cfg: DictConfig) -> None:
-    run(cfg)
-
-
 PATH_KEYS = ("gt", "pred", "out")  # quoted for Hydra when they hold = , ' spaces or non-ASCII (eval/argv.py)
 
 
 def main() -> None:
-    from eval.argv import quote_path_overrides
-
-    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_method_alias(sys.argv[1:]), PATH_KEYS)]
-    _hydra_main()
+    hydra_cli(run, "gspi_eval", path_keys=PATH_KEYS, rewrite=rewrite_method_alias)()
 
 
 if __name__ == "__main__":

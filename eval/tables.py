@@ -18,10 +18,8 @@ red cell), the second underlined (LaTeX: yellow cell). Numbers are never typed b
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-from eval.errors import exit_on_stated_error
 
 
 def is_sweep(paths: list[str | Path]) -> bool:
@@ -100,18 +98,9 @@ def positional_to_overrides(argv: list[str]) -> list[str]:
 
 
 def main() -> None:
-    import hydra
+    from eval.cli_entry import hydra_cli
 
-    from eval.config import CONF_DIR
-
-    sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
-
-    @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_table")
-    @exit_on_stated_error
-    def _main(cfg) -> None:
-        run(cfg)
-
-    _main()
+    hydra_cli(run, "gspi_table", rewrite=positional_to_overrides)()
 
 
 if __name__ == "__main__":

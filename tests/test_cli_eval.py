@@ -25,7 +25,7 @@ def test_gspi_eval_then_gspi_table(sphere_dataset, tmp_path):
     assert meta["protocol_config"]["channels"] == ["roughness", "metallic"]
     assert (tmp_path / "ev" / ".hydra" / "config.yaml").is_file()
     rows = (tmp_path / "ev" / "per_view.csv").read_text().splitlines()
-    assert rows[0] == "scene,view,channel,env,psnr,ssim,lpips,psnr_floored,mae,iou"
+    assert rows[0] == "scene,view,channel,env,psnr,ssim,lpips,psnr_floored,mae,iou,psnr_metal"
     assert len(rows) == 1 + 2 * 3 * 2
     table = _run("eval.tables", str(tmp_path / "ev"), f"out={tmp_path / 'tables'}")
     assert "| offset |" in table and (tmp_path / "tables" / "table1.tex").is_file()

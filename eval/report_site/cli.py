@@ -11,10 +11,9 @@ relight/<scene>/turntable.webp (gspi-relight). No server, no network. docs/REPOR
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-from eval.errors import MissingInputError, exit_on_stated_error
+from eval.errors import MissingInputError
 
 
 def run(cfg):
@@ -40,19 +39,10 @@ def run(cfg):
 
 
 def main() -> None:
-    import hydra
-
-    from eval.config import CONF_DIR
+    from eval.cli_entry import hydra_cli
     from eval.tables import positional_to_overrides
 
-    sys.argv = [sys.argv[0]] + positional_to_overrides(sys.argv[1:])
-
-    @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_report")
-    @exit_on_stated_error
-    def _main(cfg) -> None:
-        run(cfg)
-
-    _main()
+    hydra_cli(run, "gspi_report", rewrite=positional_to_overrides)()
 
 
 if __name__ == "__main__":

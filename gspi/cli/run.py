@@ -15,13 +15,10 @@ single run exits non-zero. Config: conf/gspi_run.yaml; tables: gspi-table <out>.
 from __future__ import annotations
 
 import logging
-import sys
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from eval.config import CONF_DIR  # the one config directory
-from eval.errors import exit_on_stated_error
+from eval.cli_entry import hydra_cli
 from gspi.cli.train import rewrite_data_alias
 
 log = logging.getLogger(__name__)
@@ -46,9 +43,8 @@ def is_multirun() -> bool:
         return False
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_run")
-@exit_on_stated_error
-def _hydra_main(cfg: DictConfig) -> None:
+def run_task(cfg: DictConfig) -> None:
+    """One gspi-run job (of a multirun: its own sub-folder of `out`)."""
     from gspi.run.runner import run_job
 
     job_cfg = resolved_config(cfg)
@@ -64,10 +60,7 @@ def main() -> None:
     from eval.config import register_configs
 
     register_configs()
-    from eval.argv import quote_path_overrides
-
-    sys.argv = [sys.argv[0], *quote_path_overrides(rewrite_data_alias(sys.argv[1:]), PATH_KEYS)]
-    _hydra_main()
+    hydra_cli(run_task, "gspi_run", path_keys=PATH_KEYS, rewrite=rewrite_data_alias)()
 
 
 if __name__ == "__main__":
