@@ -10,9 +10,11 @@ from torch import Tensor
 TONEMAPS = ("clamp", "aces", "reinhard")
 
 
-def srgb_to_linear(x: Tensor) -> Tensor:
-    """IEC 61966-2-1 sRGB decoding of values in [0, 1]."""
-    x = x.clamp(0.0, 1.0)
+def srgb_to_linear(x: Tensor, *, clamp: bool = True) -> Tensor:
+    """IEC 61966-2-1 sRGB decoding of values in [0, 1] (input clamped first); with
+    ``clamp=False`` the curve continues past 1 (an aligned albedo relit unclamped)."""
+    if clamp:
+        x = x.clamp(0.0, 1.0)
     return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 

@@ -23,10 +23,10 @@ from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_messag
                          read_scene, read_splits)
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
 from eval.scored_view import CPU, EnvironmentCache, scene_scored_views
+from eval.scoring import METRIC_NAMES as METRICS
 from eval.scoring import has_metal, metal_scores, pooled_psnr, score_map, score_relit_pair
 
 log = logging.getLogger(__name__)
-METRICS = ("psnr", "ssim", "lpips")
 EXTRA_METRICS = ("psnr_h", "mae", "iou", "psnr_metal")  # present only where the protocol computes them
 
 

@@ -75,18 +75,11 @@ def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor, space: str = "linear"
     return linear_to_srgb(lin.clamp(0.0, 1.0) if clamp else lin.clamp_min(0.0)).to(albedo_srgb.dtype)
 
 
-def srgb_decode_unclamped(x: Tensor) -> Tensor:
-    """The sRGB decoding curve continued past 1 (for a stored-space aligned albedo relit
-    unclamped; ``eval.colorspace.srgb_to_linear`` clamps to [0, 1] first)."""
-    x = x.double().clamp_min(0.0)
-    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
 def unclamped_linear_albedo(albedo_srgb: Tensor, scale: Tensor, space: str = "linear") -> Tensor:
     """The linear albedo after the alignment scale, not clamped above 1 (TensoIR relights with
     ``albedo * ratio`` as it is)."""
     if space == "stored":
-        return srgb_decode_unclamped(albedo_srgb.double() * scale.to(torch.float64))
+        return srgb_to_linear((albedo_srgb.double() * scale.to(torch.float64)).clamp_min(0.0), clamp=False)
     return _decoder(space)(albedo_srgb) * scale.to(torch.float64)
 
 

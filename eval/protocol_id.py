@@ -53,7 +53,7 @@ def _drop_neutral(tree: dict, dotted: str, neutral) -> None:
         if isinstance(tree.get(head), dict):
             tree[head] = dict(tree[head])
             _drop_neutral(tree[head], rest, neutral)
-    elif head in tree and (tree[head] is neutral or (type(tree[head]) is type(neutral) and tree[head] == neutral)):
+    elif head in tree and type(tree[head]) is type(neutral) and tree[head] == neutral:
         del tree[head]
 
 

@@ -7,7 +7,7 @@ prediction of every view of the scored split and applies, in the protocol's orde
 
 1. the scored mask: the GT mask eroded by ``mask_erosion_px``;
 2. ``unpremultiply`` by the prediction's ``alpha.png`` where the protocol asks for it;
-3. the albedo alignment (``align_albedo``: ``albedo_alignment`` pooled over the scene's views or
+3. the albedo alignment (``albedo_scales`` then ``apply_scales``: ``albedo_alignment`` pooled over the scene's views or
    per view, ``alignment_scope``);
 4. per relighting environment: the GT and predicted relit radiance (GT normals, the aligned or
    raw albedo as ``relight.apply_albedo_alignment`` says, fills for unmodelled channels), the
@@ -150,19 +150,11 @@ def protocol_alignment(protocol) -> dict:
             "sampled_views": protocol.alignment_sampled_views}
 
 
-def align_albedo(pred: list[Tensor], gt: list[Tensor], masks: list[Tensor], mode: str, scope: str, *,
-                 space: str = "linear", clamp: bool = True, pixels: str = "mask",
-                 sampled_views: int | None = None) -> list[Tensor]:
-    """The predicted albedos [H, W, 3] (sRGB) of a scene's views after the protocol's alignment
-    (``albedo_scales``), applied inside the GT mask (outside it the prediction is left as it
-    is, as GS-IR's ``albedo_map[mask] *= ratio``), clamped to [0, 1] unless ``clamp`` is False."""
-    scales = albedo_scales(pred, gt, masks, mode, scope, space=space, pixels=pixels, sampled_views=sampled_views)
-    return apply_scales(pred, scales, masks, space=space, clamp=clamp)
-
-
 def apply_scales(pred: list[Tensor], scales: list[Tensor], masks: list[Tensor], *, space: str = "linear",
                  clamp: bool = True) -> list[Tensor]:
-    """Each view's albedo scaled inside its GT mask (``eval.protocol.apply_albedo_scale``)."""
+    """Each view's albedo after the alignment: scaled inside its GT mask (outside it the
+    prediction is left as it is, as GS-IR's ``albedo_map[mask] *= ratio``), clamped to [0, 1]
+    unless ``clamp`` is False (``eval.protocol.apply_albedo_scale``)."""
     return [torch.where(m[..., None], apply_albedo_scale(p, s, space, clamp), p)
             for p, s, m in zip(pred, scales, masks)]
 
@@ -186,14 +178,14 @@ def relit_pair(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg
                      pred_linear=out_linear, gt_linear=ref_linear)
 
 
-def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, mask: Tensor, protocol,
-                envs: EnvironmentCache, scale: Optional[Tensor] = None) -> dict[str, RelitPair]:
+def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, scale: Tensor, mask: Tensor, protocol,
+                envs: EnvironmentCache) -> dict[str, RelitPair]:
     """env -> RelitPair of one view (GT normals; unmodelled channels filled with constants).
     ``scale``: the view's albedo alignment scale (for ``relight.clamp_albedo: false``)."""
     cfg = protocol.relight
     h, w = mask.shape
     albedo, albedo_linear = (p["albedo"] if cfg.apply_albedo_alignment else raw_albedo), None
-    if cfg.apply_albedo_alignment and not cfg.clamp_albedo and scale is not None:
+    if cfg.apply_albedo_alignment and not cfg.clamp_albedo:
         albedo_linear = unclamped_linear_albedo(raw_albedo, scale, protocol.alignment_space).to(raw_albedo.dtype)
     fill = dict(device=mask.device)
     rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness), **fill))
@@ -234,11 +226,12 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
     missing = [{"scene": scene.name, "view": v.id, "channel": c}
                for v in all_views for c in modelled if c not in preds[v.id]]
     have = [v.id for v in all_views if "albedo" in preds[v.id]]
-    args = ([preds[i]["albedo"] for i in have], [gt[i]["albedo"] for i in have], [masks[i] for i in have],
-            protocol.albedo_alignment, protocol.alignment_scope)
-    scales = dict(zip(have, albedo_scales(*args, **protocol_alignment(protocol))))
-    aligned = dict(zip(have, apply_scales(args[0], [scales[i] for i in have], args[2],
-                                          space=protocol.alignment_space, clamp=bool(protocol.albedo_clamp))))
+    albedos, have_masks = [preds[i]["albedo"] for i in have], [masks[i] for i in have]
+    scales = albedo_scales(albedos, [gt[i]["albedo"] for i in have], have_masks, protocol.albedo_alignment,
+                           protocol.alignment_scope, **protocol_alignment(protocol))
+    aligned = dict(zip(have, apply_scales(albedos, scales, have_masks, space=protocol.alignment_space,
+                                          clamp=bool(protocol.albedo_clamp))))
+    scales = dict(zip(have, scales))
     ids = None if views is None else {v.id for v in views}  # views of another split are not scored
     wanted = [v for v in all_views if ids is None or v.id in ids]
     out = []
@@ -248,7 +241,7 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         if v.id in aligned:
             raw, p["albedo"] = p["albedo"], aligned[v.id]
             if "relight" in protocol.channels and all(c in p for c in modelled):
-                relit = relit_pairs(scene, gt[v.id], p, raw, masks[v.id], protocol, envs, scales[v.id])
+                relit = relit_pairs(scene, gt[v.id], p, raw, scales[v.id], masks[v.id], protocol, envs)
         out.append(ScoredView(scene=scene.name, view=v.id, mask=masks[v.id], gt=gt[v.id], pred=p, relit=relit,
                               unpremultiplied=v.id in divided))
     return out, missing

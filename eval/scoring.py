@@ -57,8 +57,7 @@ def encode_albedo(albedo: Tensor, space: str) -> Tensor:
 def metric_space(protocol, metric: str) -> str:
     """The colour space albedo is scored in by ``metric``: its own ``<metric>.albedo_space``,
     else the protocol's ``albedo_space``."""
-    own = getattr(getattr(protocol, metric), "albedo_space", None)
-    return own or protocol.albedo_space
+    return getattr(protocol, metric).albedo_space or protocol.albedo_space
 
 
 def scored_space(channel: str, pred: Tensor, gt: Tensor, protocol, metric: str = "psnr"

@@ -20,7 +20,7 @@ from eval.protocol_id import protocol_dict, scored_split
 from eval.report_site.collect import Job
 from eval.report_site.panels import scene_panels
 from eval.report_site.run_figure import figure_panels
-from eval.scored_view import EnvironmentCache, align_albedo, scene_scored_views
+from eval.scored_view import EnvironmentCache, albedo_scales, apply_scales, scene_scored_views
 from tests.fixtures import make_dataset, make_prediction
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -100,6 +100,11 @@ def test_report_panels_and_run_figure_are_the_scored_images(data, name, monkeypa
     assert checked == len(scored) > 0
 
 
+def align_albedo(pred, gt, masks, mode, scope):
+    """The aligned albedos as scene_scored_views computes them (scales, then applied)."""
+    return apply_scales(pred, albedo_scales(pred, gt, masks, mode, scope), masks)
+
+
 def test_align_albedo_scene_scope_pools_views_and_view_scope_does_not():
     gt = [torch.full((4, 4, 3), 0.5, dtype=torch.float64) for _ in range(2)]
     pred = [torch.full((4, 4, 3), 0.25, dtype=torch.float64), torch.full((4, 4, 3), 0.5, dtype=torch.float64)]
@@ -122,3 +127,34 @@ def test_erosion_shrinks_the_scored_mask(data, tmp_path):
     for a, b in zip(plain, eroded):
         assert b.mask.sum() < a.mask.sum() and not (b.mask & ~a.mask).any()
         assert np.isfinite(b.pred["albedo"].numpy()).all()
+
+
+def test_relight_clamp_albedo_false_shades_the_unclamped_aligned_albedo(data):
+    """relight.clamp_albedo: false (TensoIR relights albedo * ratio as it is): the relit
+    prediction is shaded with the aligned albedo continued past 1, not the clamped one."""
+    from eval.colorspace import srgb_to_linear
+    from eval.protocol import apply_albedo_scale, unclamped_linear_albedo
+    from eval.scored_view import load_gt_view, relit_pairs
+    from eval.views import relight_view
+
+    gt_root, _ = data
+    scene = read_scene(gt_root / "sphere_0")
+    view = scene.split_views("test")[0]
+    envs = EnvironmentCache()
+    g = load_gt_view(scene, view)
+    raw = torch.full_like(g["albedo"], 0.7)
+    scale = torch.tensor([2.0, 1.5, 0.5], dtype=torch.float64)
+    p = {"albedo": apply_albedo_scale(raw, scale, "stored"), "roughness": g["roughness"], "metallic": g["metallic"]}
+    clamped, free = preset("tensoir"), preset("tensoir")
+    clamped.relight.clamp_albedo = True
+    kept = relit_pairs(scene, g, p, raw, scale, g["mask"], clamped, envs)
+    unkept = relit_pairs(scene, g, p, raw, scale, g["mask"], free, envs)
+    lin = unclamped_linear_albedo(raw, scale, "stored")
+    torch.testing.assert_close(lin[0, 0], srgb_to_linear(torch.tensor([1.4, 1.05, 0.35], dtype=torch.float64),
+                                                         clamp=False))
+    assert lin[..., 0].max() > 1.0 and lin[..., 2].max() < 1.0  # only the channels that clip differ
+    env = next(iter(unkept))
+    want = relight_view(None, g["roughness"], g["metallic"], g["normal"], g["view_dir"],
+                        envs.get(scene.envmap_path(env)), albedo_linear=lin.to(raw.dtype))
+    assert not torch.allclose(kept[env].pred_linear, unkept[env].pred_linear)
+    torch.testing.assert_close(unkept[env].pred_linear, want)

@@ -49,11 +49,13 @@ PROJECTS = {  # name -> (repository, commit, {file: sha256})
         "models/relight_utils.py": "77ab2323a2409024b4e7432dada835d3722854232dbf71fc2fda398199d2606f"}),
     "gs_ir": ("lzhnb/GS-IR", "e5a030b", {
         "render.py": "cbe6cb597d2cf5a4177daf6c39dfe278974b46e50adfd04591088a85665e7e01",
-        "relight_eval.py": "603f4f308e95762877e2b2fde95640500474e9abf08220b3182fdb7911538ff6"}),
+        "relight_eval.py": "603f4f308e95762877e2b2fde95640500474e9abf08220b3182fdb7911538ff6",
+        "pbr/shade.py": "283a1f971e83806d4860e8488a261cee01b48631e388dc1ccf83900b6e0610fe"}),
     "irgs": ("fudan-zvg/IRGS", "1461869", {
         "compute_albedo_scale_tensoir.py": "d78501d36b711df18534d39b69552a4cc4b6768e0a7267a479ca40bfaddd7777",
         "eval_material_tensoir.py": "5ab8fbc08900a2a801349abc48b8fe5361f073302ac35b0e0c1439551e70fec9",
-        "eval_relighting_tensoir.py": "4176bc4aa202f4b6d03672ae2da13c2611254839ff9d8c44987fe0104a91768f"}),
+        "eval_relighting_tensoir.py": "4176bc4aa202f4b6d03672ae2da13c2611254839ff9d8c44987fe0104a91768f",
+        "gaussian_renderer/__init__.py": "7a41b99a7ec6504fe0891572d1b1f059adcd83cbc8f8ee106ed36b5e4c54b45f"}),
     "r3dg": ("NJU-3DV/Relightable3DGaussian", "a102f14", {
         "eval_relighting_syn4.py": "31404f533fa7b9e869eefc38c3d70e3c9ad4b06c22646593ff46a851f4780de4",
         "utils/image_utils.py": "f7afb88642756eeb8ae84b7c11c0108b35f57c98250cec1a05f6aecb34dc2efc",
@@ -130,6 +132,12 @@ def _lpips_package(net: str):
 
 def _row(psnr, ssim, lpips) -> dict:
     return {"psnr": float(psnr), "ssim": float(ssim), "lpips": float(lpips)}
+
+
+def _albedo_case(views: list[dict], ratio) -> dict:
+    """A case's albedo record: the per-view rows, their means and the fitted scale."""
+    scene = {k: float(np.mean([r[k] for r in views])) for k in ("psnr", "ssim", "lpips")}
+    return {"views": views, "scene": scene | {"ratio": [float(x) for x in ratio]}}
 
 
 # ---- TensoIR -------------------------------------------------------------------------------------
@@ -215,7 +223,7 @@ def record_gs_ir(root: Path) -> dict:
     from utils.image_utils import psnr as get_psnr  # 3DGS utils, unchanged
     from utils.loss_utils import ssim as get_ssim
 
-    shade = Source(root, "pbr/shade.py", hashlib.sha256((root / "pbr/shade.py").read_bytes()).hexdigest())
+    shade = files["pbr/shade.py"]
     import typing
     linear_to_srgb = shade.function("linear_to_srgb", {"torch": torch, "np": np, "Union": typing.Union})
     lpips_fn = _lpips_package("vgg")  # render.py:319 LPIPS(net="vgg")
@@ -238,9 +246,7 @@ def record_gs_ir(root: Path) -> dict:
                       albedo_psnr_avg=0.0, albedo_ssim_avg=0.0, albedo_lpips_avg=0.0)
             render.run(342, 349, ns, skip=(346,))  # 346 writes a PNG
             views.append(_row(ns["albedo_psnr_avg"], ns["albedo_ssim_avg"], ns["albedo_lpips_avg"]))
-        out["albedo"][case] = {"views": views, "scene": {
-            k: float(np.mean([r[k] for r in views])) for k in ("psnr", "ssim", "lpips")} | {
-            "ratio": [float(x) for x in ns["three_channel_ratio"]]}}
+        out["albedo"][case] = _albedo_case(views, ns["three_channel_ratio"])
 
         r = relit_case(case)
         rows = []
@@ -274,8 +280,7 @@ def record_irgs(root: Path) -> dict:
 
     scale_src, material, relight = (files["compute_albedo_scale_tensoir.py"], files["eval_material_tensoir.py"],
                                     files["eval_relighting_tensoir.py"])
-    renderer = Source(root, "gaussian_renderer/__init__.py",
-                      hashlib.sha256((root / "gaussian_renderer/__init__.py").read_bytes()).hexdigest())
+    renderer = files["gaussian_renderer/__init__.py"]
     out = {"albedo": {}, "relight": {}}
     for case in CASES:
         c = albedo_case(case)
@@ -299,9 +304,7 @@ def record_irgs(root: Path) -> dict:
             material.run(107, 108, ns)
             material.run(121, 127, ns)
             views.append(_row(ns["psnr_albedo"], ns["ssim_albedo"], ns["lpips_albedo"]))
-        out["albedo"][case] = {"views": views, "scene": {
-            k: float(np.mean([r[k] for r in views])) for k in ("psnr", "ssim", "lpips")} | {
-            "ratio": [float(x) for x in base_color_scale]}}
+        out["albedo"][case] = _albedo_case(views, base_color_scale)
 
         r = relit_case(case)
         rows = []
@@ -338,6 +341,8 @@ def record_r3dg(root: Path) -> dict:
     from utils.image_utils import psnr
     from utils.loss_utils import ssim
 
+    from eval.colorspace import linear_to_srgb
+
     ev = files["eval_relighting_syn4.py"]
     out = {"albedo": {}, "relight": {}}
     for case in CASES:
@@ -347,7 +352,6 @@ def record_r3dg(root: Path) -> dict:
             env_rows = []
             for e, _ in enumerate(RELIT_ENVS):
                 # the relit GT PNG and the rendered images: clamp + sRGB display (eval.colorspace)
-                from eval.colorspace import linear_to_srgb
                 gt_display = linear_to_srgb(r["gt"][v][e].float())
                 ns = {"torch": torch, "psnr": psnr, "ssim": ssim, "lpips": lpips, "bg": 0,
                       "image": gt_display.numpy(), "mask": r["mask"][v][..., None].float().numpy(),
@@ -365,9 +369,7 @@ def record_r3dg(root: Path) -> dict:
                 env_rows.append(_row(ns["psnr_pbr"], ns["ssim_pbr"], ns["lpips_pbr"]))
             albedo_rows.append(_row(ns["psnr_albedo"], ns["ssim_albedo"], ns["lpips_albedo"]))
             relit_rows.append(env_rows)
-        out["albedo"][case] = {"views": albedo_rows, "scene": {
-            k: float(np.mean([row[k] for row in albedo_rows])) for k in ("psnr", "ssim", "lpips")} | {
-            "ratio": [1.0, 1.0, 1.0]}}
+        out["albedo"][case] = _albedo_case(albedo_rows, [1.0, 1.0, 1.0])
         out["relight"][case] = {"views": relit_rows}
     return out
 
