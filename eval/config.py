@@ -86,6 +86,8 @@ class ProtocolConfig:
     mask_prediction: bool = True        # prediction composited on `background` outside the GT mask
                                         # (False: scored as it is there, GS-IR)
     mask_erosion_px: int = 0            # erode the GT mask by a (2r+1)^2 square (Stanford-ORB: 2)
+    outside_brdf: str = "include"       # include | exclude: the GT's outside_brdf.png pixels (a glTF
+                                        # BLEND / KHR_materials_* surface) scored, or left out of the mask
     unpremultiply: bool = False         # divide maps by the prediction's alpha.png inside the mask
     fail_on_missing_view: bool = False  # False: report missing views and score the rest
     psnr: PsnrConfig = field(default_factory=PsnrConfig)
@@ -97,6 +99,7 @@ class ProtocolConfig:
 
 ALIGNMENTS = ("none", "scale", "lstsq", "per_channel", "median_ratio")  # per_channel = lstsq
 SCOPES = ("scene", "view")
+OUTSIDE_BRDF = ("include", "exclude")
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 ALBEDO_SPACES = ("srgb", "linear", "gamma22")
 ALIGNMENT_SPACES = ("linear", "stored")
@@ -158,6 +161,7 @@ def validate_protocol(cfg) -> None:
                          "(a zero floor lets one exact image make a mean +inf)")
     if int(cfg.ssim.window) < 1 or int(cfg.ssim.window) % 2 == 0:
         raise ValueError(f"eval.ssim.window={cfg.ssim.window}: must be an odd number >= 1")
+    _allowed("outside_brdf", cfg.outside_brdf, OUTSIDE_BRDF)
     if int(cfg.mask_erosion_px) < 0:
         raise ValueError(f"eval.mask_erosion_px={cfg.mask_erosion_px}: must be >= 0")
     if not float(cfg.relight.hdr_max) > 0:

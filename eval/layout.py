@@ -33,9 +33,12 @@ VIEW_FILES = {
     "depth.exr": ("exr", 1),      # camera-space z (OpenCV), world units, 0 outside the mask
     "mask.png": ("png", 1),       # 8-bit, 255 = foreground
     "alpha.png": ("png", 1),      # predictions only, optional: 16-bit, the method's rendered opacity
+    "outside_brdf.png": ("png", 1),  # GT only, optional: 8-bit, 255 = a pixel that shows a material
+                                     # feature the metallic-roughness BRDF cannot (glTF BLEND, KHR_materials_*)
 }
 PREDICTION_ONLY_FILES = ("alpha.png",)
-GT_VIEW_FILES = tuple(n for n in VIEW_FILES if n not in PREDICTION_ONLY_FILES)  # every GT view has these
+OPTIONAL_GT_FILES = ("outside_brdf.png",)
+GT_VIEW_FILES = tuple(n for n in VIEW_FILES if n not in PREDICTION_ONLY_FILES + OPTIONAL_GT_FILES)  # every GT view has these
 
 
 class LayoutError(StatedError, ValueError):
@@ -271,7 +274,7 @@ def write_view_file(view_dir: Path, name: str, values: np.ndarray) -> Path:
     if kind == "exr":
         write_exr(path, values)
     else:
-        write_png(path, values, bits=8 if name in ("rgb.png", "mask.png") else 16)
+        write_png(path, values, bits=8 if name in ("rgb.png", "mask.png", "outside_brdf.png") else 16)
     return path
 
 

@@ -44,7 +44,8 @@ def scored_split(protocol) -> str:
 LATER_KEYS = {"unpremultiply": False, "alignment_space": "linear", "alignment_pixels": "mask",
               "alignment_sampled_views": None, "albedo_clamp": True, "mask_prediction": True,
               "psnr.channel_mean": False, "psnr.map_pooling": "view", "psnr.albedo_space": None,
-              "ssim.albedo_space": None, "lpips.albedo_space": None, "relight.clamp_albedo": True}
+              "ssim.albedo_space": None, "lpips.albedo_space": None, "relight.clamp_albedo": True,
+              "outside_brdf": "include"}
 
 
 def _drop_neutral(tree: dict, dotted: str, neutral) -> None:
@@ -144,6 +145,7 @@ def describe_protocol(p: dict) -> str:
             f"albedo alignment {p.get('albedo_alignment')} (scope {p.get('alignment_scope')}), "
             f"scored in {p.get('albedo_space', 'srgb')}; GT mask eroded "
             f"{p.get('mask_erosion_px', 0)} px"
+            f"{', outside-BRDF pixels excluded' if p.get('outside_brdf') == 'exclude' else ''}"
             f"{'; maps un-premultiplied by the method alpha.png' if p.get('unpremultiply') else ''}"
             f"; PSNR over {ps.get('region', 'mask')}, {floor_text}"
             f"{', grey floor' if ps.get('grey_floor') else ''}; "

@@ -86,6 +86,8 @@ def load_gt_view(scene: Scene, view, device: torch.device = CPU) -> dict:
     out["mask"] = as_tensor(read_view_file(vdir, "mask.png", size), device)[..., 0] > 0.5
     if not out["mask"].any():
         raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
+    if (vdir / "outside_brdf.png").is_file():  # optional (glTF imports with BLEND / KHR_materials_*)
+        out["outside_brdf"] = as_tensor(read_view_file(vdir, "outside_brdf.png", size), device)[..., 0] > 0.5
     for name, t in out.items():
         if t.shape[:2] != (scene.height, scene.width):
             raise LayoutError(f"{vdir}/{name}: size {tuple(t.shape[:2])} != scene "
@@ -108,11 +110,15 @@ def load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device 
     return out
 
 
-def scored_mask(where: str, mask: Tensor, protocol) -> Tensor:
-    """The GT mask eroded by `mask_erosion_px`; an error naming the view if nothing is left."""
+def scored_mask(where: str, mask: Tensor, protocol, outside_brdf: Tensor | None = None) -> Tensor:
+    """The GT mask eroded by `mask_erosion_px`, less the `outside_brdf` pixels when the protocol
+    excludes them; an error naming the view if nothing is left."""
     eroded = erode_mask(mask, int(protocol.mask_erosion_px))
+    if outside_brdf is not None and protocol.outside_brdf == "exclude":
+        eroded = eroded & ~outside_brdf
     if not eroded.any():
-        raise LayoutError(f"{where}: mask empty after eroding {protocol.mask_erosion_px} px")
+        raise LayoutError(f"{where}: mask empty after eroding {protocol.mask_erosion_px} px"
+                          f"{' and leaving out outside_brdf.png' if outside_brdf is not None else ''}")
     return eroded
 
 
@@ -213,7 +219,8 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         if (scene.name, split, v.id) not in cache:
             cache[(scene.name, split, v.id)] = load_gt_view(scene, v, envs.device)
     gt = {v.id: cache[(scene.name, split, v.id)] for v in all_views}
-    masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol) for v in all_views}
+    masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol,
+                               gt[v.id].get("outside_brdf")) for v in all_views}
     preds, divided = {}, set()
     for v in all_views:
         pdir = Path(pred_scene) / split / v.id

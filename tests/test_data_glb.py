@@ -32,11 +32,11 @@ def _blocky(blocks: np.ndarray) -> np.ndarray:
 
 
 def quad_glb(path, *, textured=True):
-    """A 2x2 quad in glTF's x-y plane facing +z (world -y), texture upright on it."""
+    """A 2x2 double-sided quad in glTF's x-y plane facing +z (world -y), texture upright on it."""
     v = np.array([[-1, 1, 0], [1, 1, 0], [-1, -1, 0], [1, -1, 0]], float)
     m = trimesh.Trimesh(v, np.array([[0, 2, 1], [1, 2, 3]]), process=False)
     mat = trimesh.visual.material.PBRMaterial(
-        baseColorFactor=np.append(FACTOR, 1.0), roughnessFactor=0.5, metallicFactor=1.0,
+        baseColorFactor=np.append(FACTOR, 1.0), roughnessFactor=0.5, metallicFactor=1.0, doubleSided=True,
         baseColorTexture=Image.fromarray(_blocky(BLOCKS)) if textured else None,
         metallicRoughnessTexture=Image.fromarray(_blocky(MR_BLOCKS)) if textured else None)
     # trimesh's uv have v up and are flipped on export: (0, 1) here = glTF (0, 0), top-left.
@@ -140,13 +140,14 @@ def test_bad_glb_inputs(tmp_path):
     m = asset.primitives[0].material
     assert m.base_color_texture is None and np.allclose(m.base_color, [0.2, 0.4, 0.6])
     assert "extension KHR_materials_transmission" in asset.ignored
-    assert "materials[0]: single-sided, back faces not culled" in asset.ignored
+    assert not m.double_sided and not m.outside_brdf  # the glTF default: single-sided, culled
 
-    doc["materials"][0].update(alphaMode="MASK", doubleSided=True)
-    (tmp_path / "mask.glb").write_bytes(_glb(doc, pos))
-    ignored = read_gltf(tmp_path / "mask.glb").ignored
-    assert "materials[0]: alphaMode MASK drawn opaque" in ignored
-    assert not any("single-sided" in s for s in ignored)
+    doc["materials"][0].update(alphaMode="BLEND", doubleSided=True,
+                               extensions={"KHR_materials_transmission": {"transmissionFactor": 1}})
+    (tmp_path / "blend.glb").write_bytes(_glb(doc, pos))
+    blend = read_gltf(tmp_path / "blend.glb")
+    assert blend.primitives[0].material.outside_brdf == ("alphaMode BLEND", "KHR_materials_transmission")
+    assert "materials[0]: alphaMode BLEND drawn as opaque metallic-roughness (outside_brdf mask)" in blend.ignored
     assert any("without TEXCOORD_0" in s for s in asset.ignored)
 
     doc, pos = _triangle_doc(extensionsRequired=["EXT_meshopt_compression"])
@@ -259,13 +260,15 @@ def _png(blocks: np.ndarray) -> bytes:
     import io
 
     buf = io.BytesIO()
-    Image.fromarray(_blocky(blocks)).save(buf, format="PNG")
+    Image.fromarray(_blocky(blocks)).save(buf, format="PNG")  # RGB, or RGBA for 4 channels
     return buf.getvalue()
 
 
-def _feature_quad(path, *, texinfo=None, sampler=None, colors=None, uv=None, uv1=None) -> Path:
+def _feature_quad(path, *, texinfo=None, sampler=None, colors=None, uv=None, uv1=None, alpha=None,
+                  material=None) -> Path:
     """A 2x2 quad (glTF x-y plane, facing +z) with BLOCKS as its base colour texture; UV (0, 0)
-    at its top-left corner (glTF convention), optional COLOR_0, TEXCOORD_1, sampler, texture info."""
+    at its top-left corner (glTF convention), optional COLOR_0, TEXCOORD_1, sampler, texture info,
+    per-block texture alpha [2, 2] (uint8) and material keys (alphaMode, doubleSided, ...)."""
     pos = np.array([[-1, 1, 0], [1, 1, 0], [-1, -1, 0], [1, -1, 0]], np.float32)
     uv = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float32) if uv is None else np.asarray(uv, np.float32)
     idx = np.array([0, 2, 1, 1, 2, 3], np.uint16)
@@ -283,7 +286,7 @@ def _feature_quad(path, *, texinfo=None, sampler=None, colors=None, uv=None, uv1
         views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
         accessors.append({"bufferView": k, "componentType": comp, "count": len(arr), "type": kind})
         blob += data + b"\0" * (-len(data) % 4)
-    png = _png(BLOCKS)
+    png = _png(BLOCKS if alpha is None else np.concatenate([BLOCKS, np.asarray(alpha, np.uint8)[..., None]], -1))
     views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(png)})
     blob += png
     doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
@@ -291,7 +294,7 @@ def _feature_quad(path, *, texinfo=None, sampler=None, colors=None, uv=None, uv1
            "images": [{"bufferView": len(views) - 1, "mimeType": "image/png"}],
            "textures": [{"source": 0, **({"sampler": 0} if sampler else {})}],
            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0, **(texinfo or {})},
-                                                   "metallicFactor": 0.0}}],
+                                                   "metallicFactor": 0.0}, **(material or {})}],
            "meshes": [{"primitives": [{"attributes": attrs, "indices": 2, "material": 0}]}]}
     if sampler:
         doc["samplers"] = [sampler]
@@ -370,3 +373,102 @@ def test_real_objects_experiment_composes_the_three_methods():
                       return_hydra_config=True)
     assert cfg.hydra.sweeper.params.method == "gspi,no_decomposition,joint_ir"
     assert cfg.assets is None and cfg.table == "table1" and cfg.recon.iterations > 0
+
+
+BLOCK_CENTRES = {(0, 0): (11, 11), (0, 1): (11, 20), (1, 0): (20, 11), (1, 1): (20, 20)}  # front_view pixels
+
+
+def test_alpha_mask_cuts_out_below_the_cutoff(tmp_path):
+    """alphaMode MASK (glTF 2.0, 3.9.4): a hit is drawn where factor.a x texture.a >= alphaCutoff.
+    The fail mark of drawing it opaque: the cut-out blocks in the mask."""
+    alpha = [[255, 0], [100, 200]]              # 1, 0, 0.39, 0.78
+    cases = {"OPAQUE": ({}, {(0, 0), (0, 1), (1, 0), (1, 1)}),            # alpha ignored
+             "MASK 0.5": ({"alphaMode": "MASK"}, {(0, 0), (1, 1)}),        # the default cutoff
+             "MASK 0.3": ({"alphaMode": "MASK", "alphaCutoff": 0.3}, {(0, 0), (1, 0), (1, 1)}),
+             "MASK factor 0.6": ({"alphaMode": "MASK", "pbrMetallicRoughness": {
+                 "baseColorTexture": {"index": 0}, "metallicFactor": 0.0,
+                 "baseColorFactor": [1, 1, 1, 0.6]}}, {(0, 0)})}               # 0.6, 0, 0.24, 0.47
+    for name, (material, kept) in cases.items():
+        r = front_view(unit_frame_mesh(read_gltf(_feature_quad(tmp_path / "a.glb", alpha=alpha, material=material))))
+        for block, (y, x) in BLOCK_CENTRES.items():
+            assert r.mask[y, x] == (block in kept), f"{name}: block {block}"
+        if kept:  # what shows through a cut-out block is background, the kept ones keep their colour
+            np.testing.assert_allclose(r.albedo_srgb[11, 11], BLOCKS[0, 0] / 255, atol=1e-5)
+
+
+def test_cut_out_rays_go_on_to_the_surface_behind(tmp_path):
+    """A ray through a cut-out texel hits what lies behind it (a second, opaque quad)."""
+    front = read_gltf(_feature_quad(tmp_path / "f.glb", alpha=[[255, 0], [0, 255]], material={"alphaMode": "MASK"}))
+    back = read_gltf(_feature_quad(tmp_path / "b.glb", material={"pbrMetallicRoughness": {
+        "baseColorFactor": [0.0, 0.0, 1.0, 1.0], "metallicFactor": 0.0}}))
+    for prim in back.primitives:  # 0.5 behind the first (world +y, away from the camera)
+        prim.vertices = prim.vertices + np.array([0.0, 0.5, 0.0])
+    front.primitives += back.primitives
+    r = front_view(unit_frame_mesh(front), size=32)
+    assert r.mask.sum() > 0.5 * 32 * 32 * 0.25
+    np.testing.assert_allclose(r.albedo_srgb[11, 11], BLOCKS[0, 0] / 255, atol=1e-5)   # kept texel
+    np.testing.assert_allclose(r.albedo_srgb[12, 19], [0.0, 0.0, 1.0], atol=1e-5)      # behind the hole
+    assert r.depth[12, 19, 0] > r.depth[11, 11, 0] + 0.1
+
+
+def test_single_sided_faces_are_culled_from_behind(tmp_path):
+    """doubleSided false (the glTF default): seen from behind the quad is not drawn; true: it is."""
+    K, size = intrinsics_from_fov(45.0, 32, 32), 32
+    behind = look_at_w2c(np.array([0.0, 3.0, 0.0]))
+    for sided, drawn in (({}, False), ({"doubleSided": True}, True)):
+        mesh = unit_frame_mesh(read_gltf(_feature_quad(tmp_path / "q.glb", material=sided)))
+        r = render_mesh_views(mesh, [(K, behind, 0)], size, size, env=torch.ones(8, 16, 3), supersample=2)[0]
+        assert bool(r.mask[16, 16]) == drawn and (r.mask.sum() > 100) == drawn
+        assert front_view(mesh).mask[16, 16]  # the front is drawn either way
+
+
+def test_blend_pixels_in_the_outside_brdf_map_and_excluded_on_request(tmp_path):
+    from eval.config import ProtocolConfig
+    from eval.scored_view import scored_mask
+    from omegaconf import OmegaConf
+
+    opaque = front_view(unit_frame_mesh(read_gltf(_feature_quad(tmp_path / "o.glb"))))
+    assert opaque.outside_brdf is None
+    r = front_view(unit_frame_mesh(read_gltf(_feature_quad(tmp_path / "b.glb", material={
+        "alphaMode": "BLEND", "doubleSided": True}))))
+    assert r.outside_brdf is not None and (r.outside_brdf >= r.mask).all() and r.mask.any()
+    protocol = OmegaConf.structured(ProtocolConfig)
+    mask, outside = torch.from_numpy(r.mask), torch.from_numpy(r.outside_brdf)
+    assert torch.equal(scored_mask("v", mask, protocol, outside), mask)  # include: the default
+    protocol.outside_brdf = "exclude"
+    with pytest.raises(ValueError, match="v: mask empty.*outside_brdf.png"):
+        scored_mask("v", mask, protocol, outside)
+    half = outside.clone()
+    half[:, :16] = False
+    assert torch.equal(scored_mask("v", mask, protocol, half), mask & ~half)
+
+
+def test_sparse_accessors_replace_the_listed_elements(tmp_path):
+    """glTF 2.0, 3.6.2.3: sparse values replace the listed elements, over the bufferView's data
+    or over zeros when the accessor has none."""
+    base = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    idx, val = np.array([2], np.uint16), np.array([[0, 2, 0]], np.float32)
+    blob = base.tobytes() + idx.tobytes() + b"\0\0" + val.tobytes()
+    sparse = {"count": 1, "indices": {"bufferView": 1, "componentType": 5123},
+              "values": {"bufferView": 2}}
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "buffers": [{"byteLength": len(blob)}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36},
+                           {"buffer": 0, "byteOffset": 36, "byteLength": 2},
+                           {"buffer": 0, "byteOffset": 40, "byteLength": 12}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "sparse": sparse}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]}
+    (tmp_path / "sparse.glb").write_bytes(_glb(doc, blob))
+    y_up = read_gltf(tmp_path / "sparse.glb").primitives[0].vertices  # Z-up: (x, -z, y)
+    np.testing.assert_allclose(y_up, [[0, 0, 0], [1, 0, 0], [0, 0, 2]])
+    del doc["accessors"][0]["bufferView"]
+    (tmp_path / "zeros.glb").write_bytes(_glb(doc, blob))
+    np.testing.assert_allclose(read_gltf(tmp_path / "zeros.glb").primitives[0].vertices,
+                               [[0, 0, 0], [0, 0, 0], [0, 0, 2]])
+    sparse["indices"]["byteOffset"] = 0
+    sparse["values"] = {"bufferView": 0}  # index 7 of 3 elements
+    doc["bufferViews"][1] = {"buffer": 0, "byteOffset": 36, "byteLength": 2}
+    blob = base.tobytes() + np.array([7], np.uint16).tobytes() + b"\0\0" + val.tobytes()
+    (tmp_path / "bad.glb").write_bytes(_glb(doc, blob))
+    with pytest.raises(GLTFError, match="bad.glb: accessors\\[0\\]: sparse indices out of range"):
+        read_gltf(tmp_path / "bad.glb")

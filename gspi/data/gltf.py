@@ -6,28 +6,31 @@ defines them, so this module reads the (small) subset of the format the benchmar
 with numpy, and trimesh is used for what it does well, ray casting (gspi.data.mesh_render).
 
 Read: the default scene's node tree (matrix or TRS per node), every triangle primitive
-(mode 4) with POSITION, NORMAL, TEXCOORD_0 and indices (any component type, strides,
-normalised integers), and its material's `pbrMetallicRoughness`:
+(mode 4) with POSITION, NORMAL, TEXCOORD_0/1, COLOR_0 and indices (any component type,
+strides, normalised integers, sparse accessors), and its material's `pbrMetallicRoughness`:
 
-    albedo (linear)  = baseColorFactor.rgb * srgb_to_linear(baseColorTexture.rgb)
+    albedo (linear)  = baseColorFactor.rgb * srgb_to_linear(baseColorTexture.rgb) * COLOR_0.rgb
     roughness        = roughnessFactor * metallicRoughnessTexture.G   (linear)
     metallic         = metallicFactor  * metallicRoughnessTexture.B   (linear)
+    alpha            = baseColorFactor.a * baseColorTexture.a * COLOR_0.a   (MASK materials)
 
-Textures are sampled bilinearly with REPEAT wrap at the hit's TEXCOORD_0, glTF's texel
-convention (uv (0, 0) = the top-left corner of the image's first row). Axes: glTF is Y-up;
-positions and normals are turned to the project's Z-up world as Blender's importer does,
-(x, y, z) -> (x, -z, y).
+Textures are sampled bilinearly at their UV set after KHR_texture_transform, wrapped as their
+sampler says, glTF's texel convention (uv (0, 0) = the top-left corner of the image's first
+row); `alphaMode`, `alphaCutoff` and `doubleSided` are kept for the renderer
+(gspi.data.mesh_render: cut-outs, culling). Axes: glTF is Y-up; positions and normals are
+turned to the project's Z-up world as Blender's importer does, (x, y, z) -> (x, -z, y).
 
 Not read, and what happens instead (stated, logged, recorded in scene.json):
 * no material, or a material without `pbrMetallicRoughness`: the spec's defaults (base colour
   1, metallic 1, roughness 1);
-* textures without TEXCOORD_0: factor-only material;
-* normal, occlusion and emissive textures, alpha, texture samplers' filters, KHR_* material
-  extensions in `extensionsUsed` (e.g. KHR_materials_transmission): ignored;
+* textures whose UV set the primitive lacks: factor-only material;
+* normal, occlusion and emissive textures, texture samplers' filters, extensions in
+  `extensionsUsed` other than Draco and texture transform: ignored;
+* alphaMode BLEND and KHR_materials_* (transmission, clearcoat, sheen, ...): drawn as opaque
+  metallic-roughness, listed in `Material.outside_brdf` (each view's outside_brdf.png);
 * KHR_draco_mesh_compression is decoded with DracoPy;
-* any other extension in `extensionsRequired` (meshopt, KTX2, texture transforms), a
-  non-triangle primitive, a sparse accessor, a truncated or malformed file: `GLTFError`
-  naming the file.
+* any other extension in `extensionsRequired` (meshopt, KTX2), a non-triangle primitive, a
+  truncated or malformed file: `GLTFError` naming the file.
 """
 from __future__ import annotations
 
@@ -99,6 +102,19 @@ class Material:
     name: str = ""
     base_color_sampling: TextureSampling = field(default_factory=TextureSampling)
     metallic_roughness_sampling: TextureSampling = field(default_factory=TextureSampling)
+    # Coverage (glTF 2.0, 3.9.4): alpha = baseColorFactor.a x baseColorTexture.a x COLOR_0.a; MASK
+    # draws a hit only where alpha >= alpha_cutoff. OPAQUE ignores alpha; BLEND is drawn opaque
+    # and flagged in `outside_brdf`. The alpha texture is kept only for MASK materials.
+    alpha_mode: str = "OPAQUE"
+    alpha_cutoff: float = 0.5
+    base_alpha: float = 1.0
+    base_color_alpha_texture: np.ndarray | None = None  # [h, w] in [0, 1], base colour's sampling
+    double_sided: bool = False  # single-sided: hits on back faces (clockwise seen) are culled
+    outside_brdf: tuple[str, ...] = ()  # what the metallic-roughness BRDF cannot show (BLEND, KHR_*)
+
+    @property
+    def cut_out(self) -> bool:
+        return self.alpha_mode == "MASK"
 
 
 @dataclass
@@ -113,6 +129,7 @@ class Primitive:
     material: Material
     uv1: np.ndarray | None = None      # TEXCOORD_1 [V, 2]
     color: np.ndarray | None = None    # COLOR_0 RGB [V, 3], linear (multiplies the base colour)
+    alpha: np.ndarray | None = None    # COLOR_0's alpha [V] where COLOR_0 is VEC4 (multiplies alpha)
 
 
 @dataclass
@@ -203,23 +220,45 @@ class _Reader:
 
     def accessor(self, index: int) -> np.ndarray:
         acc = self._get("accessors", index)
-        if "sparse" in acc:
-            raise self.fail(f"accessors[{index}]: sparse accessors are not supported")
         dtype = np.dtype(COMPONENTS[acc["componentType"]]).newbyteorder("<")
         width, count = WIDTH[acc["type"]], int(acc["count"])
-        data, start, stride = self.view_bytes(int(acc["bufferView"]))
-        start += int(acc.get("byteOffset", 0))
+        if "bufferView" in acc:
+            out = self._elements(int(acc["bufferView"]), int(acc.get("byteOffset", 0)), dtype, width,
+                                 count, f"accessors[{index}]")
+        else:  # glTF 2.0, 3.6.2.3: without a bufferView the accessor starts as zeros
+            out = np.zeros((count, width), dtype)
+        if "sparse" in acc:  # glTF 2.0, 3.6.2.3: listed elements replaced
+            out = self._apply_sparse(acc["sparse"], out, dtype, width, f"accessors[{index}]")
+        if acc.get("normalized") and dtype.type in NORMALISED:
+            return np.maximum(out / NORMALISED[dtype.type], -1.0)
+        return out.astype(np.float64) if dtype.kind == "f" else out
+
+    def _elements(self, view: int, offset: int, dtype: np.dtype, width: int, count: int,
+                  what: str) -> np.ndarray:
+        """[count, width] elements of `dtype` from bufferViews[view] at `offset` (its stride)."""
+        data, start, stride = self.view_bytes(view)
+        start += offset
         item = dtype.itemsize * width
         stride = int(stride or item)
         end = start + stride * (count - 1) + item
         if end > len(data):
-            raise self.fail(f"accessors[{index}] runs past its buffer (truncated file?)")
+            raise self.fail(f"{what} runs past its buffer (truncated file?)")
         raw = np.frombuffer(data, np.uint8, count=end - start, offset=start)
         rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
-        out = np.ascontiguousarray(rows).view(dtype).reshape(count, width)
-        if acc.get("normalized") and dtype.type in NORMALISED:
-            return np.maximum(out / NORMALISED[dtype.type], -1.0)
-        return out.astype(np.float64) if dtype.kind == "f" else out
+        return np.ascontiguousarray(rows).view(dtype).reshape(count, width)
+
+    def _apply_sparse(self, sparse: dict, out: np.ndarray, dtype: np.dtype, width: int,
+                      what: str) -> np.ndarray:
+        n, idx, val = int(sparse["count"]), sparse["indices"], sparse["values"]
+        index_type = np.dtype(COMPONENTS[idx["componentType"]]).newbyteorder("<")
+        rows = self._elements(int(idx["bufferView"]), int(idx.get("byteOffset", 0)), index_type, 1, n,
+                              f"{what}.sparse.indices")[:, 0].astype(np.int64)
+        if n and (rows.min() < 0 or rows.max() >= len(out)):
+            raise self.fail(f"{what}: sparse indices out of range")
+        out = out.copy()
+        out[rows] = self._elements(int(val["bufferView"]), int(val.get("byteOffset", 0)), dtype, width,
+                                   n, f"{what}.sparse.values")
+        return out
 
     def image(self, tex_index: int) -> np.ndarray:
         from PIL import Image
@@ -244,16 +283,22 @@ class _Reader:
             pil.load()
         except Exception as e:  # Pillow raises many types for bad images
             raise self.fail(f"images[{tex['source']}] is not a readable image ({e})") from e
-        return image_rgb(pil)
+        return image_rgba(pil)
+
+
+def image_rgba(pil) -> np.ndarray:
+    """[H, W, 4] float64 in [0, 1] of a decoded texture (alpha 1 where the image has none).
+    16-bit greyscale PNGs (Pillow modes ``I;16*`` / ``I``) are read at full depth:
+    ``convert("RGB")`` would clip them to 8 bits."""
+    if pil.mode.startswith("I;16") or pil.mode == "I":
+        grey = np.clip(np.asarray(pil, dtype=np.float64) / 65535.0, 0.0, 1.0)
+        return np.concatenate([np.repeat(grey[..., None], 3, axis=-1), np.ones_like(grey)[..., None]], -1)
+    return np.asarray(pil.convert("RGBA"), dtype=np.float64) / 255.0
 
 
 def image_rgb(pil) -> np.ndarray:
-    """[H, W, 3] float64 in [0, 1] of a decoded texture. 16-bit greyscale PNGs (Pillow modes
-    ``I;16*`` / ``I``) are read at full depth: ``convert("RGB")`` would clip them to 8 bits."""
-    if pil.mode.startswith("I;16") or pil.mode == "I":
-        grey = np.asarray(pil, dtype=np.float64) / 65535.0
-        return np.repeat(np.clip(grey, 0.0, 1.0)[..., None], 3, axis=-1)
-    return np.asarray(pil.convert("RGB"), dtype=np.float64) / 255.0
+    """[H, W, 3] colour channels of `image_rgba`."""
+    return image_rgba(pil)[..., :3]
 
 
 def _node_matrix(node: dict) -> np.ndarray:
@@ -293,17 +338,21 @@ def _material(r: _Reader, index: int | None, uv_sets: frozenset, ignored: list[s
     for key in ("normalTexture", "occlusionTexture", "emissiveTexture"):
         if key in mat:
             ignored.append(f"{name}: {key}")
-    if mat.get("alphaMode", "OPAQUE") != "OPAQUE":  # cut-outs and blending are not drawn (yet)
-        ignored.append(f"{name}: alphaMode {mat['alphaMode']} drawn opaque")
-    if not mat.get("doubleSided", False):
-        ignored.append(f"{name}: single-sided, back faces not culled")
+    alpha_mode = mat.get("alphaMode", "OPAQUE")
+    outside = [f"alphaMode {alpha_mode}"] if alpha_mode == "BLEND" else []
+    outside += sorted(e for e in mat.get("extensions", {}) if e.startswith("KHR_materials_"))
+    for item in outside:  # drawn with the metallic-roughness BRDF; pixels in the scene's mask
+        ignored.append(f"{name}: {item} drawn as opaque metallic-roughness (outside_brdf mask)")
     pbr = mat.get("pbrMetallicRoughness")
+    coverage = dict(alpha_mode=alpha_mode, alpha_cutoff=float(mat.get("alphaCutoff", 0.5)),
+                    double_sided=bool(mat.get("doubleSided", False)), outside_brdf=tuple(outside))
     if pbr is None:
         ignored.append(f"{name}: no pbrMetallicRoughness, glTF defaults")
-        return Material(name=name)
-    out = Material(base_color=np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), float)[:3],
-                   roughness=float(pbr.get("roughnessFactor", 1.0)),
-                   metallic=float(pbr.get("metallicFactor", 1.0)), name=name)
+        return Material(name=name, **coverage)
+    factor = np.asarray(pbr.get("baseColorFactor", [1, 1, 1, 1]), float)
+    out = Material(base_color=factor[:3], roughness=float(pbr.get("roughnessFactor", 1.0)),
+                   metallic=float(pbr.get("metallicFactor", 1.0)), name=name,
+                   base_alpha=float(factor[3]) if len(factor) > 3 else 1.0, **coverage)
     for key, attr in (("baseColorTexture", "base_color"),
                       ("metallicRoughnessTexture", "metallic_roughness")):
         if key not in pbr:
@@ -311,9 +360,11 @@ def _material(r: _Reader, index: int | None, uv_sets: frozenset, ignored: list[s
         if _texcoord(pbr[key]) not in uv_sets:
             ignored.append(f"{name}: {key} without TEXCOORD_{_texcoord(pbr[key])}, factor only")
             continue
-        sampling = _sampling(r, pbr[key])
-        setattr(out, f"{attr}_texture", r.image(int(pbr[key]["index"])))
-        setattr(out, f"{attr}_sampling", sampling)
+        rgba = r.image(int(pbr[key]["index"]))
+        setattr(out, f"{attr}_texture", rgba[..., :3])
+        setattr(out, f"{attr}_sampling", _sampling(r, pbr[key]))
+        if attr == "base_color" and out.cut_out and (rgba[..., 3] < 1).any():
+            out.base_color_alpha_texture = rgba[..., 3]
     return out
 
 
@@ -388,14 +439,17 @@ def read_gltf(path: str | Path) -> Asset:
                     n = data["NORMAL"] @ np.linalg.inv(lin)  # rows of (L^-T n)
                     n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
                 uv, uv1 = data.get("TEXCOORD_0"), data.get("TEXCOORD_1")
-                color = None if data.get("COLOR_0") is None else np.asarray(data["COLOR_0"], np.float64)[:, :3]
+                colour = None if data.get("COLOR_0") is None else np.asarray(data["COLOR_0"], np.float64)
+                color = None if colour is None else colour[:, :3]
+                alpha = colour[:, 3] if colour is not None and colour.shape[1] == 4 else None
                 if np.linalg.det(lin) < 0:  # mirrored node: keep counter-clockwise faces
                     faces = faces[:, ::-1]
                 uv_sets = frozenset(k for k, a in ((0, uv), (1, uv1)) if a is not None)
                 key = (p.get("material"), uv_sets)
                 if key not in materials:
                     materials[key] = _material(r, p.get("material"), uv_sets, ignored)
-                prims.append(Primitive(v, faces.astype(np.int64), n, uv, materials[key], uv1=uv1, color=color))
+                prims.append(Primitive(v, faces.astype(np.int64), n, uv, materials[key], uv1=uv1, color=color,
+                                       alpha=alpha))
     except (KeyError, IndexError, TypeError) as e:
         raise r.fail(f"malformed glTF ({type(e).__name__}: {e})") from e
     if not prims:

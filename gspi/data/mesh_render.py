@@ -5,7 +5,9 @@ The mesh counterpart of `gspi.data.render_view` (same samples, same per-pixel re
 trimesh's pure-numpy intersector), the material is looked up at the hit (`gspi.data.gltf`
 module docstring: factors x bilinear texture at the barycentric UV), normals are the
 barycentric interpolation of the vertex normals (face normals where a primitive has none),
-turned towards the ray when a back face is hit. Normal maps are not applied.
+turned towards the ray when a back face is hit. Normal maps are not applied. Alpha MASK
+cut-outs and single-sided culling decide which hits are drawn (`drawn`); a ray goes on past
+the others. Views of an asset with BLEND or KHR_materials_* materials carry `outside_brdf`.
 """
 from __future__ import annotations
 
@@ -20,6 +22,9 @@ from eval.views import pixel_rays
 # `_aggregate` is render_view's per-pixel reduction; reused so both renderers reduce alike.
 from gspi.data.render_view import ViewRender, _aggregate, subpixel_rays
 from gspi.data.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Asset, Material
+
+MAX_LAYERS = 16      # culled / cut-out surfaces a ray passes before it is called a miss
+LAYER_EPS = 1e-5     # a passed ray restarts this far beyond the surface (unit-sphere scene)
 
 
 @dataclass
@@ -40,6 +45,7 @@ class PBRMesh:
     scale: float
     uv1: np.ndarray | None = None    # [V, 2] TEXCOORD_1 (zeros where absent), None if no primitive has it
     color: np.ndarray | None = None  # [V, 3] COLOR_0 (ones where absent), None if no primitive has it
+    alpha: np.ndarray | None = None  # [V] COLOR_0's alpha (ones where absent), None if none has it
 
     def trimesh(self):
         import trimesh
@@ -50,7 +56,7 @@ class PBRMesh:
 def unit_frame_mesh(asset: Asset, radius: float = 1.0) -> PBRMesh:
     """Concatenate the primitives; centre the bounding box at the origin, farthest vertex at
     `radius` (the benchmark's unit sphere)."""
-    verts, faces, normals, uvs, uv1s, colors, fmat, mats = [], [], [], [], [], [], [], []
+    verts, faces, normals, uvs, uv1s, colors, alphas, fmat, mats = [], [], [], [], [], [], [], [], []
     offset = 0
     for prim in asset.primitives:
         if all(m is not prim.material for m in mats):
@@ -63,6 +69,7 @@ def unit_frame_mesh(asset: Asset, radius: float = 1.0) -> PBRMesh:
         uvs.append(prim.uv if prim.uv is not None else np.zeros((nv, 2)))
         uv1s.append(prim.uv1 if prim.uv1 is not None else np.zeros((nv, 2)))
         colors.append(prim.color if prim.color is not None else np.ones((nv, 3)))
+        alphas.append(prim.alpha if prim.alpha is not None else np.ones(nv))
         fmat.append(np.full(len(prim.faces), k))
         offset += nv
     v = np.concatenate(verts)
@@ -70,10 +77,12 @@ def unit_frame_mesh(asset: Asset, radius: float = 1.0) -> PBRMesh:
     scale = radius / max(float(np.linalg.norm(v - center, axis=-1).max()), 1e-12)
     has_uv1 = any(p.uv1 is not None for p in asset.primitives)
     has_color = any(p.color is not None for p in asset.primitives)
+    has_alpha = any(p.alpha is not None for p in asset.primitives)
     return PBRMesh((v - center) * scale, np.concatenate(faces), np.concatenate(normals),
                    np.concatenate(uvs), np.concatenate(fmat), mats, center, scale,
                    uv1=np.concatenate(uv1s) if has_uv1 else None,
-                   color=np.concatenate(colors) if has_color else None)
+                   color=np.concatenate(colors) if has_color else None,
+                   alpha=np.concatenate(alphas) if has_alpha else None)
 
 
 def wrap_index(i: np.ndarray, n: int, mode: int) -> np.ndarray:
@@ -102,38 +111,73 @@ def sample_texture(tex: np.ndarray, uv: np.ndarray, wrap: tuple[int, int] = (REP
     return top * (1 - fy) + bot * fy
 
 
+def _interpolate(mesh: PBRMesh, attr: np.ndarray, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """A per-vertex attribute at hits (triangle [N], barycentrics [N, 3])."""
+    return np.einsum("nk,nk...->n...", bary, attr[mesh.faces[tri]])
+
+
+def _lookup(mesh: PBRMesh, tex: np.ndarray, sampling, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """A material texture at hits: its UV set, KHR_texture_transform, wrap modes, bilinear."""
+    uv_attr = mesh.uv1 if sampling.texcoord == 1 else mesh.uv
+    uv = sampling.apply(_interpolate(mesh, uv_attr, tri, bary))
+    return sample_texture(tex, uv, (sampling.wrap_s, sampling.wrap_t))
+
+
+def coverage_alpha(mesh: PBRMesh, mat: Material, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """glTF alpha at hits on `mat`: baseColorFactor.a x baseColorTexture.a x COLOR_0.a, [N]."""
+    alpha = np.full(len(tri), mat.base_alpha)
+    if mat.base_color_alpha_texture is not None:
+        tex = mat.base_color_alpha_texture[..., None]
+        alpha = alpha * _lookup(mesh, tex, mat.base_color_sampling, tri, bary)[:, 0]
+    if mesh.alpha is not None:
+        alpha = alpha * _interpolate(mesh, mesh.alpha, tri, bary)
+    return alpha
+
+
 def evaluate_materials(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray):
     """(albedo linear [N, 3], roughness [N], metallic [N]) at hits (triangle, barycentrics)."""
     n = len(tri)
     albedo, rough, metal = np.zeros((n, 3)), np.zeros(n), np.zeros(n)
-    def interpolate(attr: np.ndarray) -> np.ndarray:
-        return np.einsum("nk,nkc->nc", bary, attr[mesh.faces[tri]])
-
-    uv_sets = {0: interpolate(mesh.uv)}
-    if mesh.uv1 is not None:
-        uv_sets[1] = interpolate(mesh.uv1)
-    color = None if mesh.color is None else interpolate(mesh.color)
-
-    def lookup(tex: np.ndarray, sampling, sel: np.ndarray) -> np.ndarray:
-        uv = sampling.apply(uv_sets[sampling.texcoord][sel])  # KHR_texture_transform, TEXCOORD_n
-        return sample_texture(tex, uv, (sampling.wrap_s, sampling.wrap_t))
-
     for k, mat in enumerate(mesh.materials):
         sel = mesh.face_material[tri] == k
         if not sel.any():
             continue
-        a = np.broadcast_to(mat.base_color, (int(sel.sum()), 3)).copy()
+        t, b = tri[sel], bary[sel]
+        a = np.broadcast_to(mat.base_color, (len(t), 3)).copy()
         if mat.base_color_texture is not None:
-            srgb = lookup(mat.base_color_texture, mat.base_color_sampling, sel)
+            srgb = _lookup(mesh, mat.base_color_texture, mat.base_color_sampling, t, b)
             a *= srgb_to_linear(torch.from_numpy(srgb)).numpy()
-        if color is not None:  # base colour = factor x texture x COLOR_0 (glTF 2.0, 3.9.2)
-            a *= color[sel]
-        r, m = np.full(int(sel.sum()), mat.roughness), np.full(int(sel.sum()), mat.metallic)
+        if mesh.color is not None:  # base colour = factor x texture x COLOR_0 (glTF 2.0, 3.9.2)
+            a *= _interpolate(mesh, mesh.color, t, b)
+        r, m = np.full(len(t), mat.roughness), np.full(len(t), mat.metallic)
         if mat.metallic_roughness_texture is not None:
-            mr = lookup(mat.metallic_roughness_texture, mat.metallic_roughness_sampling, sel)
+            mr = _lookup(mesh, mat.metallic_roughness_texture, mat.metallic_roughness_sampling, t, b)
             r, m = r * mr[:, 1], m * mr[:, 2]
         albedo[sel], rough[sel], metal[sel] = a, r, m
     return np.clip(albedo, 0, 1), np.clip(rough, 0, 1), np.clip(metal, 0, 1)
+
+
+def drawn(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Which hits are drawn [N] bool: single-sided materials cull back faces (a face seen
+    clockwise, glTF 2.0, 3.9.6), alpha MASK materials cut out alpha < alphaCutoff (3.9.4)."""
+    keep = np.ones(len(tri), bool)
+    corners = mesh.vertices[mesh.faces[tri]]
+    back = (np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) * dirs).sum(-1) > 0
+    for k, mat in enumerate(mesh.materials):
+        sel = mesh.face_material[tri] == k
+        if not sel.any() or (mat.double_sided and not mat.cut_out):
+            continue
+        ok = np.ones(int(sel.sum()), bool) if mat.double_sided else ~back[sel]
+        if mat.cut_out:
+            ok &= coverage_alpha(mesh, mat, tri[sel], bary[sel]) >= mat.alpha_cutoff
+        keep[sel] = ok
+    return keep
+
+
+def outside_brdf(mesh: PBRMesh, tri: np.ndarray) -> np.ndarray:
+    """Hits [N] bool on materials the metallic-roughness BRDF cannot show (Material.outside_brdf)."""
+    flagged = np.array([bool(m.outside_brdf) for m in mesh.materials])
+    return flagged[mesh.face_material[tri]]
 
 
 def shading_normals(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray,
@@ -164,20 +208,48 @@ class MeshTracer:
             self.intersector = trimesh.ray.ray_triangle.RayMeshIntersector(tm)
 
     def trace(self, origins: np.ndarray, dirs: np.ndarray):
+        """Closest *drawn* hits (`drawn`): a culled or cut-out hit lets its ray go on from just
+        past it, up to MAX_LAYERS surfaces deep."""
+        n = len(origins)
+        hit, t = np.zeros(n, bool), np.zeros(n)
+        tri_all, bary_all = np.zeros(n, np.int64), np.zeros((n, 3))
+        active, start, travelled = np.arange(n), origins.astype(np.float64).copy(), np.zeros(n)
+        for _ in range(MAX_LAYERS):
+            ids, tri, dist, bary = self._closest(start[active], dirs[active])
+            ids = active[ids]
+            keep = drawn(self.mesh, tri, bary, dirs[ids])
+            done = ids[keep]
+            hit[done], t[done] = True, travelled[done] + dist[keep]
+            tri_all[done], bary_all[done] = tri[keep], bary[keep]
+            active = ids[~keep]
+            if not len(active):
+                break
+            step = dist[~keep] + LAYER_EPS
+            start[active] += step[:, None] * dirs[active]
+            travelled[active] += step
+        return hit, t, tri_all, bary_all
+
+    def _closest(self, origins: np.ndarray, dirs: np.ndarray):
+        """(ray ids hit, triangle, distance along the ray, barycentrics) of the first hits."""
         import trimesh
 
         tri, ray, loc = self.intersector.intersects_id(origins, dirs, multiple_hits=False,
                                                        return_locations=True)
-        n = len(origins)
-        hit, t = np.zeros(n, bool), np.zeros(n)
-        tri_all, bary = np.zeros(n, np.int64), np.zeros((n, 3))
-        hit[ray] = True
-        t[ray] = ((loc - origins[ray]) * dirs[ray]).sum(-1)
-        tri_all[ray] = tri
+        dist = ((loc - origins[ray]) * dirs[ray]).sum(-1)
         corners = self.mesh.vertices[self.mesh.faces[tri]]
-        bary[ray] = np.clip(trimesh.triangles.points_to_barycentric(corners, loc), 0, 1)
-        bary[ray] /= np.maximum(bary[ray].sum(-1, keepdims=True), 1e-12)
-        return hit, t, tri_all, bary
+        bary = np.clip(trimesh.triangles.points_to_barycentric(corners, loc), 0, 1)
+        bary /= np.maximum(bary.sum(-1, keepdims=True), 1e-12)
+        return ray, tri, dist, bary
+
+
+def outside_brdf_map(mesh: PBRMesh, tri: np.ndarray, hit: np.ndarray, n_sub: int, height: int,
+                     width: int) -> np.ndarray | None:
+    """[H, W] bool: pixels where any sub-sample hit a material outside the BRDF; None when the
+    mesh has no such material (the view then writes no outside_brdf.png)."""
+    if not any(m.outside_brdf for m in mesh.materials):
+        return None
+    flagged = hit[:n_sub] & outside_brdf(mesh, tri[:n_sub])
+    return flagged.reshape(height * width, -1).any(-1).reshape(height, width)
 
 
 def render_mesh_views(mesh: PBRMesh, cameras: list, height: int, width: int, *, env,
@@ -206,5 +278,6 @@ def render_mesh_views(mesh: PBRMesh, cameras: list, height: int, width: int, *, 
                           torch.from_numpy(hit[n_sub:]), f32(z[:n_sub]), f32(z[n_sub:]),
                           torch.from_numpy(idx), f32(normal),
                           (rgb, f32(albedo), f32(rough), f32(metal)))
-        out.append(ViewRender(**maps, rays=len(dirs), sdf_evals=0))
+        out.append(ViewRender(**maps, rays=len(dirs), sdf_evals=0,
+                              outside_brdf=outside_brdf_map(mesh, tri, hit, n_sub, height, width)))
     return out

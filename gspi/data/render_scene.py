@@ -52,7 +52,7 @@ def scene_views(recipe: dict, *, width: int, height: int, lattice: dict) -> dict
 
 
 def write_view(view_dir: Path, r: ViewRender) -> None:
-    """Write the eight per-view files of a rendered view."""
+    """Write the eight per-view files of a rendered view (nine with outside_brdf.png)."""
     write_view_file(view_dir, "rgb.exr", r.rgb)
     write_view_file(view_dir, "rgb.png",
                     linear_to_srgb(torch.from_numpy(r.rgb).clamp(0, 1)).numpy())
@@ -62,6 +62,8 @@ def write_view(view_dir: Path, r: ViewRender) -> None:
     write_view_file(view_dir, "normal.exr", r.normal)
     write_view_file(view_dir, "depth.exr", r.depth)
     write_view_file(view_dir, "mask.png", r.mask.astype(np.float32))
+    if r.outside_brdf is not None:  # optional (eval/layout.py OPTIONAL_GT_FILES)
+        write_view_file(view_dir, "outside_brdf.png", r.outside_brdf.astype(np.float32))
 
 
 def stored_relight_inputs(scene: Scene, view: View, device: torch.device | str = "cpu"

@@ -51,6 +51,8 @@ class ViewRender:
     mask: np.ndarray
     rays: int
     sdf_evals: int
+    outside_brdf: np.ndarray | None = None  # HxW bool: a sample hit a surface outside the BRDF
+                                            # (glTF imports only; docs/DATA.md); None: there is none
 
 
 def subpixel_rays(K: np.ndarray, w2c: np.ndarray, height: int, width: int, supersample: int,
