@@ -62,6 +62,8 @@ class RelightConfig:
     clamp_albedo: bool = True           # the aligned albedo relit is clamped to [0, 1] (TensoIR: not)
     scale_fit: str = "none"             # none | lstsq: per-image per-channel scale of the relit
                                         # linear prediction (Stanford-ORB `scale_invariant`)
+    reference: str = "shaded"           # shaded: split-sum shading of the GT maps | stored: the scene's
+                                        # relit_<env>.exr (data.relit_renderer=pathtraced: shadows too)
     psnr_hdr: bool = False              # also PSNR-H on linear HDR (Stanford-ORB), metric psnr_h
     hdr_max: float = 4.0                # PSNR-H: both images clipped to [0, hdr_max]
     hdr_gt_renorm: bool = True          # PSNR-H: Stanford-ORB's brightness renormalisation of GT
@@ -100,6 +102,7 @@ class ProtocolConfig:
 ALIGNMENTS = ("none", "scale", "lstsq", "per_channel", "median_ratio")  # per_channel = lstsq
 SCOPES = ("scene", "view")
 OUTSIDE_BRDF = ("include", "exclude")
+RELIT_REFERENCES = ("shaded", "stored")
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 ALBEDO_SPACES = ("srgb", "linear", "gamma22")
 ALIGNMENT_SPACES = ("linear", "stored")
@@ -143,6 +146,7 @@ def validate_protocol(cfg) -> None:
     _allowed("lpips.mode", cfg.lpips.mode, LPIPS_MODES)
     _allowed("relight.tonemap", cfg.relight.tonemap, TONEMAPS)
     _allowed("relight.scale_fit", cfg.relight.scale_fit, SCALE_FITS)
+    _allowed("relight.reference", cfg.relight.reference, RELIT_REFERENCES)
     bad = [c for c in cfg.channels if c not in CHANNELS]
     if bad:
         raise ValueError(f"eval.channels has unknown {bad}; allowed: {', '.join(CHANNELS)}")

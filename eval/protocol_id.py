@@ -45,7 +45,7 @@ LATER_KEYS = {"unpremultiply": False, "alignment_space": "linear", "alignment_pi
               "alignment_sampled_views": None, "albedo_clamp": True, "mask_prediction": True,
               "psnr.channel_mean": False, "psnr.map_pooling": "view", "psnr.albedo_space": None,
               "ssim.albedo_space": None, "lpips.albedo_space": None, "relight.clamp_albedo": True,
-              "outside_brdf": "include"}
+              "outside_brdf": "include", "relight.reference": "shaded"}
 
 
 def _drop_neutral(tree: dict, dotted: str, neutral) -> None:
@@ -155,7 +155,8 @@ def describe_protocol(p: dict) -> str:
             f"{'[-1,1]' if lp.get('normalize', True) else '[0,1]'}"
             f"{', sRGB-encoded first' if lp.get('encode_srgb') else ''}; background "
             f"{p.get('background')}; relight tone map {tone_text}, scale fit "
-            f"{r.get('scale_fit', 'none')}{', PSNR-H' if r.get('psnr_hdr') else ''}, fills "
+            f"{r.get('scale_fit', 'none')}{', PSNR-H' if r.get('psnr_hdr') else ''}"
+            f"{', GT = stored relit images' if r.get('reference') == 'stored' else ''}, fills "
             f"roughness {r.get('fill_roughness')} metallic {r.get('fill_metallic')}, envs "
             f"{r.get('envs') or 'each scene held-out'}")
 

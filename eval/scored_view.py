@@ -96,6 +96,20 @@ def load_gt_view(scene: Scene, view, device: torch.device = CPU) -> dict:
     return out
 
 
+def load_stored_relit(scene: Scene, view, env_names, device: torch.device = CPU) -> dict:
+    """env -> the view's stored relit ground truth (``relit_<env>.exr``, linear) [H, W, 3], for
+    ``relight.reference: stored``; an error naming the file when one is absent."""
+    vdir = scene.view_dir(view.split, view.id)
+    out = {}
+    for name in env_names:
+        path = vdir / f"relit_{name}.exr"
+        if not path.is_file():
+            raise LayoutError(f"{path}: not found (eval.relight.reference=stored reads the stored relit "
+                              f"ground truth, which the dataset writes for its test views only)")
+        out[name] = as_tensor(read_exr(path), device)
+    return out
+
+
 def load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device = CPU) -> dict:
     out = {}
     for name in MATERIAL_CHANNELS:
@@ -199,7 +213,10 @@ def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, scale: Tenso
     out = {}
     for env_name in (cfg.envs or scene.relight_envs):
         env = envs.get(scene.envmap_path(env_name))
-        ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
+        if cfg.reference == "stored":  # the scene's relit_<env>.exr (e.g. path-traced)
+            ref = g["relit"][env_name]
+        else:
+            ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
         pred = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env, albedo_linear=albedo_linear)
         out[env_name] = relit_pair(pred, ref, mask, cfg)
     return out
@@ -219,6 +236,11 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         if (scene.name, split, v.id) not in cache:
             cache[(scene.name, split, v.id)] = load_gt_view(scene, v, envs.device)
     gt = {v.id: cache[(scene.name, split, v.id)] for v in all_views}
+    if protocol.relight.reference == "stored" and "relight" in protocol.channels:
+        for v in all_views:
+            if "relit" not in gt[v.id]:
+                gt[v.id]["relit"] = load_stored_relit(scene, v, protocol.relight.envs or scene.relight_envs,
+                                                      envs.device)
     masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol,
                                gt[v.id].get("outside_brdf")) for v in all_views}
     preds, divided = {}, set()

@@ -79,10 +79,11 @@ def test_glb_textures_reach_mitsuba_upright(tmp_path):
     assert _corr(exact.rgb[exact.mask], traced[exact.mask]) > 0.8
 
 
-def _tiny(renderer: str) -> BenchmarkConfig:
+def _tiny(renderer: str, relit_renderer: str = "splitsum") -> BenchmarkConfig:
     return BenchmarkConfig(num_train_scenes=0, num_val_scenes=0, num_test_scenes=1, image_size=16,
                            env_height=16, num_test_views=1, num_val_views=0, num_relight_envs=1,
                            point_clouds=False, contact_sheets=False, renderer=renderer,
+                           relit_renderer=relit_renderer,
                            pathtrace={"spp": 4, "mesh_resolution": 48},
                            lattice={"num_views": 2, "radius": 3.0, "fov_deg": 45.0,
                                     "min_elevation_deg": 0.0})
@@ -109,4 +110,50 @@ def test_pathtraced_dataset_keeps_the_ground_truth(tmp_path):
 def test_unknown_renderer_is_an_error():
     with pytest.raises(ValueError, match="raytraced"):
         retracer("raytraced", {})
+    with pytest.raises(ValueError, match="data.relit_renderer must be splitsum or pathtraced"):
+        retracer("raytraced", {}, key="data.relit_renderer")
     assert retracer("splitsum", {}) is None
+
+
+def test_pathtraced_relit_ground_truth_and_the_stored_reference(tmp_path):
+    """data.relit_renderer=pathtraced replaces only the relit GT images (inputs and maps are
+    byte-identical); eval.relight.reference=stored scores against those files, and on a
+    split-sum dataset the stored reference equals the shaded one."""
+    from omegaconf import OmegaConf
+
+    from eval.config import ProtocolConfig
+    from eval.layout import LayoutError
+    from eval.scored_view import EnvironmentCache, load_gt_view, load_stored_relit, relit_pairs
+
+    generate_dataset(tmp_path / "split", _tiny("splitsum"), seed=0)
+    b = generate_dataset(tmp_path / "path", _tiny("splitsum", "pathtraced"), seed=0)
+    name = b["scenes"][0]["name"]
+    sa, sb = read_scene(tmp_path / "split" / name), read_scene(tmp_path / "path" / name)
+    assert sb.extra["generator"]["relit_renderer"] == "pathtraced"
+    assert "relit_renderer" not in sa.extra["generator"]  # the default is not recorded (byte-identity)
+    da, db = sa.view_dir("test", "t00"), sb.view_dir("test", "t00")
+    for f in ("rgb.exr", "albedo.png", "roughness.png", "metallic.png", "normal.exr", "mask.png"):
+        assert (da / f).read_bytes() == (db / f).read_bytes(), f
+    env = sa.relight_envs[0]
+    assert (da / f"relit_{env}.exr").read_bytes() != (db / f"relit_{env}.exr").read_bytes()
+
+    protocol = OmegaConf.structured(ProtocolConfig)
+    stored = OmegaConf.structured(ProtocolConfig)
+    stored.relight.reference = "stored"
+    envs = EnvironmentCache()
+    for scene in (sa, sb):
+        view = scene.split_views("test")[0]
+        g = load_gt_view(scene, view)
+        g["relit"] = load_stored_relit(scene, view, scene.relight_envs)
+        p = {c: g[c] for c in ("albedo", "roughness", "metallic")}
+        scale = torch.ones(3, dtype=torch.float64)
+        shaded = relit_pairs(scene, g, p, g["albedo"], scale, g["mask"], protocol, envs)[env]
+        read = relit_pairs(scene, g, p, g["albedo"], scale, g["mask"], stored, envs)[env]
+        torch.testing.assert_close(read.gt_linear.float(), g["relit"][env].float())
+        if scene is sa:
+            torch.testing.assert_close(read.gt_linear.float(), shaded.gt_linear.float(), rtol=1e-5, atol=1e-6)
+        else:  # shadows, interreflection and Mitsuba's BSDF: a different reference
+            assert (read.gt_linear - shaded.gt_linear).abs().max() > 1e-3
+    (da / f"relit_{env}.exr").unlink()
+    with pytest.raises(LayoutError, match=f"relit_{env}.exr: not found"):
+        load_stored_relit(sa, sa.split_views("test")[0], [env])

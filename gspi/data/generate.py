@@ -70,6 +70,7 @@ class BenchmarkConfig:
     capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
     relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
     renderer: str = "splitsum"                # input views: splitsum | pathtraced
+    relit_renderer: str = "splitsum"          # relit GT of the test views: splitsum | pathtraced
     pathtrace: dict = field(default_factory=dict)  # gspi.data.pathtrace.PathTraceConfig kwargs
     lattice: dict = field(default_factory=lambda: dict(CANONICAL_LATTICE))
 
@@ -142,6 +143,8 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
              "preset": cfg.name, "supersample": cfg.supersample, "lattice": cfg.lattice}
     if cfg.renderer != "splitsum":  # recorded only when not the default (byte-identity)
         extra |= {"renderer": cfg.renderer, "pathtrace": dict(cfg.pathtrace)}
+    if cfg.relit_renderer != "splitsum":
+        extra |= {"relit_renderer": cfg.relit_renderer, "pathtrace": dict(cfg.pathtrace)}
     if device.type != "cpu":  # likewise: CPU datasets stay byte-identical to those of before
         extra["device"] = device.type
     size = int(recipe.get("image_size", cfg.image_size))
@@ -149,6 +152,8 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
                            width=size, height=size,
                            supersample=cfg.supersample, lattice=cfg.lattice, extra=extra,
                            retrace=retracer(cfg.renderer, cfg.pathtrace, recipe=recipe),
+                           relit_retrace=retracer(cfg.relit_renderer, cfg.pathtrace, recipe=recipe,
+                                                  key="data.relit_renderer"),
                            device=device)
     t0 = time.perf_counter()
     scene = read_scene(Path(out_dir) / recipe["name"])

@@ -141,9 +141,10 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
             recipe, out_dir, envs=envs, prefiltered=pre, width=cfg.image_size,
             height=cfg.image_size, supersample=cfg.supersample, lattice=cfg.lattice,
             render=render, retrace=retracer(cfg.renderer, cfg.pathtrace, mesh=mesh),
+            relit_retrace=retracer(cfg.relit_renderer, cfg.pathtrace, mesh=mesh, key="data.relit_renderer"),
             extra={"importer": "gspi-glb-import", "importer_version": 1, "seed": seed, "preset": cfg.name,
                    "supersample": cfg.supersample, "lattice": cfg.lattice,
-                   "renderer": cfg.renderer, "ignored": asset.ignored,
+                   "renderer": cfg.renderer, "relit_renderer": cfg.relit_renderer, "ignored": asset.ignored,
                    "unit_frame": {"center": mesh.center.tolist(), "scale": mesh.scale}})
         if cfg.point_clouds or cfg.contact_sheets:
             from gspi.data.contact_sheet import write_contact_sheet

@@ -213,12 +213,14 @@ def render_pathtraced(parts: list[dict], cameras: list, height: int, width: int,
     return out
 
 
-def retracer(renderer: str, options: dict | None, *, recipe: dict | None = None, mesh=None):
-    """`generate_scene`'s `retrace` for `data.renderer` (None for splitsum)."""
+def retracer(renderer: str, options: dict | None, *, recipe: dict | None = None, mesh=None,
+             key: str = "data.renderer"):
+    """`generate_scene`'s `retrace` (or `relit_retrace`) for `data.renderer` (or
+    `data.relit_renderer`, named by `key`); None for splitsum."""
     if renderer == "splitsum":
         return None
     if renderer != "pathtraced":
-        raise ValueError(f"data.renderer must be splitsum or pathtraced, got {renderer!r}")
+        raise ValueError(f"{key} must be splitsum or pathtraced, got {renderer!r}")
     cfg = PathTraceConfig(**dict(options or {}))
     _mitsuba()  # fail early when Mitsuba is missing
 

@@ -106,7 +106,7 @@ def sdf_renderer(recipe: dict, device: torch.device | str = "cpu"):
 def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor],
                    prefiltered: dict, width: int, height: int, supersample: int,
                    lattice: dict, extra: dict | None = None, render=None,
-                   retrace=None, device: torch.device | str = "cpu") -> dict:
+                   retrace=None, relit_retrace=None, device: torch.device | str = "cpu") -> dict:
     """Render every view of a scene and write it (see module docstring).
 
     Args:
@@ -123,6 +123,9 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
         retrace: optional `retrace(cameras, height, width, env [h, w, 3])` -> one rgb
             [H, W, 3] per camera that replaces the split-sum input (gspi.data.pathtrace);
             maps, masks and relit ground truth stay those of `render`.
+        relit_retrace: optional, the same kind of function: renders the test views' relit
+            ground truth under each relight environment (`data.relit_renderer=pathtraced`:
+            shadows and interreflection) instead of split-sum shading the stored GT maps.
         device: where the default renderer traces and shades and the relit ground truth is
             shaded; files are written from the CPU.
     Returns:
@@ -151,11 +154,15 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
     for (split, _, view), r in zip(todo, renders):
         write_view(scene.view_dir(split, view.id), r)
     rays, evals = sum(r.rays for r in renders), sum(r.sdf_evals for r in renders)
-    for view in views.get("test", []):
-        for env_name in scene.relight_envs:
-            env = prefiltered[env_name]
-            write_exr(scene.view_dir("test", view.id) / f"relit_{env_name}.exr",
-                      relight_stored_view(scene, view, env, device))
+    test_views = views.get("test", [])
+    test_cameras = [c for (split, _, _), c in zip(todo, cameras) if split == "test"]
+    for env_name in scene.relight_envs:
+        if relit_retrace is not None:
+            relit = relit_retrace(test_cameras, height, width, envs[env_name])
+        else:
+            relit = [relight_stored_view(scene, view, prefiltered[env_name], device) for view in test_views]
+        for view, image in zip(test_views, relit):
+            write_exr(scene.view_dir("test", view.id) / f"relit_{env_name}.exr", image)
     return {"name": scene.name, "seconds": time.perf_counter() - start, "rays": rays,
             "sdf_evals": evals, "views": sum(len(v) for v in views.values()),
             "retrace_seconds": retrace_seconds}
