@@ -90,6 +90,23 @@ def fuse_depths(grid: VoxelGrid, depth: np.ndarray, valid: np.ndarray, K: np.nda
     return tsdf.reshape(grid.shape), weight.reshape(grid.shape)
 
 
+def cubes_seen(seen: np.ndarray) -> np.ndarray:
+    """True at voxel (i, j, k) where all 8 corners of the cube it starts, (i..i+1, j..j+1, k..k+1),
+    are seen. skimage's ``marching_cubes(mask=...)`` tests only a cube's first corner and then
+    reads all 8 values: a cube reaching into unseen voxels (tsdf 1 by convention) would draw a
+    false surface at the inner end of the truncation band."""
+    out = seen.copy()
+    for axis in range(3):
+        ahead = np.zeros_like(out)
+        index = [slice(None)] * 3
+        index[axis] = slice(0, -1)
+        shifted = [slice(None)] * 3
+        shifted[axis] = slice(1, None)
+        ahead[tuple(index)] = out[tuple(shifted)]
+        out &= ahead
+    return out
+
+
 def zero_surface(tsdf: np.ndarray, weight: np.ndarray, grid: VoxelGrid, *,
                  min_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(vertices [P, 3] world, faces [F, 3]) of the tsdf's zero level set where voxels were
@@ -103,7 +120,7 @@ def zero_surface(tsdf: np.ndarray, weight: np.ndarray, grid: VoxelGrid, *,
     seen = weight >= min_weight
     if not seen.any() or tsdf[seen].min() > 0 or tsdf[seen].max() < 0:
         raise ValueError("the fused depth has no surface (no sign change of the TSDF among the seen voxels)")
-    verts, faces, _, _ = marching_cubes(tsdf, level=0.0, spacing=(grid.voxel_size,) * 3, mask=seen,
+    verts, faces, _, _ = marching_cubes(tsdf, level=0.0, spacing=(grid.voxel_size,) * 3, mask=cubes_seen(seen),
                                         allow_degenerate=False)
     verts = verts + grid.origin
     return verts, orient_outward(verts, faces.astype(np.int64), tsdf, grid)
