@@ -2,7 +2,8 @@
 
 The asset is rasterized at the 32 canonical lattice cameras (``gspi.gaussians.lattice_render``,
 the cameras every GS-PI asset is reconstructed and distilled at); each view's median depth
-(2DGS's surface depth) where the rendered alpha exceeds ``alpha_threshold`` is fused into a TSDF
+(2DGS's surface depth) where the rendered alpha exceeds ``alpha_threshold``, away from depth
+edges (``tsdf.away_from_edges``), is fused into a TSDF
 (``gspi.export.tsdf``) on a grid around the surfel centres, and its zero level set is the mesh.
 Fragments below ``min_fragment`` of the faces (floaters: a few stray surfels' depths) are
 dropped. The lattice is a hemisphere: what no lattice view sees (an object's underside) is not
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 
 from gspi.export.config import MeshConfig
-from gspi.export.tsdf import fuse_depths, grid_around, zero_surface
+from gspi.export.tsdf import away_from_edges, compact, fuse_depths, grid_around, zero_surface
 from gspi.gaussians.lattice_render import render_lattice_views
 from gspi.gaussians.model import Gaussians2D
 
@@ -72,11 +73,7 @@ def drop_fragments(vertices: np.ndarray, faces: np.ndarray, min_fraction: float)
     labels = trimesh.graph.connected_component_labels(trimesh.graph.face_adjacency(faces), node_count=len(faces))
     counts = np.bincount(labels)
     keep_labels = (counts >= min_fraction * len(faces)) | (counts == counts.max())
-    kept = faces[keep_labels[labels]]
-    used = np.unique(kept)
-    remap = np.full(len(vertices), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return vertices[used], remap[kept]
+    return compact(vertices, faces[keep_labels[labels]])
 
 
 def asset_surface(views: LatticeViews, centres: np.ndarray, cfg: MeshConfig) -> SurfaceMesh:
@@ -93,8 +90,9 @@ def asset_surface(views: LatticeViews, centres: np.ndarray, cfg: MeshConfig) -> 
                          f"alpha > {cfg.alpha_threshold} (empty, transparent, or not in the lattice's frame: "
                          "radius-3 cameras looking at the origin)")
     grid = grid_around(centres, resolution=cfg.resolution, margin=cfg.margin)
-    tsdf, weight = fuse_depths(grid, views.depth, views.valid, views.K, views.w2c,
-                               truncation=cfg.truncation_voxels * grid.voxel_size)
+    truncation = cfg.truncation_voxels * grid.voxel_size
+    valid = away_from_edges(views.depth, views.valid, truncation)
+    tsdf, weight = fuse_depths(grid, views.depth, valid, views.K, views.w2c, truncation=truncation)
     vertices, faces = zero_surface(tsdf, weight, grid)
     n_raw = len(faces)
     vertices, faces = drop_fragments(vertices, faces, cfg.min_fragment)

@@ -12,8 +12,8 @@ camera depth z projects to pixel (i, j); where that pixel holds a valid depth d,
 distance is ``sdf = d - z`` (positive in front of the surface, i.e. outside). Voxels with
 ``sdf < -truncation`` (far behind the surface) are not updated; the others get
 ``min(sdf / truncation, 1)``, averaged over views with unit weights. A voxel no view updated
-keeps weight 0 and is masked out of marching cubes, so the surface is only drawn where it was
-seen (no invented back or bottom). Pixels without a valid depth (background) do not update
+keeps weight 0, and faces in cubes with such a corner are dropped, so the surface is only drawn
+where it was seen (no invented back or bottom). Pixels without a valid depth (background) do not update
 any voxel, as in Open3D.
 """
 from __future__ import annotations
@@ -47,6 +47,25 @@ def grid_around(points: np.ndarray, *, resolution: int, margin: float) -> VoxelG
     voxel = float((hi - lo).max()) / (resolution - 1)
     shape = tuple(int(np.ceil((hi[a] - lo[a]) / voxel)) + 1 for a in range(3))
     return VoxelGrid(origin=lo.astype(np.float64), voxel_size=voxel, shape=shape)
+
+
+def away_from_edges(depth: np.ndarray, valid: np.ndarray, max_step: float) -> np.ndarray:
+    """[V, H, W] bool: valid pixels whose 8 neighbours are valid and within ``max_step`` of their
+    depth. Near a silhouette or a depth edge one pixel spans surfaces far apart, so a voxel just
+    inside the object can land in front of the pixel's depth and be voted outside; fused, those
+    votes draw a false inner shell at the end of the truncation band (the analytic sphere of
+    tests/test_export_glb.py shows it). Such pixels are left out, as fusion pipelines filter
+    depth edges."""
+    v, h, w = depth.shape
+    pad_d = np.pad(depth, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    pad_v = np.pad(valid, ((0, 0), (1, 1), (1, 1)), constant_values=False)
+    keep = valid.copy()
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            nd = pad_d[:, 1 + di:1 + di + h, 1 + dj:1 + dj + w]
+            nv = pad_v[:, 1 + di:1 + di + h, 1 + dj:1 + dj + w]
+            keep &= nv & (np.abs(nd - depth) < max_step)
+    return keep
 
 
 def fuse_depths(grid: VoxelGrid, depth: np.ndarray, valid: np.ndarray, K: np.ndarray, w2c: np.ndarray, *,
@@ -92,9 +111,7 @@ def fuse_depths(grid: VoxelGrid, depth: np.ndarray, valid: np.ndarray, K: np.nda
 
 def cubes_seen(seen: np.ndarray) -> np.ndarray:
     """True at voxel (i, j, k) where all 8 corners of the cube it starts, (i..i+1, j..j+1, k..k+1),
-    are seen. skimage's ``marching_cubes(mask=...)`` tests only a cube's first corner and then
-    reads all 8 values: a cube reaching into unseen voxels (tsdf 1 by convention) would draw a
-    false surface at the inner end of the truncation band."""
+    are seen; False on the grid's last layer (no cube starts there)."""
     out = seen.copy()
     for axis in range(3):
         ahead = np.zeros_like(out)
@@ -107,10 +124,23 @@ def cubes_seen(seen: np.ndarray) -> np.ndarray:
     return out
 
 
+def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the vertices no face uses; faces renumbered."""
+    used = np.unique(faces)
+    remap = np.full(len(vertices), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return vertices[used], remap[faces]
+
+
 def zero_surface(tsdf: np.ndarray, weight: np.ndarray, grid: VoxelGrid, *,
                  min_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(vertices [P, 3] world, faces [F, 3]) of the tsdf's zero level set where voxels were
     seen (``weight >= min_weight``), faces counter-clockwise seen from outside (positive side).
+
+    Marching cubes runs on the whole grid (unseen voxels hold 1); a face is kept when the cube
+    holding its centroid has all 8 corners seen. (skimage's own ``mask=`` argument did not keep
+    the crossings between the truncation band and unseen voxels out: on the analytic sphere
+    they drew an inner shell 4 voxels deep.)
 
     Raises:
         ValueError: no zero crossing among the seen voxels.
@@ -120,10 +150,15 @@ def zero_surface(tsdf: np.ndarray, weight: np.ndarray, grid: VoxelGrid, *,
     seen = weight >= min_weight
     if not seen.any() or tsdf[seen].min() > 0 or tsdf[seen].max() < 0:
         raise ValueError("the fused depth has no surface (no sign change of the TSDF among the seen voxels)")
-    verts, faces, _, _ = marching_cubes(tsdf, level=0.0, spacing=(grid.voxel_size,) * 3, mask=cubes_seen(seen),
-                                        allow_degenerate=False)
-    verts = verts + grid.origin
-    return verts, orient_outward(verts, faces.astype(np.int64), tsdf, grid)
+    verts, faces, _, _ = marching_cubes(tsdf.astype(np.float32), level=0.0, allow_degenerate=False)
+    faces = faces.astype(np.int64)
+    cube = np.floor(verts[faces].mean(axis=1)).astype(np.int64)  # voxel units, before spacing
+    cube = np.clip(cube, 0, np.array(grid.shape) - 1)
+    faces = faces[cubes_seen(seen)[cube[:, 0], cube[:, 1], cube[:, 2]]]
+    if len(faces) == 0:
+        raise ValueError("the fused depth has no surface (no zero crossing inside the seen voxels)")
+    verts, faces = compact(verts.astype(np.float64) * grid.voxel_size + grid.origin, faces)
+    return verts, orient_outward(verts, faces, tsdf, grid)
 
 
 def orient_outward(verts: np.ndarray, faces: np.ndarray, tsdf: np.ndarray, grid: VoxelGrid) -> np.ndarray:
