@@ -12,7 +12,8 @@ For each ``WORK/<scene>/pbr_gs.ply``:
 * against ground truth: the GLB ray-cast (``gspi.data.mesh_render``, as the importer does) and
   the PBR-GS asset rasterized (Stage III's renderer) at the GT scene ``DATA/<scene>``'s test
   cameras, each scored by ``eval.metrics.masked_psnr`` in the GT mask (no albedo alignment, so
-  the two numbers differ only by the export).
+  the two numbers differ only by the export), over the whole GT mask and over the GT pixels the
+  GLB covers (``*_hit``: the material loss without the silhouette's).
 """
 from __future__ import annotations
 
@@ -58,7 +59,8 @@ def glb_maps_at(glb: Path, views) -> list[dict]:
     width, height = int(views[0].K[0, 2] * 2), int(views[0].K[1, 2] * 2)
     env = prefilter_environment(torch.ones(16, 32, 3))
     hw = (height, width, -1)
-    return [{"albedo": r.albedo_srgb.reshape(hw), "roughness": r.roughness.reshape(hw), "metallic": r.metallic.reshape(hw)}
+    return [{"albedo": r.albedo_srgb.reshape(hw), "roughness": r.roughness.reshape(hw), "metallic": r.metallic.reshape(hw),
+             "mask": r.mask.reshape(height, width)}
             for r in render_mesh_views(mesh, cameras, height, width, env=env, supersample=2)]
 
 
@@ -70,15 +72,22 @@ def gt_scores(asset, glb: Path, gt_dir: Path) -> dict:
     glb_maps = glb_maps_at(glb, views)
     gs = render_material_maps(asset, np.stack([v.K for v in views]), np.stack([v.w2c for v in views]),
                               scene.width, scene.height)
-    out = {"glb": {c: [] for c in MATERIAL_CHANNELS}, "pbr_gs": {c: [] for c in MATERIAL_CHANNELS}}
+    kinds = ("glb", "pbr_gs", "glb_hit", "pbr_gs_hit")  # *_hit: only GT pixels the GLB covers
+    out = {k: {c: [] for c in MATERIAL_CHANNELS} for k in kinds}
+    missed = []
     for i, view in enumerate(views):
         vdir = scene.view_dir("test", view.id)
         mask = torch.from_numpy(read_view_file(vdir, "mask.png")[..., 0] > 0.5)
+        hit = mask & torch.from_numpy(np.asarray(glb_maps[i]["mask"]))
+        missed.append(float(1 - hit.sum() / mask.sum()))
         for c in MATERIAL_CHANNELS:
             gt = torch.from_numpy(read_view_file(vdir, f"{c}.png"))
-            out["glb"][c].append(masked_psnr(torch.from_numpy(np.asarray(glb_maps[i][c], np.float32)), gt, mask))
-            out["pbr_gs"][c].append(masked_psnr(torch.from_numpy(gs[c][i]), gt, mask))
-    return {k: {c: float(np.mean(v)) for c, v in d.items()} for k, d in out.items()}
+            pred = {"glb": torch.from_numpy(np.asarray(glb_maps[i][c], np.float32)), "pbr_gs": torch.from_numpy(gs[c][i])}
+            for k in ("glb", "pbr_gs"):
+                out[k][c].append(masked_psnr(pred[k], gt, mask))
+                out[f"{k}_hit"][c].append(masked_psnr(pred[k], gt, hit))
+    scores = {k: {c: float(np.mean(v)) for c, v in d.items()} for k, d in out.items()}
+    return {**scores, "gt_pixels_missed": float(np.mean(missed))}
 
 
 def main() -> None:
@@ -117,14 +126,18 @@ def main() -> None:
               f"{row['faces']} faces; round trip PSNR "
               + " ".join(f"{c} {trip['psnr'][c]:.2f}" for c in MATERIAL_CHANNELS)
               + f" dB, mask IoU {trip['mask_iou']:.3f}; vs GT (GLB / PBR-GS) "
-              + " ".join(f"{c} {scores['glb'][c]:.2f}/{scores['pbr_gs'][c]:.2f}" for c in MATERIAL_CHANNELS))
+              + " ".join(f"{c} {scores['glb'][c]:.2f}/{scores['pbr_gs'][c]:.2f}" for c in MATERIAL_CHANNELS)
+              + f"; GT pixels the GLB misses {100 * scores['gt_pixels_missed']:.1f} %, where it covers (GLB / PBR-GS) "
+              + " ".join(f"{c} {scores['glb_hit'][c]:.2f}/{scores['pbr_gs_hit'][c]:.2f}" for c in MATERIAL_CHANNELS))
     mean = lambda f: float(np.mean([f(r) for r in rows]))  # noqa: E731
     print("mean: export {:.1f} s, {:.2f} MB; round trip ".format(mean(lambda r: r["seconds"]["total_s"]),
                                                                mean(lambda r: r["bytes"]) / 1e6)
           + " ".join(f"{c} {mean(lambda r: r['roundtrip_psnr'][c]):.2f}" for c in MATERIAL_CHANNELS)
           + " dB; GLB - PBR-GS vs GT "
           + " ".join(f"{c} {mean(lambda r: r['gt_psnr']['glb'][c] - r['gt_psnr']['pbr_gs'][c]):+.2f}"
-                     for c in MATERIAL_CHANNELS) + " dB")
+                     for c in MATERIAL_CHANNELS) + " dB (where the GLB covers: "
+          + " ".join(f"{c} {mean(lambda r: r['gt_psnr']['glb_hit'][c] - r['gt_psnr']['pbr_gs_hit'][c]):+.2f}"
+                     for c in MATERIAL_CHANNELS) + " dB)")
 
 
 if __name__ == "__main__":
