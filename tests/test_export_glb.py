@@ -130,13 +130,15 @@ def test_preview_image_is_written(exported):
     assert (image < 250).any(axis=-1).mean() > 0.05  # the object is drawn, not a blank page
 
 
-def test_texture_channels_follow_gltf(tmp_path):
+@pytest.mark.parametrize("source", ["views", "surfels"])
+def test_texture_channels_follow_gltf(tmp_path, source):
     """Roughness in G, metallic in B (linear), base colour sRGB-encoded: constants survive as such."""
     from gspi.data.gltf import read_gltf
 
     asset = pbr_sphere(roughness=0.3, metallic=0.8)
     write_ply(tmp_path / "a.ply", asset)
-    export_asset(tmp_path / "a.ply", tmp_path / "a.glb", ExportConfig.from_dict(FAST))
+    cfg = ExportConfig.from_dict({**FAST, "texture": {**FAST["texture"], "source": source}})
+    export_asset(tmp_path / "a.ply", tmp_path / "a.glb", cfg)
     material = read_gltf(tmp_path / "a.glb").primitives[0].material
     mr = material.metallic_roughness_texture
     assert np.allclose(mr[..., 1], 0.3, atol=1.5 / 255) and np.allclose(mr[..., 2], 0.8, atol=1.5 / 255)
