@@ -5,6 +5,8 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
+# DEMO_GLB=0: make demo writes no GLB export (gspi-export asset=)
+DEMO_GLB ?= 1
 
 .PHONY: install demo test test-all bench lpips-weights real-assets clean chromium report-check gpu-prepare gpu-check-smoke
 
@@ -50,6 +52,12 @@ demo: install
 	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
 	  $(VENV)/bin/gspi-relight "asset='$$a'" env=meadow "out='$(DEMO)/runs/method=gspi/relight/$$s'" \
 	    frames=12 size=160 || exit 1; done
+	# The relightable GLB of each GS-PI asset and its still (gspi-export asset=, docs/EXPORT.md;
+	# ~10 s per scene on the VM), linked from the report. Skip with DEMO_GLB=0.
+	if [ "$(DEMO_GLB)" != 0 ]; then for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
+	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
+	  $(VENV)/bin/gspi-export "asset='$$a'" "out='$(DEMO)/runs/method=gspi/export/$$s/pbr_gs.glb'" \
+	    > /dev/null || exit 1; done; fi
 	$(VENV)/bin/gspi-report $(DEMO)/runs out=$(DEMO)/report
 	@echo "report: open $(abspath $(DEMO))/report/index.html"
 

@@ -1,4 +1,5 @@
-"""`gspi-export` / `gspi-import`: move a canonical scene to an external system and back.
+"""`gspi-export` / `gspi-import`: move a canonical scene to an external system and back; and
+`gspi-export asset=`: a PBR-GS asset as a relightable glTF 2.0 file.
 
     gspi-export system=gs_ir scene=data/small/s002_multipart_ceramic out=exports/gs_ir/s002
     gspi-export system=gs_ir scene=... out=... run=true method.checkout=~/src/GS-IR  # + train
@@ -16,6 +17,16 @@ them in `method.checkout` and times them (`<model>/gspi_runtime.json`, read back
 `gspi-import`). `gspi-import` writes `<out>/<scene name>/<split>/<view id>/*.png` + `meta.json` (`split=test`, or
 `lattice` = `train`, the lattice views, where the system's commands rendered them).
 Configs: conf/gspi_export.yaml, conf/gspi_import.yaml. The working directory never changes.
+
+    gspi-export asset=runs/method=gspi/work/s002/pbr_gs.ply out=asset.glb
+    gspi-export asset=.../pbr_gs.ply out=asset.glb export.texture.size=1024 export.preview=false
+
+With `asset=` and no `system=`/`method=`, `gspi-export` writes the asset as a GLB instead: the
+2DGS surface as a triangle mesh (TSDF fusion of the lattice depth renders), a UV atlas
+(xatlas) and base-colour and metallic-roughness textures baked from the surfels' PBR
+attributes, plus `<stem>_preview.png` beside it (gspi/export/, docs/EXPORT.md; config
+conf/gspi_export_asset.yaml; a bad asset is one line naming the file, exit 2). It prints what it
+wrote (faces, charts, bytes, seconds) as YAML.
 """
 from __future__ import annotations
 
@@ -28,6 +39,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from baselines.adapter import as_dict, get_adapter
+from eval.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 # Absolute, as gspi/cli/*.py: a relative path would resolve as a Python package when the module
@@ -97,11 +109,38 @@ def alias_system(argv: list[str]) -> list[str]:
 
 
 PATH_KEYS = ("src", "scene", "out")  # quoted for Hydra's grammar (eval/argv.py)
+ASSET_KEY = "asset="
+
+
+def run_asset_export(cfg: DictConfig) -> dict:
+    """`gspi-export asset=... out=...`: the GLB export (module docstring); prints its record."""
+    import torch
+
+    from gspi.export.asset import export_asset
+    from gspi.export.config import ExportConfig
+    from gspi.strict_config import check_value
+
+    torch.set_num_threads(check_value("threads", cfg.threads, int, lo=1, hi=1024))
+    export_cfg = ExportConfig.from_dict(OmegaConf.to_container(cfg.export, resolve=True))
+    record = export_asset(Path(cfg.asset), Path(cfg.out), export_cfg)
+    print(OmegaConf.to_yaml(OmegaConf.create(record)), end="")
+    return record
+
+
+_export_asset = hydra_cli(run_asset_export, "gspi_export_asset", path_keys=("asset", "out"))
+
+
+def is_asset_export(argv: list[str]) -> bool:
+    """The command line asks for the GLB export: it has `asset=` and no `system=`/`method=`."""
+    return any(a.startswith(ASSET_KEY) for a in argv) and not any(a.startswith(SYSTEM_ALIAS) for a in argv)
 
 
 def export_main() -> None:
     from eval.argv import quote_path_overrides
 
+    if is_asset_export(sys.argv[1:]):
+        _export_asset()
+        return
     sys.argv = [sys.argv[0], *quote_path_overrides(alias_system(sys.argv[1:]), PATH_KEYS)]
     _export()
 

@@ -1,7 +1,7 @@
 """A tiny sweep for gspi-report tests: real gspi-eval outputs on two 32 px sphere scenes.
 
 Jobs (each a gspi-run folder with result.json, predictions/, eval/, .hydra/config.yaml, run.log):
-  gspi              every channel, roughness off by 0.1; a turntable for sphere_0
+  gspi              every channel, roughness off by 0.1; a turntable and a (stand-in) GLB for sphere_0
   no_decomposition  albedo only (no roughness, no metallic)
   joint_ir          sphere_0 only (sphere_1 missing, named in scene_errors)
   table3_full, table3_a6_no_distill   Table 3 rows (copies of the gspi job)
@@ -46,6 +46,15 @@ def _turntable(path: Path, frames: int = 3, size: int = 16) -> None:
     images[0].save(path, format="WEBP", save_all=True, append_images=images[1:], loop=0, duration=100)
 
 
+def _glb(folder: Path) -> None:
+    """A stand-in for gspi-export's output (the report copies and links it, never reads it)."""
+    from PIL import Image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "pbr_gs.glb").write_bytes(b"glTF" + bytes(60))
+    Image.fromarray(np.full((16, 64, 3), 200, np.uint8)).save(folder / "pbr_gs_preview.png")
+
+
 def make_sweep(root: Path, lpips_net) -> Path:
     """root/data (2 scenes) and root/runs/<job>/ as described above; returns root/runs."""
     data = make_dataset(root / "data", num_scenes=2, size=32)
@@ -66,9 +75,10 @@ def make_sweep(root: Path, lpips_net) -> Path:
         write_result(job / "eval", result, OmegaConf.to_container(protocol))
         _record(job, method, scenes=scenes, **extra)
     _turntable(runs / "method=gspi" / "relight" / "sphere_0" / "turntable.webp")
+    _glb(runs / "method=gspi" / "export" / "sphere_0")
     for ablation in ("full", "a6_no_distill"):  # Table 3 rows: the gspi job's files, relabelled
         job = runs / f"table3_{ablation}"
-        shutil.copytree(runs / "method=gspi", job, ignore=shutil.ignore_patterns("relight"))
+        shutil.copytree(runs / "method=gspi", job, ignore=shutil.ignore_patterns("relight", "export"))
         _record(job, "gspi", scenes=scenes, table="table3", ablation=ablation)
     _record(runs / "method=gs_ir", "gs_ir", status="failed", error="ValueError: boom")
     (runs / "method=irgs" / ".hydra").mkdir(parents=True)  # killed before result.json

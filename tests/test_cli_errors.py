@@ -19,6 +19,7 @@ CASES = {
     "gspi-train": (["gspi-train", "data={tmp}/no_data", "out={tmp}/t", "stage2=tiny"], "no_data/splits.json"),
     "gspi-extract": (["gspi-extract", "asset={tmp}/none.ply", "out={tmp}/x"], "none.ply: asset file not found"),
     "gspi-relight": (["gspi-relight", "asset={tmp}/none.ply", "out={tmp}/r"], "none.ply: asset file not found"),
+    "gspi-export asset=": (["gspi-export", "asset={tmp}/none.ply", "out={tmp}/a.glb"], "none.ply: asset file not found"),
     "gspi-table": (["gspi-table", "{tmp}/no_runs", "out={tmp}/tb"], "no_runs: run folder not found"),
     "gspi-report": (["gspi-report", "{tmp}/no_runs", "out={tmp}/rp"], "run folder(s) not found"),
     "gspi-run bad key": (["gspi-run", "data={tmp}/d", "out={tmp}/o", "scene_workers=0"], "scene_workers"),

@@ -33,12 +33,15 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "gspi.stage2": LOWER,  # no stage imports another stage
     "gspi.stage3": LOWER,
     "gspi.relight": LOWER,
+    # the glTF export of a PBR-GS asset; its round trip compares with Stage III's material renders
+    # (what gspi-run predicts and gspi-eval scores), so it reads them from Stage III
+    "gspi.export": LOWER + ("gspi.stage3",),
     "gspi.pipeline": STAGE + ("gspi.stage1", "gspi.stage2", "gspi.stage3"),
-    "baselines": LOWER + ("gspi.recon",),
+    "baselines": LOWER + ("gspi.recon", "gspi.export"),  # gspi-export asset= (baselines/cli.py)
     "gspi.run": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
-                         "gspi.relight", "baselines"),
+                         "gspi.relight", "gspi.export", "baselines"),
     "gspi.cli": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
-                         "gspi.relight", "gspi.run", "baselines"),
+                         "gspi.relight", "gspi.export", "gspi.run", "baselines"),
 }
 
 

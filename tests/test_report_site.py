@@ -67,6 +67,9 @@ def test_every_image_reference_exists_and_missing_tiles_are_tiles(site):
     s0 = site.scene_pages["sphere_0"].read_text()
     assert s0.count(">not modelled<") == 2 * 3            # no_decomposition: rough+metal x 3 views
     assert "anim/sphere_0/" in s0                         # the turntable is embedded
+    glb = re.findall(r'<a href="(glb/sphere_0/[^"]+\.glb)"', s0)   # the GLB linked, its copy there
+    assert glb and all((site.out / g).read_bytes().startswith(b"glTF") for g in glb)
+    assert 'src="glb/sphere_0/' in s0 and "No GLB" in site.scene_pages["sphere_1"].read_text()
     assert "protocol gspi-decoupled v1, LPIPS alex v0.1" in s0
     assert "http" not in s0.replace("http-equiv", "")     # no network anywhere
 

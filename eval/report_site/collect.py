@@ -2,7 +2,9 @@
 
 A job is one gspi-run folder (docs/TABLES.md): `result.json`, `predictions/<scene>/` (the
 canonical layout), `eval/` (gspi-eval), `.hydra/config.yaml`, `run.log`, and optionally
-`relight/<scene>/turntable.webp` (written by gspi-relight). Nothing here raises on a bad job:
+`relight/<scene>/turntable.webp` (written by gspi-relight) and `export/<scene>/pbr_gs.glb` with
+its still `pbr_gs_preview.png` beside it (written by `gspi-export asset=`; the preview's name is
+gspi.export.asset.preview_path's, `<stem>_preview.png`, restated here: eval/ imports no gspi/). Nothing here raises on a bad job:
 a malformed record, a failed or killed job becomes a `Problem` the page lists.
 """
 from __future__ import annotations
@@ -19,6 +21,8 @@ from eval.tables_labels import row_label, row_order
 LOG_NAMES = ("run.log",)
 CONFIG_NAME = Path(".hydra") / "config.yaml"
 ANIMATION = Path("relight") / "{scene}" / "turntable.webp"
+GLB = Path("export") / "{scene}" / "pbr_gs.glb"
+GLB_PREVIEW = Path("export") / "{scene}" / "pbr_gs_preview.png"
 
 
 @dataclass
@@ -51,6 +55,14 @@ class Job:
     def animation(self, scene: str) -> Path | None:
         path = self.run_dir / str(ANIMATION).format(scene=scene)
         return path if path.is_file() else None
+
+    def glb(self, scene: str) -> tuple[Path, Path | None] | None:
+        """(the scene's exported GLB, its preview image or None), None without a GLB."""
+        path = self.run_dir / str(GLB).format(scene=scene)
+        if not path.is_file():
+            return None
+        preview = self.run_dir / str(GLB_PREVIEW).format(scene=scene)
+        return path, preview if preview.is_file() else None
 
     def prediction(self, scene: str) -> Path | None:
         """The method's folder for `scene`, None when it has none (a missing prediction)."""

@@ -34,6 +34,7 @@ td.best{background:#ffebee;font-weight:bold} td.second{background:#fff9c4;text-d
 .view{display:none} .view.on{display:block}
 .problems li{color:#a00}
 .anim img{width:192px;height:192px}
+.glb img{width:512px;height:128px;background:#fff}
 """
 
 JS = """

@@ -5,6 +5,7 @@ The site's layout (eval.report_site.build writes the rest) `<out>/`:
     scene_<name>.html          comparison grid per view, relighting strip, turntables, scores
     img/<scene>/...webp        thumbnails (eval.report_site.images)
     anim/<scene>/<job>.webp    gspi-relight turntables copied from <run>/relight/<scene>/
+    glb/<scene>/<job>.glb      gspi-export asset= GLBs (and <job>_preview.png) copied from <run>/export/<scene>/
     jobs/<k>/{config.yaml,run.log}   copies, so the links work when the folder is moved
     figures/*.{png,pdf}        the paper's figures (eval.report_site.figures)
 """
@@ -103,6 +104,32 @@ class SceneWriter:
                    "env=... out=&lt;run&gt;/relight/&lt;scene&gt;</code> to add one.</p>"
         return "".join(parts)
 
+    def glbs(self, all_jobs: list[Job]) -> str:
+        """The relightable GLB of each job that exported one: its still (drawn by gspi-export from
+        the file, no three.js) linking to a copy of the file."""
+        parts = []
+        for k, job in enumerate(all_jobs):
+            found = job.glb(self.scene.name)
+            if found is None:
+                continue
+            glb, preview = found
+            rel = f"glb/{self.scene.name}/a{k}.glb"
+            (self.out / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(glb, self.out / rel)
+            caption = (f"<a href=\"{url(rel)}\" download=\"{escape(self.scene.name)}.glb\">{escape(job.label)} "
+                       f"(seed {job.seed}): GLB, {glb.stat().st_size / 1e6:.2f} MB</a>")
+            image = "<div class=\"missing\">no preview</div>"
+            if preview is not None:
+                shutil.copyfile(preview, self.out / f"glb/{self.scene.name}/a{k}_preview.png")
+                image = (f"<a href=\"{url(rel)}\"><img src=\"{url(f'glb/{self.scene.name}/a{k}_preview.png')}\" "
+                         f"alt=\"GLB preview: shaded, base colour, roughness, metallic\"></a>")
+            parts.append(f"<figure class=\"tile glb\">{image}<figcaption>{caption}</figcaption></figure>")
+        if not parts:
+            return "<p>No GLB: run <code>gspi-export asset=&lt;run&gt;/work/&lt;scene&gt;/pbr_gs.ply " \
+                   "out=&lt;run&gt;/export/&lt;scene&gt;/pbr_gs.glb</code> to add one.</p>"
+        return ("<p>glTF 2.0 (mesh, base colour and metallic-roughness textures; docs/EXPORT.md). "
+                "Still: shaded, base colour, roughness, metallic.</p>" + "".join(parts))
+
     def scene_scores(self) -> str:
         """Per-scene means of every shown job (eval_meta.json per_scene)."""
         import json
@@ -145,6 +172,7 @@ class SceneWriter:
                 f"{ERROR_MAX} (clipped), colour map magma. Scores under each panel: per_view.csv "
                 f"of the job's gspi-eval ({escape(self.protocol_text())}).</p>{views}"
                 f"<h2>Relit asset (gspi-relight)</h2>{self.animations(all_jobs)}"
+                f"<h2>Relightable asset (gspi-export)</h2>{self.glbs(all_jobs)}"
                 f"<h2>Scores, this scene (mean over test views)</h2>{self.scene_scores()}")
         path = self.out / f"scene_{self.scene.name}.html"
         path.write_text(page(f"{self.scene.name} - gspi report", body))
