@@ -136,7 +136,8 @@ def import_tensoir(src: str | Path, out_dir: str | Path, *, name: str | None = N
     first = next(iter(metas.values()))[0][0]
     info = first.get("gspi", {})
     name = check_name(name or info.get("scene") or src.name, "import.name (the imported scene's folder)")
-    capture = check_name(str(first.get("envmap", "unknown")), f"{folders[next(iter(folders))][0]}/metadata.json: envmap")
+    first_meta = next(iter(folders.values()))[0] / "metadata.json"
+    capture = check_name(str(first.get("envmap", "unknown")), f"{first_meta}: envmap")
     envdir = find_envmaps(src, envmaps)
     relight = relight_names(folders.get("test", []), capture, envdir)
     if envdir is None:
