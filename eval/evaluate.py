@@ -98,14 +98,15 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
     views, missing = scene_scored_views(scene, pred_scene, protocol, envs)
     if protocol.fail_on_missing_view and missing:
         raise LayoutError(f"{pred_scene}: missing prediction files: {missing[:5]} ...")
-    metal = protocol.metallic.extra_metrics and has_metal(
-        [sv.gt["metallic"] for sv in views], [sv.mask for sv in views], float(protocol.metallic.threshold))
+    with_metal = [sv for sv in views if "metallic" in sv.gt]
+    metal = protocol.metallic.extra_metrics and bool(with_metal) and has_metal(
+        [sv.gt["metallic"] for sv in with_metal], [sv.mask for sv in with_metal], float(protocol.metallic.threshold))
     split = scored_split(protocol)
     rows = []
     for sv in views:
         where = scene.view_dir(split, sv.view)
         for c in MATERIAL_CHANNELS:
-            if c in protocol.channels and c in sv.pred:
+            if c in protocol.channels and c in sv.pred and c in sv.gt:  # a channel the GT lacks is absent
                 row = {"scene": scene.name, "view": sv.view, "channel": c, "env": "",
                        **_named(where, score_map, c, sv.pred[c], sv.gt[c], sv.mask, protocol, net)}
                 if c == "metallic" and metal:
@@ -126,6 +127,14 @@ def evaluate_scene(scene: Scene, pred_scene: Path, protocol, net, envs: Environm
     return rows, missing
 
 
+def absent_channels(scene: Scene, protocol) -> list[str]:
+    """Channels of ``eval.channels`` that no view of the scored split has ground truth for
+    (scene.json ``gt_channels``): reported as absent, never scored as 0."""
+    views = scene.split_views(scored_split(protocol))
+    have = {c for v in views for c in scene.view_gt_channels(v)}
+    return [c for c in protocol.channels if c not in have]
+
+
 def pool_map_psnr(rows: list[dict], views: list, protocol) -> None:
     """``psnr.map_pooling: scene``: every material-map row of the scene gets the PSNR of one MSE
     pooled over the scene's scored views (its own per-view PSNR kept as ``psnr_view``)."""
@@ -133,7 +142,7 @@ def pool_map_psnr(rows: list[dict], views: list, protocol) -> None:
         mine = [r for r in rows if r["channel"] == c]
         if not mine:
             continue
-        have = [sv for sv in views if c in sv.pred]
+        have = [sv for sv in views if c in sv.pred and c in sv.gt]
         psnr, floored = pooled_psnr(c, [sv.pred[c] for sv in have], [sv.gt[c] for sv in have],
                                     [sv.mask for sv in have], protocol)
         for r in mine:
@@ -194,7 +203,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     if getattr(net, "net_name", protocol.lpips.net) != protocol.lpips.net:
         raise ValueError(f"the LPIPS network passed in is {net.net_name!r} but the protocol "
                          f"asks for eval.lpips.net={protocol.lpips.net!r}")
-    envs, rows, missing, metas = EnvironmentCache(device), [], [], []
+    envs, rows, missing, metas, absent = EnvironmentCache(device), [], [], [], {}
     iterator = names
     if progress:
         from tqdm import tqdm
@@ -202,11 +211,20 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     for name in iterator:
         pred_scene = Path(pred_root) if Path(pred_root).name == name and \
             (Path(pred_root) / "scene.json").is_file() else Path(pred_root) / name
-        scene_rows, scene_missing = evaluate_scene(read_scene(gt_scenes[name]), pred_scene,
-                                                   protocol, net, envs)
+        scene = read_scene(gt_scenes[name])
+        for c in absent_channels(scene, protocol):
+            absent.setdefault(c, []).append(name)
+        scene_rows, scene_missing = evaluate_scene(scene, pred_scene, protocol, net, envs)
         rows += scene_rows
         missing += scene_missing
         metas.append(read_meta(pred_scene))
+    if absent:
+        log.info("channels the ground truth does not provide, not scored (absent, not 0): %s",
+                 "; ".join(f"{c} ({', '.join(n)})" for c, n in absent.items()))
+    if not rows and set(protocol.channels) <= set(absent) and all(len(n) == len(names) for n in absent.values()):
+        raise LayoutError(f"{gt_scenes[names[0]] / 'scene.json'}: the ground truth provides none of "
+                          f"eval.channels={list(protocol.channels)} (gt_channels: "
+                          f"{list(read_scene(gt_scenes[names[0]]).gt_channels)}): nothing to score")
     if not rows:  # "images: 0" with exit 0 read as "not modelled" (docs/RELIABILITY.md)
         raise LayoutError(no_images_message(Path(pred_root), read_scene(gt_scenes[names[0]]),
                                             scored_split(protocol), list(protocol.channels)))
@@ -222,6 +240,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         "protocol_config": protocol_dict(protocol),
         "data": str(Path(gt_root).resolve()), "device": str(device), "counts": image_counts(rows),
         "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
+        "absent_gt": absent,
         "runtime_min": {"material": _mean_runtime(metas, "material"),
                         "end_to_end": _mean_runtime(metas, "end_to_end"),
                         **({"geometry": _mean_runtime(metas, "geometry")}

@@ -20,6 +20,8 @@ from eval.imageio import ImageFormatError, read_exr, read_png, write_exr, write_
 FORMAT_VERSION = 1
 CAMERA_CONVENTION = "opencv"  # x right, y down, z forward; w2c maps world -> camera
 MATERIAL_CHANNELS = ("albedo", "roughness", "metallic")
+GT_CHANNELS = (*MATERIAL_CHANNELS, "relight")  # what a ground truth can provide to be scored
+RELIT_GT = ("shaded", "images")  # relit GT: split-sum of the GT maps | the stored relit_<env>.exr
 SPLITS = ("train", "val", "test")
 
 # file name -> (reader kind, channels). The single table of per-view files.
@@ -75,6 +77,8 @@ class View:
     split: str
     K: np.ndarray    # [3, 3]
     w2c: np.ndarray  # [4, 4]
+    gt_channels: tuple[str, ...] | None = None   # this view's GT channels (None: the scene's)
+    relight_envs: tuple[str, ...] | None = None  # this view's relit GT envs (None: the scene's)
 
     def __post_init__(self) -> None:
         check_name(self.id, f"view id (split {self.split!r})")
@@ -98,9 +102,20 @@ class Scene:
     capture_env: str
     relight_envs: list[str]
     extra: dict = field(default_factory=dict)  # free-form metadata (generator settings, source)
+    gt_channels: tuple[str, ...] = GT_CHANNELS  # what the ground truth provides (imported datasets: less)
+    relit_gt: str = "shaded"                     # RELIT_GT: how the relit ground truth is obtained
 
     def __post_init__(self) -> None:
         check_name(self.name, f"{Path(self.root) / 'scene.json'}: name")
+
+    def view_gt_channels(self, view: View) -> tuple[str, ...]:
+        return self.gt_channels if view.gt_channels is None else view.gt_channels
+
+    def view_relight_envs(self, view: View) -> list[str]:
+        """The environments whose relit ground truth this view has (none if it lacks "relight")."""
+        if "relight" not in self.view_gt_channels(view):
+            return []
+        return list(self.relight_envs if view.relight_envs is None else view.relight_envs)
 
     def view_dir(self, split: str, view_id: str) -> Path:
         return self.root / split / view_id
@@ -137,6 +152,32 @@ def read_json_object(path: str | Path, *, error: type[Exception] = LayoutError, 
         raise error(f"{path}: expected a JSON object, found {type(data).__name__}")
     return data
 
+
+
+def _channel_list(value, where: str) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(c, str) and c in GT_CHANNELS for c in value):
+        raise LayoutError(f"{where}: expected a list of channels from {list(GT_CHANNELS)}, got {value!r}")
+    return tuple(c for c in GT_CHANNELS if c in value)
+
+
+def _env_list(value, where: str) -> tuple[str, ...]:
+    if not isinstance(value, list):
+        raise LayoutError(f"{where}: expected a list of environment names, got {value!r}")
+    return tuple(check_name(e, f"{where}[{i}]") for i, e in enumerate(value))
+
+
+def _ground_truth_fields(data: dict, path: Path) -> tuple[tuple[str, ...], str]:
+    """scene.json ``gt_channels`` (default all) and ``relit_gt`` (default shaded), checked:
+    shading the relit ground truth needs every material map."""
+    channels = _channel_list(data["gt_channels"], f"{path}: gt_channels") if "gt_channels" in data \
+        else GT_CHANNELS
+    relit = data.get("relit_gt", "shaded")
+    if relit not in RELIT_GT:
+        raise LayoutError(f"{path}: relit_gt must be one of {list(RELIT_GT)}, got {relit!r}")
+    if relit == "shaded" and "relight" in channels and not set(MATERIAL_CHANNELS) <= set(channels):
+        raise LayoutError(f"{path}: relit_gt 'shaded' needs albedo, roughness and metallic ground "
+                          f"truth, gt_channels has {list(channels)}")
+    return channels, relit
 
 
 def read_scene(scene_dir: str | Path) -> Scene:
@@ -176,14 +217,19 @@ def read_scene(scene_dir: str | Path) -> Scene:
             if vid in seen:
                 raise LayoutError(f"{where}: duplicate view id {vid!r}")
             seen.add(vid)
-            views[split].append(View(vid, split, _matrix(entry.get("K"), (3, 3), where + ".K"),
-                                     _matrix(entry.get("w2c"), (4, 4), where + ".w2c")))
+            views[split].append(View(
+                vid, split, _matrix(entry.get("K"), (3, 3), where + ".K"),
+                _matrix(entry.get("w2c"), (4, 4), where + ".w2c"),
+                _channel_list(entry["gt_channels"], where + ".gt_channels") if "gt_channels" in entry else None,
+                _env_list(entry["relight_envs"], where + ".relight_envs") if "relight_envs" in entry else None))
+    gt_channels, relit_gt = _ground_truth_fields(data, path)
     known = {"format", "format_version", "name", "width", "height", "camera_convention", "views",
-             "capture_env", "relight_envs"}
+             "capture_env", "relight_envs", "gt_channels", "relit_gt"}
     return Scene(root=root, name=str(data["name"]), width=int(data["width"]),
                  height=int(data["height"]), views=views, capture_env=str(data["capture_env"]),
                  relight_envs=[str(e) for e in data["relight_envs"]],
-                 extra={k: v for k, v in data.items() if k not in known})
+                 extra={k: v for k, v in data.items() if k not in known},
+                 gt_channels=gt_channels, relit_gt=relit_gt)
 
 
 def write_scene_json(scene: Scene) -> Path:
@@ -192,14 +238,24 @@ def write_scene_json(scene: Scene) -> Path:
         "format": "gspi-scene", "format_version": FORMAT_VERSION, "name": scene.name,
         "width": scene.width, "height": scene.height, "camera_convention": CAMERA_CONVENTION,
         "capture_env": scene.capture_env, "relight_envs": list(scene.relight_envs),
-        "views": {split: [{"id": v.id, "K": v.K.tolist(), "w2c": v.w2c.tolist()} for v in vs]
-                  for split, vs in scene.views.items()},
+        "views": {split: [_view_entry(v) for v in vs] for split, vs in scene.views.items()},
         **scene.extra,
     }
+    if tuple(scene.gt_channels) != GT_CHANNELS or scene.relit_gt != "shaded":  # generated scenes: unchanged
+        data.update(gt_channels=list(scene.gt_channels), relit_gt=scene.relit_gt)
     scene.root.mkdir(parents=True, exist_ok=True)
     path = scene.root / "scene.json"
     write_json_atomic(path, data)
     return path
+
+
+def _view_entry(v: View) -> dict:
+    entry = {"id": v.id, "K": v.K.tolist(), "w2c": v.w2c.tolist()}
+    if v.gt_channels is not None:
+        entry["gt_channels"] = list(v.gt_channels)
+    if v.relight_envs is not None:
+        entry["relight_envs"] = list(v.relight_envs)
+    return entry
 
 
 def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:

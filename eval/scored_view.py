@@ -79,10 +79,15 @@ class EnvironmentCache:
 
 
 def load_gt_view(scene: Scene, view, device: torch.device = CPU) -> dict:
+    """The view's GT maps that exist (``scene.view_gt_channels``; normals where it has relit
+    ground truth, or all maps), its mask and view directions."""
     vdir = scene.view_dir(view.split, view.id)
     size = (scene.height, scene.width)
-    out = {name: as_tensor(read_view_file(vdir, f"{name}.png", size), device) for name in MATERIAL_CHANNELS}
-    out["normal"] = as_tensor(read_view_file(vdir, "normal.exr", size), device)
+    have = scene.view_gt_channels(view)
+    out = {name: as_tensor(read_view_file(vdir, f"{name}.png", size), device)
+           for name in MATERIAL_CHANNELS if name in have}
+    if "relight" in have or (vdir / "normal.exr").exists():
+        out["normal"] = as_tensor(read_view_file(vdir, "normal.exr", size), device)
     out["mask"] = as_tensor(read_view_file(vdir, "mask.png", size), device)[..., 0] > 0.5
     if not out["mask"].any():
         raise LayoutError(f"{vdir / 'mask.png'}: empty foreground mask")
@@ -106,7 +111,7 @@ def load_stored_relit(scene: Scene, view, env_names, device: torch.device = CPU)
         if not path.is_file():
             raise LayoutError(f"{path}: not found (eval.relight.reference=stored reads the stored relit "
                               f"ground truth, which the dataset writes for its test views only)")
-        out[name] = as_tensor(read_exr(path), device)
+        out[name] = as_tensor(read_exr(path, shape=(scene.height, scene.width)), device)
     return out
 
 
@@ -198,10 +203,25 @@ def relit_pair(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg
                      pred_linear=out_linear, gt_linear=ref_linear)
 
 
+def relit_gt_image(scene: Scene, view, env_name: str, g: dict, env, reference: str = "shaded") -> Tensor:
+    """The relit ground truth of one view [H, W, 3] linear: the split-sum of the GT maps
+    (``eval.relight.reference: shaded`` on a scene whose ``relit_gt`` is ``shaded``), else the
+    stored ``relit_<env>.exr`` (``reference: stored``, e.g. path-traced GT; or a dataset whose
+    relit GT exists only as images), from ``g["relit"]`` when the caller loaded it."""
+    if reference == "shaded" and scene.relit_gt == "shaded":
+        return relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
+    if "relit" in g:
+        return g["relit"][env_name]
+    if view is None:
+        raise ValueError(f"{scene.root}: the stored relit ground truth needs the view (or g['relit'])")
+    return load_stored_relit(scene, view, [env_name], g["view_dir"].device)[env_name]
+
+
 def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, scale: Tensor, mask: Tensor, protocol,
-                envs: EnvironmentCache) -> dict[str, RelitPair]:
+                envs: EnvironmentCache, view=None) -> dict[str, RelitPair]:
     """env -> RelitPair of one view (GT normals; unmodelled channels filled with constants).
-    ``scale``: the view's albedo alignment scale (for ``relight.clamp_albedo: false``)."""
+    ``scale``: the view's albedo alignment scale (for ``relight.clamp_albedo: false``).
+    ``view``: the scene's View (its own relit environments, where the relit GT is read)."""
     cfg = protocol.relight
     h, w = mask.shape
     albedo, albedo_linear = (p["albedo"] if cfg.apply_albedo_alignment else raw_albedo), None
@@ -211,15 +231,37 @@ def relit_pairs(scene: Scene, g: dict, p: dict, raw_albedo: Tensor, scale: Tenso
     rough = p.get("roughness", torch.full((h, w, 1), float(cfg.fill_roughness), **fill))
     metal = p.get("metallic", torch.full((h, w, 1), float(cfg.fill_metallic), **fill))
     out = {}
-    for env_name in (cfg.envs or scene.relight_envs):
+    for env_name in (cfg.envs or (scene.relight_envs if view is None else scene.view_relight_envs(view))):
         env = envs.get(scene.envmap_path(env_name))
-        if cfg.reference == "stored":  # the scene's relit_<env>.exr (e.g. path-traced)
-            ref = g["relit"][env_name]
-        else:
-            ref = relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
+        ref = relit_gt_image(scene, view, env_name, g, env, cfg.reference)
         pred = relight_view(albedo, rough, metal, g["normal"], g["view_dir"], env, albedo_linear=albedo_linear)
         out[env_name] = relit_pair(pred, ref, mask, cfg)
     return out
+
+
+def view_albedo_scales(scene: Scene, all_views: list, have: list[str], preds: dict, gt: dict, masks: dict,
+                       protocol) -> dict[str, Tensor]:
+    """view id -> albedo alignment scale [3], for the views ``have`` with a predicted albedo.
+    Fitted on the views whose ground truth has albedo; a view without GT albedo (an imported
+    dataset's relighting view) takes the scene's pooled scale (``alignment_scope: scene``) or
+    none (scope ``view``: refused when its relit image would use the aligned albedo)."""
+    fit = [i for i in have if "albedo" in gt[i]]
+    fitted = albedo_scales([preds[i]["albedo"] for i in fit], [gt[i]["albedo"] for i in fit], [masks[i] for i in fit],
+                           protocol.albedo_alignment, protocol.alignment_scope, **protocol_alignment(protocol))
+    scales = dict(zip(fit, fitted))
+    rest = [i for i in have if i not in scales]
+    if not rest:
+        return scales
+    if protocol.alignment_scope == "scene" and fitted:
+        return {**scales, **{i: fitted[0] for i in rest}}
+    unaligned = torch.ones(3, dtype=torch.float64, device=masks[rest[0]].device)
+    needs = protocol.albedo_alignment != "none" and protocol.relight.apply_albedo_alignment and \
+        "relight" in protocol.channels
+    if needs:
+        raise LayoutError(f"{scene.root / 'scene.json'}: view {rest[0]} has no albedo ground truth to align "
+                          f"its relit albedo on (eval.albedo_alignment={protocol.albedo_alignment}, "
+                          f"alignment_scope={protocol.alignment_scope}); set eval.relight.apply_albedo_alignment=false")
+    return {**scales, **{i: unaligned for i in rest}}
 
 
 def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: EnvironmentCache,
@@ -236,11 +278,6 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         if (scene.name, split, v.id) not in cache:
             cache[(scene.name, split, v.id)] = load_gt_view(scene, v, envs.device)
     gt = {v.id: cache[(scene.name, split, v.id)] for v in all_views}
-    if protocol.relight.reference == "stored" and "relight" in protocol.channels:
-        for v in all_views:
-            if "relit" not in gt[v.id]:
-                gt[v.id]["relit"] = load_stored_relit(scene, v, protocol.relight.envs or scene.relight_envs,
-                                                      envs.device)
     masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol,
                                gt[v.id].get("outside_brdf")) for v in all_views}
     preds, divided = {}, set()
@@ -255,12 +292,10 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
     missing = [{"scene": scene.name, "view": v.id, "channel": c}
                for v in all_views for c in modelled if c not in preds[v.id]]
     have = [v.id for v in all_views if "albedo" in preds[v.id]]
+    scales = view_albedo_scales(scene, all_views, have, preds, gt, masks, protocol)
     albedos, have_masks = [preds[i]["albedo"] for i in have], [masks[i] for i in have]
-    scales = albedo_scales(albedos, [gt[i]["albedo"] for i in have], have_masks, protocol.albedo_alignment,
-                           protocol.alignment_scope, **protocol_alignment(protocol))
-    aligned = dict(zip(have, apply_scales(albedos, scales, have_masks, space=protocol.alignment_space,
-                                          clamp=bool(protocol.albedo_clamp))))
-    scales = dict(zip(have, scales))
+    aligned = dict(zip(have, apply_scales(albedos, [scales[i] for i in have], have_masks,
+                                          space=protocol.alignment_space, clamp=bool(protocol.albedo_clamp))))
     ids = None if views is None else {v.id for v in views}  # views of another split are not scored
     wanted = [v for v in all_views if ids is None or v.id in ids]
     out = []
@@ -269,8 +304,10 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         relit = {}
         if v.id in aligned:
             raw, p["albedo"] = p["albedo"], aligned[v.id]
-            if "relight" in protocol.channels and all(c in p for c in modelled):
-                relit = relit_pairs(scene, gt[v.id], p, raw, scales[v.id], masks[v.id], protocol, envs)
+            if "relight" in protocol.channels and all(c in p for c in modelled) and \
+                    "relight" in scene.view_gt_channels(v):
+                relit = relit_pairs(scene, gt[v.id], p, raw, scales[v.id], masks[v.id], protocol, envs,
+                                    None if scene.relit_gt == "shaded" and v.relight_envs is None else v)
         out.append(ScoredView(scene=scene.name, view=v.id, mask=masks[v.id], gt=gt[v.id], pred=p, relit=relit,
                               unpremultiplied=v.id in divided))
     return out, missing

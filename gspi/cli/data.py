@@ -1,4 +1,4 @@
-"""gspi-data: make the procedural PBR benchmark, or import/export NeRF-synthetic scenes.
+"""gspi-data: make the procedural PBR benchmark, or import/export the field's dataset layouts.
 
 Examples:
     gspi-data preset=tiny out=data/tiny seed=0      # 7 scenes at 64 px (tests, smoke runs)
@@ -7,6 +7,9 @@ Examples:
     gspi-data preset=tiny out=d seed=1 data.num_train_scenes=2 data.image_size=32
     gspi-data import.src=nerf_synthetic/lego out=data/lego_canonical
     gspi-data export.src=data/tiny/s000_torus_metal out=exports/s000
+    gspi-data import.src=TensoIR_Synthetic/lego out=data/tensoir      # layout detected from the files
+    gspi-data import.src=data/blender_HDR/teapot_scene001 import.format=stanford_orb out=data/orb
+    gspi-data export.src=data/tiny/s000_torus_metal export.format=tensoir out=exports/tir
     gspi-data import.glb=chair.glb out=data/mine preset=small      # glTF/GLB PBR object(s)
     gspi-data preset=small out=d data.relight_envs=polyhaven data.renderer=pathtraced
     gspi-data preset=paper out=data/paper seed=0 device=auto     # render on CUDA when present
@@ -60,6 +63,52 @@ def command_mode(cfg: DictConfig) -> str:
     return "generate"
 
 
+def import_layout(imp: DictConfig, out: Path):
+    """`import.src` in `import.format` (auto: gspi.data.layouts.detect_format) -> (Scene, format)."""
+    from gspi.data.layouts import FORMATS, detect_format
+    from gspi.strict_config import ConfigError
+
+    fmt = imp.get("format", "auto")
+    if fmt not in ("auto", *FORMATS):
+        raise ConfigError(f"import.format={fmt}: must be one of auto, {', '.join(FORMATS)}")
+    fmt = detect_format(imp.src) if fmt == "auto" else fmt
+    if fmt != "nerf_synthetic" and imp.composite != "black":
+        raise ConfigError(f"import.composite={imp.composite}: only the nerf_synthetic format composites")
+    if fmt == "nerf_synthetic":
+        from gspi.data.nerf_synthetic import import_nerf_synthetic
+        return import_nerf_synthetic(imp.src, out, name=imp.name, composite=imp.composite), fmt
+    if fmt == "tensoir":
+        from gspi.data.layouts.tensoir import import_tensoir
+        return import_tensoir(imp.src, out, name=imp.name, envmaps=imp.get("envmaps")), fmt
+    if fmt == "stanford_orb":
+        from gspi.data.layouts.stanford_orb import import_stanford_orb
+        from gspi.strict_config import check_value
+        return import_stanford_orb(imp.src, out, name=imp.name, ground_truth=imp.get("ground_truth"),
+                                   resolution=check_value("import.resolution", imp.resolution, int, lo=1)), fmt
+    from gspi.data.layouts.nero_glossy import import_nero_glossy
+    return import_nero_glossy(imp.src, out, name=imp.name, split=imp.get("split")), fmt
+
+
+def export_layout(exp: DictConfig, out: Path) -> Path:
+    """`export.src` (a canonical scene) written in `export.format` under `out`."""
+    from gspi.data.layouts import FORMATS
+    from gspi.strict_config import ConfigError
+
+    if exp.format not in FORMATS:
+        raise ConfigError(f"export.format={exp.format}: must be one of {', '.join(FORMATS)}")
+    if exp.format == "nerf_synthetic":
+        from gspi.data.nerf_synthetic import export_nerf_synthetic
+        return export_nerf_synthetic(exp.src, out, bits=int(exp.bits))
+    if exp.format == "tensoir":
+        from gspi.data.layouts.tensoir import export_tensoir
+        return export_tensoir(exp.src, out, bits=int(exp.bits))
+    if exp.format == "stanford_orb":
+        from gspi.data.layouts.stanford_orb import export_stanford_orb
+        return export_stanford_orb(exp.src, out)
+    from gspi.data.layouts.nero_glossy import export_nero_glossy
+    return export_nero_glossy(exp.src, out)
+
+
 def run(cfg: DictConfig) -> dict:
     """Execute one gspi-data command; returns a summary dict (also logged)."""
     from gspi.device import resolve_device
@@ -80,19 +129,17 @@ def run(cfg: DictConfig) -> dict:
             log.info("imported %s (%s) in %.1f s (input renderer %s: %.1f s)", s["name"],
                      s["split"], s["seconds"], cfg.data.renderer, s["retrace_seconds"])
     elif mode == "import":
-        from gspi.data.nerf_synthetic import import_nerf_synthetic
         from gspi.data.generate import merge_splits
 
-        scene = import_nerf_synthetic(cfg["import"].src, out, name=cfg["import"].name,
-                                      composite=cfg["import"].composite)
+        scene, fmt = import_layout(cfg["import"], out)
         merge_splits(out, {"test": [scene.name]})
-        result = {"mode": "import", "scene": str(scene.root),
+        result = {"mode": "import", "format": fmt, "scene": str(scene.root), "gt_channels": list(scene.gt_channels),
                   "views": {s: len(v) for s, v in scene.views.items()}}
+        log.info("imported %s (%s) -> %s; ground truth: %s", cfg["import"].src, fmt, scene.root,
+                 ", ".join(scene.gt_channels) or "none of albedo, roughness, metallic, relight")
     elif mode == "export":
-        from gspi.data.nerf_synthetic import export_nerf_synthetic
-
-        folder = export_nerf_synthetic(cfg.export.src, out, bits=int(cfg.export.bits))
-        result = {"mode": "export", "folder": str(folder)}
+        folder = export_layout(cfg.export, out)
+        result = {"mode": "export", "format": cfg.export.format, "folder": str(folder)}
     else:
         from gspi.data.generate import generate_dataset
         from gspi.strict_config import check_value
@@ -122,7 +169,8 @@ def alias_preset(argv: list[str]) -> list[str]:
 
 
 # paths quoted for Hydra's grammar, stated errors as one line
-main = hydra_cli(_task, "gspi_data", path_keys=("out", "import.src", "import.glb", "export.src"), rewrite=alias_preset)
+main = hydra_cli(_task, "gspi_data", path_keys=("out", "import.src", "import.glb", "export.src", "import.envmaps",
+                                                "import.ground_truth", "import.split"), rewrite=alias_preset)
 
 
 if __name__ == "__main__":

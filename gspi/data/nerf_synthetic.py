@@ -91,17 +91,32 @@ def _frame_path(src: Path, file_path: str) -> Path:
     return p if p.suffix.lower() == ".png" else p.with_name(p.name + ".png")
 
 
+def linear_from_rgba(rgba: np.ndarray) -> np.ndarray:
+    """[H, W, 3] linear radiance of an sRGB straight-alpha frame, composited on black."""
+    return srgb_to_linear(torch.from_numpy(np.ascontiguousarray(rgba[..., :3]))).numpy() * rgba[..., 3:]
+
+
+def rgba_from_linear(rgb_linear: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """[H, W, 4] sRGB frame (clamped to [0, 1]) with ``alpha`` [H, W, 1]: what exporters write."""
+    return np.concatenate([linear_to_srgb(torch.from_numpy(rgb_linear)).numpy(), alpha], -1)
+
+
+def write_input_view(view_dir: Path, rgb_linear: np.ndarray, mask: np.ndarray) -> None:
+    """A view's input image (rgb.exr, its rgb.png preview) and mask.png (``mask`` [H, W, 1] bool)."""
+    write_view_file(view_dir, "rgb.exr", rgb_linear)
+    write_view_file(view_dir, "rgb.png", linear_to_srgb(torch.from_numpy(rgb_linear)).numpy())
+    write_view_file(view_dir, "mask.png", mask.astype(np.float32))
+
+
 def _import_frame(frame_png: Path, view_dir: Path, composite: str) -> tuple[int, int]:
     rgba = read_rgba(frame_png)
     alpha = rgba[..., 3:]
-    rgb = srgb_to_linear(torch.from_numpy(rgba[..., :3])).numpy() * alpha
+    rgb = linear_from_rgba(rgba)
     if composite == "white":
         rgb = rgb + (1.0 - alpha)
     elif composite != "black":
         raise ValueError(f"unknown composite {composite!r}; allowed: black, white")
-    write_view_file(view_dir, "rgb.exr", rgb)
-    write_view_file(view_dir, "rgb.png", linear_to_srgb(torch.from_numpy(rgb)).numpy())
-    write_view_file(view_dir, "mask.png", (alpha > 0.5).astype(np.float32))
+    write_input_view(view_dir, rgb, alpha > 0.5)
     stem = frame_png.with_suffix("")
     for name, suffix in MAP_SUFFIXES.items():
         extra = stem.with_name(stem.name + suffix)
@@ -152,6 +167,17 @@ def import_nerf_synthetic(src: str | Path, out_dir: str | Path, *, name: str | N
     return scene
 
 
+def check_angle_x_camera(scene: Scene, v: View) -> float:
+    """The view's horizontal FoV (radians) if its K is one camera_angle_x can hold (fx = fy,
+    centred principal point), else a LayoutError naming the scene and view."""
+    fx, fy, cx, cy = v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2]
+    if not (math.isclose(fx, fy, rel_tol=1e-9) and math.isclose(cx, scene.width / 2)
+            and math.isclose(cy, scene.height / 2)):
+        raise LayoutError(f"{scene.root}: view {v.split}/{v.id} has K {v.K.tolist()}, "
+                          "not representable by camera_angle_x")
+    return 2.0 * math.atan(scene.width / (2.0 * fx))
+
+
 def export_nerf_synthetic(scene_dir: str | Path, out_dir: str | Path, *, bits: int = 8) -> Path:
     """Write a canonical scene as a NeRF-synthetic folder (see module docstring).
 
@@ -163,19 +189,13 @@ def export_nerf_synthetic(scene_dir: str | Path, out_dir: str | Path, *, bits: i
     for split, views in scene.views.items():
         frames, angle = [], None
         for v in views:
-            fx, fy, cx, cy = v.K[0, 0], v.K[1, 1], v.K[0, 2], v.K[1, 2]
-            if not (math.isclose(fx, fy, rel_tol=1e-9) and math.isclose(cx, scene.width / 2)
-                    and math.isclose(cy, scene.height / 2)):
-                raise LayoutError(f"{scene.root}: view {split}/{v.id} has K {v.K.tolist()}, "
-                                  "not representable by camera_angle_x")
-            a = 2.0 * math.atan(scene.width / (2.0 * fx))
+            a = check_angle_x_camera(scene, v)
             if angle is not None and not math.isclose(a, angle, rel_tol=1e-12):
                 raise LayoutError(f"{scene.root}: split {split} mixes fields of view")
             angle = a
             vdir = scene.view_dir(split, v.id)
-            rgb = linear_to_srgb(torch.from_numpy(read_view_file(vdir, "rgb.exr"))).numpy()
-            alpha = read_view_file(vdir, "mask.png")
-            write_rgba(out / split / f"{v.id}.png", np.concatenate([rgb, alpha], -1), bits=bits)
+            write_rgba(out / split / f"{v.id}.png", rgba_from_linear(read_view_file(vdir, "rgb.exr"),
+                                                                  read_view_file(vdir, "mask.png")), bits=bits)
             for name, suffix in MAP_SUFFIXES.items():
                 if (vdir / name).is_file():
                     shutil.copyfile(vdir / name, out / split / f"{v.id}{suffix}")
