@@ -306,8 +306,7 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
             raw, p["albedo"] = p["albedo"], aligned[v.id]
             if "relight" in protocol.channels and all(c in p for c in modelled) and \
                     "relight" in scene.view_gt_channels(v):
-                relit = relit_pairs(scene, gt[v.id], p, raw, scales[v.id], masks[v.id], protocol, envs,
-                                    None if scene.relit_gt == "shaded" and v.relight_envs is None else v)
+                relit = relit_pairs(scene, gt[v.id], p, raw, scales[v.id], masks[v.id], protocol, envs, v)
         out.append(ScoredView(scene=scene.name, view=v.id, mask=masks[v.id], gt=gt[v.id], pred=p, relit=relit,
                               unpremultiplied=v.id in divided))
     return out, missing

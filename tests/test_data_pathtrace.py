@@ -154,6 +154,17 @@ def test_pathtraced_relit_ground_truth_and_the_stored_reference(tmp_path):
             torch.testing.assert_close(read.gt_linear.float(), shaded.gt_linear.float(), rtol=1e-5, atol=1e-6)
         else:  # shadows, interreflection and Mitsuba's BSDF: a different reference
             assert (read.gt_linear - shaded.gt_linear).abs().max() > 1e-3
+    # through the evaluator's path (the GT scene scored as its own prediction)
+    from eval.imageio import read_exr
+    from eval.scored_view import scene_scored_views
+    for scene, want_file in ((sa, False), (sb, True)):
+        sv = scene_scored_views(scene, scene.root, stored, envs)[0][0]
+        sv_shaded = scene_scored_views(scene, scene.root, protocol, envs)[0][0]
+        stored_img = torch.from_numpy(read_exr(scene.view_dir("test", sv.view) / f"relit_{env}.exr"))
+        torch.testing.assert_close(sv.relit[env].gt_linear.float(), stored_img)
+        assert torch.equal(sv.relit[env].pred_linear, sv_shaded.relit[env].pred_linear)
+        assert torch.allclose(sv.relit[env].gt_linear.float(), sv_shaded.relit[env].gt_linear.float(),
+                              rtol=1e-5, atol=1e-6) != want_file
     (da / f"relit_{env}.exr").unlink()
     with pytest.raises(LayoutError, match=f"relit_{env}.exr: not found"):
         load_stored_relit(sa, sa.split_views("test")[0], [env])
