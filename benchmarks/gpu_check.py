@@ -58,7 +58,7 @@ DATA_CHECK = ["preset=tiny", "seed=0", "data.num_train_scenes=1", "data.num_val_
               "data.num_test_scenes=1", "data.num_test_views=2", "data.num_val_views=0",
               "data.num_relight_envs=1", "data.contact_sheets=false"]
 MAP_FILES = ("mask.png", "albedo.png", "roughness.png", "metallic.png", "normal.exr", "depth.exr", "rgb.exr")
-TINY_EXTRA = ["stage2.prior.alexnet.input_size=64"]  # the tests' tiny prior (tests/test_stage2_train.py)
+TINY_EXTRA = ["stage2.prior.alexnet.input_size=64"]  # the tests' tiny prior (tests/stage2_fixtures.py)
 PAPER_FIGURES = {"material_min_per_scene": 5.4, "stage2_s_50_ddim": 18.0, "end_to_end_min_512px": 10.4}
 
 

@@ -8,57 +8,21 @@ independently (own sRGB formulas), exactly up to the 16-bit rounding of the cano
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
 from baselines.adapter import AdapterError, get_adapter, load_method_config
 from eval.layout import read_meta, read_scene, read_view_file
+from tests.adapter_fixtures import gt_maps, q8, save_image, srgb_eotf, srgb_oetf, write_gs_ir
 from tests.fixtures import make_scene
 
 Q16 = 0.5 / 65535 + 1e-7  # canonical PNGs round to the nearest 16-bit step
 
 
-def srgb_oetf(x):  # IEC 61966-2-1, written out here on purpose (not eval.colorspace)
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-
-def srgb_eotf(x):
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
-
-
-def q8(x):
-    """What torchvision's save_image stores: clamp, x * 255 + 0.5, floor; read back / 255."""
-    return np.floor(np.clip(x, 0.0, 1.0) * 255 + 0.5) / 255
-
-
-def save_image(path: Path, x: np.ndarray) -> None:
-    """torchvision.utils.save_image of a [C, H, W] tensor in [0, 1] (here HxW or HxWx3)."""
-    x = np.asarray(x, np.float64)
-    if x.ndim == 2:
-        x = np.repeat(x[..., None], 3, -1)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.floor(np.clip(x, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB").save(path)
-
-
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     return make_scene(tmp_path_factory.mktemp("gt"), "ball", size=20, seed=1, num_test=3)
-
-
-def gt_maps(scene):
-    """Per test view: albedo (sRGB-encoded), roughness, metallic as stored in the scene."""
-    out = []
-    for v in scene.split_views("test"):
-        d = scene.view_dir("test", v.id)
-        out.append({"albedo": read_view_file(d, "albedo.png").astype(np.float64),
-                    "roughness": read_view_file(d, "roughness.png")[..., 0].astype(np.float64),
-                    "metallic": read_view_file(d, "metallic.png")[..., 0].astype(np.float64)})
-    return out
 
 
 def import_and_compare(system, src, scene, tmp_path, expected, cfg_overrides=None):
@@ -77,17 +41,6 @@ def import_and_compare(system, src, scene, tmp_path, expected, cfg_overrides=Non
 
 
 # ----------------------------------------------------------------------------- GS-IR
-
-def write_gs_ir(root: Path, maps, *, gamma=True, iteration="None"):
-    pbr = root / "test" / f"ours_{iteration}" / "pbr"
-    for k, m in enumerate(maps):
-        albedo = srgb_eotf(m["albedo"]) if gamma else m["albedo"]
-        rough_saved = (m["roughness"] - 0.04) / 0.96
-        panels = [albedo] + [np.repeat(x[..., None], 3, -1) for x in (rough_saved, m["metallic"])]
-        save_image(pbr / f"{k:05d}_brdf.png", np.concatenate(panels, axis=1))
-        save_image(pbr / f"{k:05d}.png", albedo)  # the PBR render, not read
-    return root
-
 
 @pytest.mark.parametrize("gamma,metallic", [(True, False), (False, True)])
 def test_gs_ir_panels_colour_space_and_remap(scene, tmp_path, gamma, metallic):

@@ -153,7 +153,7 @@ def test_run_needs_a_checkout_and_times_the_commands(tmp_path):
 
 def test_cli_export_then_import(scene, tmp_path, monkeypatch, capsys):
     from baselines import cli
-    from tests.test_baselines_adapters import gt_maps, write_gs_ir
+    from tests.adapter_fixtures import gt_maps, write_gs_ir
 
     out = tmp_path / "exp"
     monkeypatch.setattr(sys, "argv", ["gspi-export", "system=gs_ir", f"scene={scene.root}",

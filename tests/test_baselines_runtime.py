@@ -7,8 +7,8 @@ from baselines import adapter as adapter_module
 from baselines.adapter import get_adapter, load_method_config
 from baselines.runtime import command_stages, given_runtime, split_seconds
 from eval.layout import read_meta
+from tests.adapter_fixtures import gt_maps, write_gs_ir
 from tests.fixtures import make_scene
-from tests.test_baselines_adapters import gt_maps, write_gs_ir
 
 
 def test_split_by_command_stage_hand_computed():

@@ -65,7 +65,7 @@ def test_pathtraced_views_line_up_with_the_exact_renderer():
 def test_glb_textures_reach_mitsuba_upright(tmp_path):
     from gspi.data.gltf import read_gltf
     from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
-    from tests.test_data_glb import quad_glb
+    from tests.gltf_fixtures import quad_glb
 
     mesh = unit_frame_mesh(read_gltf(quad_glb(tmp_path / "quad.glb")))
     cams = [(intrinsics_from_fov(45.0, 32, 32), look_at_w2c(np.array([0.0, -3.0, 0.0])), 0)]

@@ -8,7 +8,7 @@ import torch
 from gspi.stage2.encoders import (AlexNetEncoder, NoPriorEncoder, build_encoder, encoder_hash,
                                   lattice_images_srgb)
 from gspi.stage2.feature_cache import cache_path, scene_prior_features
-from tests.test_stage2_data import make_lattice_scene
+from tests.stage2_fixtures import make_lattice_scene
 
 
 def images(v=2, size=40):

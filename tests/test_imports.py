@@ -1,6 +1,7 @@
 """The import graph between floors (STYLE.md 2: lower floors never import upper ones; eval/ never
 imports gspi/). Every import statement of every module is read from its AST, including imports
-inside functions, so a lazy import cannot hide an upward edge.
+inside functions, so a lazy import cannot hide an upward edge. Under tests/, no module imports
+from a test module (shared helpers live in helper modules such as tests/fixtures.py).
 """
 from __future__ import annotations
 
@@ -166,3 +167,29 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_no_import_cycles_anywhere():
     """No module reaches itself through imports, inside a package too (issue 25)."""
     assert cycles(module_graph()) == []
+
+
+def modules_under_tests() -> dict[str, Path]:
+    """Every module under tests/ (test modules, helper modules, conftests, the golden recorders)."""
+    return {module_name(p): p for p in sorted((ROOT / "tests").rglob("*.py"))}
+
+
+def imported_test_module(name: str, modules: dict[str, Path]) -> str | None:
+    """The test module (tests/**/test_*.py) that the imported dotted ``name`` is or lies in, else None."""
+    while name and name not in modules:  # `from a.b import c`: c may be a name in a.b
+        name = name.rpartition(".")[0]
+    return name if name and name.rpartition(".")[2].startswith("test_") else None
+
+
+def test_no_module_under_tests_imports_a_test_module():
+    """Helpers shared by test modules live in helper modules (tests/fixtures.py,
+    tests/stage2_fixtures.py, ...), never in a test module: importing from one makes a test file a
+    library and runs its module-level code and fixtures in another file's collection (issue 25)."""
+    modules = modules_under_tests()
+    assert imported_test_module("tests.test_stage2_data.SIZE", modules) == "tests.test_stage2_data"
+    assert imported_test_module("tests.reliability.test_paths", modules) == "tests.reliability.test_paths"
+    assert imported_test_module("tests.stage2_fixtures.make_lattice_scene", modules) is None
+    assert imported_test_module("tests.fixtures", modules) is None and imported_test_module("torch", modules) is None
+    bad = sorted({f"{path.relative_to(ROOT)}:{line} imports from {target}" for path in modules.values()
+                  for name, line in imported_names(path) if (target := imported_test_module(name, modules))})
+    assert not bad, "move the shared helpers to a helper module under tests/:\n" + "\n".join(bad)

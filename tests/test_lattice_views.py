@@ -13,8 +13,8 @@ from baselines.adapter import AdapterError, get_adapter, load_method_config
 from eval.evaluate import evaluate
 from eval.layout import LayoutError, read_scene, read_view_file
 from eval.protocol_id import describe_protocol, protocol_dict, protocol_hash, scored_split
+from tests.adapter_fixtures import q8, save_image, srgb_eotf, srgb_oetf
 from tests.fixtures import make_prediction, make_scene, protocol
-from tests.test_baselines_adapters import q8, save_image, srgb_eotf, srgb_oetf
 
 
 def test_lattice_scores_the_train_views_with_a_known_error(sphere_dataset, tmp_path, lpips_net):

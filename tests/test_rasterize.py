@@ -11,8 +11,7 @@ from gspi.gaussians.cameras import intrinsics_from_fov, look_at
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.rasterize import rasterize_2dgs, render_gaussians, unit_normals
 from gspi.gaussians.sh import eval_sh
-
-DT = torch.float64
+from tests.raster_fixtures import DT, random_scene
 
 
 # ----------------------------------------------------------------------------------------
@@ -92,19 +91,6 @@ def dense_reference(means, quats, scales, opacities, colors, viewmat, K, width, 
     depth_exp = torch.where(alpha_out > 0, depth_sum / alpha_out.clamp_min(1e-300), torch.zeros_like(T))
     return {"rgb": out_c, "alpha": alpha_out[..., None], "depth_expected": depth_exp[..., None],
             "depth_median": median[..., None], "normals": out_n, "median_last": median_last[..., None]}
-
-
-def random_scene(n: int, seed: int, dtype=DT, spread: float = 0.6):
-    gen = torch.Generator().manual_seed(seed)
-    means = torch.randn(n, 3, generator=gen, dtype=dtype) * spread + torch.tensor([0.0, 0.0, 3.0], dtype=dtype)
-    means[0] = torch.tensor([0.1, 0.0, -1.0], dtype=dtype)  # behind the camera
-    quats = torch.randn(n, 4, generator=gen, dtype=dtype)
-    scales = torch.exp(torch.rand(n, 2, generator=gen, dtype=dtype) * 3.5 - 4.5)  # 0.011 .. 0.37
-    scales[1] = torch.tensor([1e-4, 2e-4], dtype=dtype)  # sub-pixel: only the 2D filter shows
-    opacities = torch.rand(n, generator=gen, dtype=dtype) * 0.95 + 0.04
-    opacities[2] = 1.0  # hits the 0.999 clamp
-    colors = torch.rand(n, 4, generator=gen, dtype=dtype)
-    return means, quats, scales, opacities, colors
 
 
 def camera(width=16, height=16, focal=20.0, dtype=DT):

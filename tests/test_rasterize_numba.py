@@ -22,7 +22,7 @@ from gspi.gaussians.projection import project_surfels
 from gspi.gaussians.rasterize import _resolve_backend, rasterize_2dgs, tile_backend
 from gspi.gaussians.tiles import bin_splats, pixel_bounds
 from gspi.gaussians.torch_backend import rasterize_view, surfel_table
-from tests.test_rasterize import random_scene
+from tests.raster_fixtures import random_scene
 
 W, H = 64, 48  # non-square, and 48 is not a multiple of 16: partial tiles
 TOL = {torch.float64: 1e-5, torch.float32: 2e-3}

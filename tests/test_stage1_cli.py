@@ -19,7 +19,7 @@ from gspi.stage2.points_measure import PSNR_CAP_DB
 from gspi.point_cloud import nearest_fill, scatter_pixel_values
 from gspi.stage2.score_generated import gt_oracle_pbr, scatter_point_values, score_generated_points
 from tests.fixtures import surfel_sphere
-from tests.test_stage2_data import make_lattice_scene
+from tests.stage2_fixtures import make_lattice_scene
 
 SIZE = 32  # the lattice scene's size (the smallest LPIPS accepts)
 

@@ -19,7 +19,7 @@ from gspi.stage2.encoders import build_encoder, lattice_images_srgb
 from gspi.stage2.feature_cache import scene_prior_features
 from gspi.stage2.infer import lattice_srgb, point_conditions, prior_features
 from gspi.stage2.normalize import fit_unit_sphere, to_unit_sphere
-from tests.test_stage2_data import make_lattice_scene
+from tests.stage2_fixtures import make_lattice_scene
 
 
 def gt_views_as_renders(root) -> LatticeRenders:

@@ -7,7 +7,7 @@ import numpy as np
 
 from eval.layout import read_scene, read_view_file
 from gspi.stage2.condition_swap import LATTICE_SPLIT, write_variant
-from tests.test_stage2_data import make_lattice_scene
+from tests.stage2_fixtures import make_lattice_scene
 
 
 def test_each_variant_swaps_one_input(tmp_path):

@@ -1,10 +1,6 @@
-"""Tests of Stage II's training data (gspi/stage2/data.py) on lattice sphere scenes built in code.
-
-``make_lattice_dataset`` is shared with tests/test_stage2_train.py and tests/test_encoders.py.
-"""
+"""Tests of Stage II's training data (gspi/stage2/data.py) on lattice sphere scenes built in code
+(tests/stage2_fixtures.py)."""
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,42 +9,7 @@ import torch
 from gspi.stage2.data import (LOCAL_CONDITIONS, PointDataConfig, load_scene_points, local_condition,
                               local_subset, multiview_condition, perturb_along_rays, pixel_footprint,
                               sample_batch, whole_scene_inputs)
-
-SIZE = 32  # px: the smallest size eval.metrics' LPIPS accepts
-
-
-def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0) -> Path:
-    """A sphere scene whose train split is the canonical 32-view lattice, with gt_points.npz."""
-    from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
-    from gspi.data.lattice import lattice_cameras
-    from gspi.data.point_clouds import write_scene_point_cloud
-    from tests.fixtures import render_sphere_maps
-
-    K, w2c = lattice_cameras(num_views=32, radius=3.0, fov_deg=45.0, width=size, height=size)
-    views = {"train": [View(f"{k:03d}", "train", K[k], w2c[k]) for k in range(32)]}
-    scene = Scene(root=root / name, name=name, width=size, height=size, views=views,
-                  capture_env="cap", relight_envs=[])
-    write_scene_json(scene)
-    for v in views["train"]:
-        maps = render_sphere_maps(v.K, v.w2c, size, seed)
-        vdir = scene.view_dir("train", v.id)
-        for channel in ("albedo", "roughness", "metallic"):
-            write_material(vdir, channel, maps[channel])
-        write_view_file(vdir, "depth.exr", maps["depth"])
-        write_view_file(vdir, "mask.png", maps["mask"])
-        write_view_file(vdir, "rgb.exr", (maps["albedo"] ** 2.2 * 0.8).astype(np.float32))
-    write_scene_point_cloud(scene)
-    return scene.root
-
-
-def make_lattice_dataset(root: Path, *, num_train: int = 2, num_test: int = 1) -> Path:
-    from eval.layout import write_json_atomic
-
-    names = {"train": [f"train_{k}" for k in range(num_train)], "test": [f"test_{k}" for k in range(num_test)]}
-    for k, name in enumerate(names["train"] + names["test"]):
-        make_lattice_scene(root, name, seed=k)
-    write_json_atomic(root / "splits.json", {**names, "val": []})
-    return root
+from tests.stage2_fixtures import SIZE, make_lattice_scene
 
 
 @pytest.fixture(scope="module")

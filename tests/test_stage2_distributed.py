@@ -14,8 +14,7 @@ import torch.multiprocessing as mp
 
 from gspi.stage2.distributed import DistContext
 from gspi.stage2.train import LOSS_KEY, train
-from tests.test_stage2_data import make_lattice_dataset
-from tests.test_stage2_train import tiny_cfg
+from tests.stage2_fixtures import make_lattice_dataset, tiny_cfg
 
 WORLD = 2
 # One process averages 4 per-sample losses; two average 2 each, then the ranks' gradients:

@@ -13,7 +13,7 @@ from gspi.stage2.ladder import (build_rung, ladder_config, load_rung, predict_ru
                                 score_rung)
 from gspi.stage2.regressors import pooled_prior, rung_features
 from gspi.stage2.splits import load_split
-from tests.test_stage2_data import make_lattice_dataset
+from tests.stage2_fixtures import make_lattice_dataset
 
 RUNGS = ("r1", "r2", "r3", "r4")
 

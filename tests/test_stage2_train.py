@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from eval.config import CONF_DIR
@@ -16,26 +15,10 @@ from gspi.stage2.checkpoint import CheckpointError, export_ema_only, load_stage2
 from gspi.stage2.sampler import predict_point_pbr
 from gspi.stage2.train import LOSS_KEY, TrainState, rcw_config, train
 from gspi.stage2.train_log import JsonlMetrics
-from tests.test_stage2_data import make_lattice_dataset
+from tests.stage2_fixtures import compose_cfg, lattice_dataset, tiny_cfg  # noqa: F401  (fixture `dataset`)
 
 ABLATIONS = ("full", "a1_no_global_prior", "a2_no_view_onehot", "a3_npts_1024", "a4_npts_1024_nlat_384",
              "a5_multiview_injection")
-
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory) -> Path:
-    return make_lattice_dataset(tmp_path_factory.mktemp("s2train"), num_train=2, num_test=1)
-
-
-def compose_cfg(overrides: list[str]):
-    with initialize_config_dir(version_base="1.3", config_dir=CONF_DIR):
-        return compose(config_name="gspi_train", overrides=overrides)
-
-
-def tiny_cfg(dataset: Path, out: Path, *extra: str) -> dict:
-    cfg = compose_cfg([f"data_dir={dataset}", f"out={out}", "stage2=tiny",
-                       "stage2.prior.alexnet.input_size=64", *extra])
-    return OmegaConf.to_container(cfg, resolve=True)
 
 
 @pytest.mark.parametrize("ablation", ABLATIONS)

@@ -10,14 +10,14 @@ from gspi.stage2.checkpoint import load_stage2_checkpoint
 from gspi.stage2.train import train
 from gspi.stage2.train_log import JsonlMetrics
 from gspi.stage2.validate import SCORE_KEY
-from tests.test_stage2_train import dataset, tiny_cfg  # noqa: F401  (fixture)
+from tests.stage2_fixtures import lattice_dataset, tiny_cfg  # noqa: F401  (fixture `dataset`)
 
 VALIDATE = ("stage2.validate.every=4", "stage2.validate.split=test", "stage2.validate.num_steps=2",
             "stage2.validate.max_points=300")
 
 
 @pytest.fixture(scope="module")
-def runs(dataset, tmp_path_factory):  # noqa: F811
+def runs(dataset, tmp_path_factory):
     root = tmp_path_factory.mktemp("s2val")
     plain, checked = root / "plain", root / "checked"
     train(tiny_cfg(dataset, plain), plain)

@@ -378,8 +378,7 @@ def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net)
 
     from eval.evaluate import evaluate
     from eval.report import write_result
-    from tests.fixtures import make_prediction
-    from tests.test_evaluate import protocol
+    from tests.fixtures import make_prediction, protocol
 
     prot = protocol(channels=["albedo", "roughness", "metallic"])
     expected = {}

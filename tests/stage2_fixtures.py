@@ -1,0 +1,73 @@
+"""Stage II's test data built in code: lattice sphere scenes and datasets, and the tiny gspi-train
+config.
+
+A lattice scene is an analytic sphere (tests/fixtures.py) whose train split is the canonical
+32-view lattice, with its gt_points.npz; a lattice dataset is a few of them with splits.json.
+The pytest fixture ``dataset`` (module scope) is defined here as ``lattice_dataset``: a test module
+that wants it imports ``lattice_dataset`` explicitly and builds its own, as
+tests/test_stage2_train.py and tests/test_stage2_validate.py do.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from eval.config import CONF_DIR
+
+SIZE = 32  # px: the smallest size eval.metrics' LPIPS accepts
+
+
+def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0) -> Path:
+    """A sphere scene whose train split is the canonical 32-view lattice, with gt_points.npz."""
+    from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
+    from gspi.data.lattice import lattice_cameras
+    from gspi.data.point_clouds import write_scene_point_cloud
+    from tests.fixtures import render_sphere_maps
+
+    K, w2c = lattice_cameras(num_views=32, radius=3.0, fov_deg=45.0, width=size, height=size)
+    views = {"train": [View(f"{k:03d}", "train", K[k], w2c[k]) for k in range(32)]}
+    scene = Scene(root=root / name, name=name, width=size, height=size, views=views,
+                  capture_env="cap", relight_envs=[])
+    write_scene_json(scene)
+    for v in views["train"]:
+        maps = render_sphere_maps(v.K, v.w2c, size, seed)
+        vdir = scene.view_dir("train", v.id)
+        for channel in ("albedo", "roughness", "metallic"):
+            write_material(vdir, channel, maps[channel])
+        write_view_file(vdir, "depth.exr", maps["depth"])
+        write_view_file(vdir, "mask.png", maps["mask"])
+        write_view_file(vdir, "rgb.exr", (maps["albedo"] ** 2.2 * 0.8).astype(np.float32))
+    write_scene_point_cloud(scene)
+    return scene.root
+
+
+def make_lattice_dataset(root: Path, *, num_train: int = 2, num_test: int = 1) -> Path:
+    from eval.layout import write_json_atomic
+
+    names = {"train": [f"train_{k}" for k in range(num_train)], "test": [f"test_{k}" for k in range(num_test)]}
+    for k, name in enumerate(names["train"] + names["test"]):
+        make_lattice_scene(root, name, seed=k)
+    write_json_atomic(root / "splits.json", {**names, "val": []})
+    return root
+
+
+@pytest.fixture(scope="module", name="dataset")
+def lattice_dataset(tmp_path_factory) -> Path:
+    """The fixture ``dataset``: 2 train + 1 test lattice scenes, built once per test module that
+    imports it (imported as ``lattice_dataset``, so the tests' ``dataset`` argument shadows no name)."""
+    return make_lattice_dataset(tmp_path_factory.mktemp("s2train"), num_train=2, num_test=1)
+
+
+def compose_cfg(overrides: list[str]):
+    with initialize_config_dir(version_base="1.3", config_dir=CONF_DIR):
+        return compose(config_name="gspi_train", overrides=overrides)
+
+
+def tiny_cfg(dataset: Path, out: Path, *extra: str) -> dict:
+    cfg = compose_cfg([f"data_dir={dataset}", f"out={out}", "stage2=tiny",
+                       "stage2.prior.alexnet.input_size=64", *extra])
+    return OmegaConf.to_container(cfg, resolve=True)
