@@ -148,6 +148,23 @@ def test_init_points_lie_on_the_visual_hull(scene_dir):
     assert (~in_hull(g.means + step, views)).float().mean() > 0.5
 
 
+def test_views_with_an_empty_mask_do_not_carve_the_hull(scene_dir):
+    """A single-sided asset seen from behind leaves empty masks (glTF culling); carving with them
+    would empty the hull (ValueError 'visual hull is empty'), so only views with foreground carve."""
+    from gspi.recon.init import visual_hull_points
+
+    views = load_scene_views(scene_dir)
+    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
+    want, _, _ = visual_hull_points(views, 300, generator=gen())
+    views.masks[: views.num_views // 2] = False   # half the views see nothing
+    got, _, _ = visual_hull_points(views, 300, generator=gen())
+    assert len(got) > 100
+    carving = views.select(views.masks.reshape(views.num_views, -1).any(1))
+    assert carving.num_views == views.num_views - views.num_views // 2 and in_hull(got, carving).all()
+    assert not in_hull(got, views).any()  # with every view carving, none of them would be inside
+    assert len(want) > 0
+
+
 def test_facing_quats_put_the_normal_in_rotation_column_2():
     from gspi.gaussians.projection import quat_to_rotmat
     from gspi.recon.init import facing_quats

@@ -48,6 +48,12 @@ class SceneViews:
     def width(self) -> int:
         return self.images.shape[2]
 
+    def select(self, keep: Tensor) -> "SceneViews":
+        """The views where ``keep`` [V] bool is true."""
+        idx = torch.nonzero(keep.cpu())[:, 0]
+        return SceneViews([self.ids[int(i)] for i in idx], self.images[keep], self.masks[keep],
+                          self.viewmats[keep], self.Ks[keep])
+
     def to(self, device) -> "SceneViews":
         return SceneViews(self.ids, self.images.to(device), self.masks.to(device),
                           self.viewmats.to(device), self.Ks.to(device))

@@ -91,8 +91,13 @@ def visual_hull_points(views: SceneViews, num_points: int, *, samples_per_ray: i
         points [P, 3], colours [P, 3] (linear radiance of the source pixel), directions [P, 3]
         (unit ray directions from the source camera), P <= num_points (rays that miss the hull
         are dropped, e.g. where masks disagree).
+
+    Only views that see some foreground carve the hull: a view with an empty mask sees no
+    silhouette (a single-sided surface seen from behind is culled: glTF imports), and letting
+    it carve would empty the hull of every flat single-sided asset.
     """
     v, h, w = views.masks.shape
+    carving = views.select(views.masks.reshape(v, -1).any(1))
     centers = camera_centers(views.viewmats)  # [V, 3]
     dirs_all = pixel_rays(views.Ks, views.viewmats, h, w)  # [V, H, W, 3]
     # march over the depth range of a ball around the point nearest to all optical axes
@@ -115,14 +120,14 @@ def visual_hull_points(views: SceneViews, num_points: int, *, samples_per_ray: i
         t0, t1 = max(float(dist[i]) - radius, 1e-3), float(dist[i]) + radius
         t = t0 + (t1 - t0) * t_lin  # [S]
         samples = centers[i] + t[None, :, None] * d[:, None, :]  # [R, S, 3]
-        inside = in_hull(samples.reshape(-1, 3), views).reshape(len(pick), -1)
+        inside = in_hull(samples.reshape(-1, 3), carving).reshape(len(pick), -1)
         hit = inside.any(1)
         first = inside.float().argmax(1)
         lo = t[(first - 1).clamp_min(0)]
         hi = t[first]
         for _ in range(bisect_steps):  # the hull boundary lies in (lo, hi]
             mid = 0.5 * (lo + hi)
-            m_in = in_hull(centers[i] + mid[:, None] * d, views)
+            m_in = in_hull(centers[i] + mid[:, None] * d, carving)
             hi = torch.where(m_in, mid, hi)
             lo = torch.where(m_in, lo, mid)
         p = centers[i] + hi[:, None] * d
