@@ -272,7 +272,9 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
     whichever views are returned. ``gt_cache``: a dict the caller keeps to read each GT view
     once across several predictions of the scene (the report's jobs)."""
     split = scored_split(protocol)
-    all_views = scene.split_views(split)
+    # a view whose ground truth has no channel (scene.json gt_channels: [], e.g. a glTF import's
+    # held-out view that sees nothing of a single-sided asset) has nothing to score
+    all_views = [v for v in scene.split_views(split) if scene.view_gt_channels(v)]
     cache = {} if gt_cache is None else gt_cache
     for v in all_views:
         if (scene.name, split, v.id) not in cache:

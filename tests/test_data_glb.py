@@ -448,3 +448,22 @@ def test_sparse_accessors_replace_the_listed_elements(tmp_path):
     (tmp_path / "bad.glb").write_bytes(_glb(doc, blob))
     with pytest.raises(GLTFError, match="bad.glb: accessors\\[0\\]: sparse indices out of range"):
         read_gltf(tmp_path / "bad.glb")
+
+
+def test_held_out_views_that_see_nothing_of_a_single_sided_asset_are_not_scored(tmp_path):
+    """A single-sided quad seen from behind is culled: such test views get gt_channels [] in
+    scene.json and the evaluator skips them (it would refuse an empty mask); the others score."""
+    from gspi.cli.data import run
+    from eval.scored_view import EnvironmentCache, scene_scored_views
+    from eval.config import ProtocolConfig
+
+    (tmp_path / "src").mkdir()
+    _feature_quad(tmp_path / "src" / "card.glb")
+    run(_tiny_import_cfg(tmp_path, tmp_path / "src", num_test_views=8))
+    scene = read_scene(tmp_path / "out" / "card")
+    empty = {v.id for v in scene.views["test"]
+             if not (read_view_file(scene.view_dir("test", v.id), "mask.png") > 0.5).any()}
+    assert 0 < len(empty) < 8  # the test views are spread over the hemisphere, the card faces one side
+    assert {v.id for v in scene.views["test"] if v.gt_channels == ()} == empty
+    scored, _ = scene_scored_views(scene, scene.root, OmegaConf.structured(ProtocolConfig), EnvironmentCache())
+    assert {sv.view for sv in scored} == {v.id for v in scene.views["test"]} - empty

@@ -94,6 +94,28 @@ def glb_recipe(path: Path, index: int, seed: int, cfg) -> dict:
                                   cfg.num_relight_envs), "index": index}
 
 
+def _mark_empty_views(scene_dir: Path) -> list[str]:
+    """Held-out (val/test) views in which nothing of the asset is drawn (a single-sided flat
+    asset seen from behind is culled) get ``gt_channels: []`` in scene.json: they have nothing
+    to score, and the evaluator skips them. Returns their "split/id"s (also logged)."""
+    import dataclasses
+
+    from eval.layout import read_view_file, write_scene_json
+
+    scene = read_scene(scene_dir)
+    empty = []
+    for split in ("val", "test"):
+        for k, v in enumerate(scene.views.get(split, [])):
+            if not (read_view_file(scene.view_dir(split, v.id), "mask.png") > 0.5).any():
+                scene.views[split][k] = dataclasses.replace(v, gt_channels=())
+                empty.append(f"{split}/{v.id}")
+    if empty:
+        log.warning("%s: %d held-out view(s) see nothing of the asset (single-sided faces culled), "
+                    "marked gt_channels [] (not scored): %s", scene.name, len(empty), ", ".join(empty))
+        write_scene_json(scene)
+    return empty
+
+
 def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> dict:
     """Import every asset of `src` into `out_dir` (see module docstring).
 
@@ -146,6 +168,7 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
                    "supersample": cfg.supersample, "lattice": cfg.lattice,
                    "renderer": cfg.renderer, "relit_renderer": cfg.relit_renderer, "ignored": asset.ignored,
                    "unit_frame": {"center": mesh.center.tolist(), "scale": mesh.scale}})
+        _mark_empty_views(out_dir / recipe["name"])
         if cfg.point_clouds or cfg.contact_sheets:
             from gspi.data.contact_sheet import write_contact_sheet
             from gspi.data.point_clouds import write_scene_point_cloud
