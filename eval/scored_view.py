@@ -129,6 +129,12 @@ def load_pred_view(pred_dir: Path, shape: tuple[int, int], device: torch.device 
     return out
 
 
+def wholly_outside_brdf(g: dict) -> bool:
+    """True when every GT-mask pixel of the view is in its outside_brdf.png (e.g. a clearcoat
+    object): under ``outside_brdf: exclude`` such a view is not scored (not an error)."""
+    return "outside_brdf" in g and not (g["mask"] & ~g["outside_brdf"]).any()
+
+
 def scored_mask(where: str, mask: Tensor, protocol, outside_brdf: Tensor | None = None) -> Tensor:
     """The GT mask eroded by `mask_erosion_px`, less the `outside_brdf` pixels when the protocol
     excludes them; an error naming the view if nothing is left."""
@@ -280,6 +286,8 @@ def scene_scored_views(scene: Scene, pred_scene: Path, protocol, envs: Environme
         if (scene.name, split, v.id) not in cache:
             cache[(scene.name, split, v.id)] = load_gt_view(scene, v, envs.device)
     gt = {v.id: cache[(scene.name, split, v.id)] for v in all_views}
+    if protocol.outside_brdf == "exclude":  # a view entirely outside the BRDF has nothing left
+        all_views = [v for v in all_views if not wholly_outside_brdf(gt[v.id])]
     masks = {v.id: scored_mask(f"{scene.name}/{v.split}/{v.id}", gt[v.id]["mask"], protocol,
                                gt[v.id].get("outside_brdf")) for v in all_views}
     preds, divided = {}, set()

@@ -417,6 +417,9 @@ def test_blend_pixels_in_the_outside_brdf_map_and_excluded_on_request(tmp_path):
     half = outside.clone()
     half[:, :16] = False
     assert torch.equal(scored_mask("v", mask, protocol, half), mask & ~half)
+    from eval.scored_view import wholly_outside_brdf
+    assert wholly_outside_brdf({"mask": mask, "outside_brdf": outside})
+    assert not wholly_outside_brdf({"mask": mask, "outside_brdf": half}) and not wholly_outside_brdf({"mask": mask})
 
 
 def test_sparse_accessors_replace_the_listed_elements(tmp_path):
