@@ -150,7 +150,8 @@ def _union_crop(masks: Tensor, margin: int) -> tuple[slice, slice]:
 
 
 def _prepare_views(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig) -> list[_ViewData]:
-    """Every view's frozen weights, directions, display-space target and crop (views' device)."""
+    """Every view's frozen weights, directions, display-space target and crop (views' device);
+    views with no valid pixel are left out."""
     weights = [compositing_weights(asset, views.viewmats[i], views.Ks[i], views.width, views.height)
                for i in range(views.num_views)]
     footprints = torch.stack([w.to_image(torch.ones_like(w.alpha)[:, None])[..., 0] > 0
@@ -162,7 +163,11 @@ def _prepare_views(asset: Gaussians2D, views: SceneViews, cfg: JointIRConfig) ->
                                views.width).reshape(-1, 3).to(w.pixels.device)[w.pixels]
         silhouette = w.to_image((w.alpha > cfg.silhouette_alpha)[:, None].float())[..., 0] > 0
         target = display(views.images[i], mode=cfg.tonemap).clamp(0, 1)
-        out.append(_ViewData(w, dirs, target[crop], (silhouette & views.masks[i])[crop], crop))
+        valid = (silhouette & views.masks[i])[crop]
+        if valid.any():  # a view without a valid pixel (a single-sided asset seen from behind)
+            out.append(_ViewData(w, dirs, target[crop], valid, crop))  # has no loss: its masked
+    if not out:                                                      # means would be NaN
+        raise ValueError("joint_ir: no input view has a foreground pixel the asset covers")
     return out
 
 

@@ -152,6 +152,22 @@ def test_joint_ir_reduces_loss_and_moves_albedo_to_truth(tmp_path):
     assert env.shape == (8, 16, 3) and torch.isfinite(env).all()
 
 
+def test_joint_ir_leaves_out_views_without_foreground(tmp_path):
+    """A view with an empty mask (a single-sided asset seen from behind) has no loss; with it in
+    a batch the masked means were NaN and the fit diverged. It is left out; with none left, one
+    stated error."""
+    asset = surfel_sphere(300)
+    views = joint_ir.load_scene_views(_synthetic_scene(tmp_path, asset), "train")
+    views.masks[:2] = False
+    cfg = joint_ir.JointIRConfig(iterations=4, views_per_iteration=2, env_height=8)
+    assert len(joint_ir._prepare_views(asset, views, cfg)) == views.num_views - 2
+    fitted, env, stats = joint_ir.fit_materials(asset, views, cfg)
+    assert np.isfinite(stats["loss_final"]) and torch.isfinite(fitted.albedo).all()
+    views.masks[:] = False
+    with pytest.raises(ValueError, match="no input view has a foreground pixel"):
+        joint_ir._prepare_views(asset, views, cfg)
+
+
 def test_joint_ir_predict_scene_writes_every_test_view(tmp_path):
     asset = surfel_sphere(300)
     scene = _synthetic_scene(tmp_path, asset)
