@@ -109,8 +109,9 @@ def load_stored_relit(scene: Scene, view, env_names, device: torch.device = CPU)
     for name in env_names:
         path = vdir / f"relit_{name}.exr"
         if not path.is_file():
-            raise LayoutError(f"{path}: not found (eval.relight.reference=stored reads the stored relit "
-                              f"ground truth, which the dataset writes for its test views only)")
+            raise LayoutError(f"{path}: not found (the relit ground truth is read from the stored images under "
+                              f"eval.relight.reference=stored or scene.json relit_gt: images; datasets write "
+                              f"them for their test views only)")
         out[name] = as_tensor(read_exr(path, shape=(scene.height, scene.width)), device)
     return out
 
@@ -142,8 +143,9 @@ def scored_mask(where: str, mask: Tensor, protocol, outside_brdf: Tensor | None 
     if outside_brdf is not None and protocol.outside_brdf == "exclude":
         eroded = eroded & ~outside_brdf
     if not eroded.any():
+        excluded = outside_brdf is not None and protocol.outside_brdf == "exclude"
         raise LayoutError(f"{where}: mask empty after eroding {protocol.mask_erosion_px} px"
-                          f"{' and leaving out outside_brdf.png' if outside_brdf is not None else ''}")
+                          f"{' and leaving out outside_brdf.png' if excluded else ''}")
     return eroded
 
 
@@ -212,14 +214,12 @@ def relit_pair(out_linear: Tensor, ref_linear: Tensor, mask: Tensor, relight_cfg
 def relit_gt_image(scene: Scene, view, env_name: str, g: dict, env, reference: str = "shaded") -> Tensor:
     """The relit ground truth of one view [H, W, 3] linear: the split-sum of the GT maps
     (``eval.relight.reference: shaded`` on a scene whose ``relit_gt`` is ``shaded``), else the
-    stored ``relit_<env>.exr`` (``reference: stored``, e.g. path-traced GT; or a dataset whose
-    relit GT exists only as images), from ``g["relit"]`` when the caller loaded it."""
+    view's stored ``relit_<env>.exr`` (``reference: stored``, e.g. path-traced GT; or a dataset
+    whose relit GT exists only as images), which needs the ``view``."""
     if reference == "shaded" and scene.relit_gt == "shaded":
         return relight_view(g["albedo"], g["roughness"], g["metallic"], g["normal"], g["view_dir"], env)
-    if "relit" in g:
-        return g["relit"][env_name]
     if view is None:
-        raise ValueError(f"{scene.root}: the stored relit ground truth needs the view (or g['relit'])")
+        raise ValueError(f"{scene.root}: the stored relit ground truth needs the view")
     return load_stored_relit(scene, view, [env_name], g["view_dir"].device)[env_name]
 
 

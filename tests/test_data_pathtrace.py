@@ -144,12 +144,12 @@ def test_pathtraced_relit_ground_truth_and_the_stored_reference(tmp_path):
     for scene in (sa, sb):
         view = scene.split_views("test")[0]
         g = load_gt_view(scene, view)
-        g["relit"] = load_stored_relit(scene, view, scene.relight_envs)
+        relit = load_stored_relit(scene, view, scene.relight_envs)
         p = {c: g[c] for c in ("albedo", "roughness", "metallic")}
         scale = torch.ones(3, dtype=torch.float64)
-        shaded = relit_pairs(scene, g, p, g["albedo"], scale, g["mask"], protocol, envs)[env]
-        read = relit_pairs(scene, g, p, g["albedo"], scale, g["mask"], stored, envs)[env]
-        torch.testing.assert_close(read.gt_linear.float(), g["relit"][env].float())
+        shaded = relit_pairs(scene, g, p, g["albedo"], scale, g["mask"], protocol, envs, view)[env]
+        read = relit_pairs(scene, g, p, g["albedo"], scale, g["mask"], stored, envs, view)[env]
+        torch.testing.assert_close(read.gt_linear.float(), relit[env].float())
         if scene is sa:
             torch.testing.assert_close(read.gt_linear.float(), shaded.gt_linear.float(), rtol=1e-5, atol=1e-6)
         else:  # shadows, interreflection and Mitsuba's BSDF: a different reference
