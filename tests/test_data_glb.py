@@ -169,14 +169,14 @@ def test_cli_imports_a_folder_with_splits(tmp_path):
 
 
 def test_16_bit_greyscale_texture_is_read_at_full_depth():
-    from gspi.data.gltf import image_rgb
+    from gspi.data.gltf import image_rgba
 
     grey = Image.fromarray(np.array([[0, 32768], [65535, 13107]], np.uint16))   # mode I;16
     assert grey.mode.startswith("I;16")
-    np.testing.assert_allclose(image_rgb(grey)[..., 0], [[0, 32768 / 65535], [1, 0.2]], atol=1e-9)
-    assert image_rgb(grey).shape == (2, 2, 3)
+    np.testing.assert_allclose(image_rgba(grey)[..., 0], [[0, 32768 / 65535], [1, 0.2]], atol=1e-9)
+    assert image_rgba(grey).shape == (2, 2, 4) and (image_rgba(grey)[..., 3] == 1).all()
     rgb8 = Image.fromarray(np.full((1, 1, 3), 51, np.uint8))
-    np.testing.assert_allclose(image_rgb(rgb8), 0.2)
+    np.testing.assert_allclose(image_rgba(rgb8)[..., :3], 0.2)
 
 
 def test_a_node_scaled_to_zero_is_skipped_and_named(tmp_path):

@@ -296,11 +296,6 @@ def image_rgba(pil) -> np.ndarray:
     return np.asarray(pil.convert("RGBA"), dtype=np.float64) / 255.0
 
 
-def image_rgb(pil) -> np.ndarray:
-    """[H, W, 3] colour channels of `image_rgba`."""
-    return image_rgba(pil)[..., :3]
-
-
 def _node_matrix(node: dict) -> np.ndarray:
     if "matrix" in node:
         return np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major

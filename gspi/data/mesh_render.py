@@ -157,12 +157,17 @@ def evaluate_materials(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray):
     return np.clip(albedo, 0, 1), np.clip(rough, 0, 1), np.clip(metal, 0, 1)
 
 
+def face_normals(mesh: PBRMesh, tri: np.ndarray) -> np.ndarray:
+    """Unnormalised geometric normals [N, 3] of triangles `tri`, counter-clockwise front (glTF)."""
+    corners = mesh.vertices[mesh.faces[tri]]
+    return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+
+
 def drawn(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Which hits are drawn [N] bool: single-sided materials cull back faces (a face seen
     clockwise, glTF 2.0, 3.9.6), alpha MASK materials cut out alpha < alphaCutoff (3.9.4)."""
     keep = np.ones(len(tri), bool)
-    corners = mesh.vertices[mesh.faces[tri]]
-    back = (np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) * dirs).sum(-1) > 0
+    back = (face_normals(mesh, tri) * dirs).sum(-1) > 0
     for k, mat in enumerate(mesh.materials):
         sel = mesh.face_material[tri] == k
         if not sel.any() or (mat.double_sided and not mat.cut_out):
@@ -183,8 +188,7 @@ def outside_brdf(mesh: PBRMesh, tri: np.ndarray) -> np.ndarray:
 def shading_normals(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray,
                     dirs: np.ndarray) -> np.ndarray:
     """Interpolated vertex normals (face normal where missing), facing against `dirs`."""
-    corners = mesh.vertices[mesh.faces[tri]]
-    face_n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    face_n = face_normals(mesh, tri)
     face_n /= np.maximum(np.linalg.norm(face_n, axis=-1, keepdims=True), 1e-20)
     vn = np.einsum("nk,nkc->nc", bary, mesh.normals[mesh.faces[tri]])
     length = np.linalg.norm(vn, axis=-1, keepdims=True)
