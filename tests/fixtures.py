@@ -111,6 +111,19 @@ def make_dataset(root: str | Path, *, num_scenes: int = 2, size: int = 48) -> Pa
     return root
 
 
+def generated_scene(out: Path, image_size: int) -> Scene:
+    """One procedural scene made by gspi-data's generator (seed 3, 1 train scene, 2 test views,
+    1 relight environment, no extras) written to `out`, read back."""
+    from eval.layout import read_scene, read_splits
+    from gspi.data.generate import BenchmarkConfig, generate_dataset
+
+    cfg = BenchmarkConfig(num_train_scenes=1, num_val_scenes=0, num_test_scenes=0, image_size=image_size,
+                          supersample=1, env_height=16, num_test_views=2, num_val_views=0,
+                          num_relight_envs=1, point_clouds=False, contact_sheets=False)
+    generate_dataset(out, cfg, seed=3)
+    return read_scene(out / read_splits(out)["train"][0])
+
+
 def protocol(**overrides):
     """The default evaluation protocol with dotted-key overrides, validated as at start-up."""
     from omegaconf import OmegaConf

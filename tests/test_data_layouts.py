@@ -17,8 +17,7 @@ from eval.colorspace import srgb_to_linear
 from eval.envmap import latlong_directions
 from eval.evaluate import evaluate
 from eval.imageio import read_exr, write_exr, write_png
-from eval.layout import LayoutError, read_scene, read_splits, read_view_file
-from gspi.data.generate import BenchmarkConfig, generate_dataset
+from eval.layout import LayoutError, read_view_file
 from gspi.data.layouts import detect_format
 from gspi.data.layouts.nero_glossy import export_nero_glossy, import_nero_glossy
 from gspi.data.layouts.orb_envmap import orb_directions, orb_to_world, world_to_orb
@@ -26,7 +25,7 @@ from gspi.data.layouts.radiance_hdr import read_hdr, write_hdr
 from gspi.data.layouts.stanford_orb import export_stanford_orb, import_stanford_orb
 from gspi.data.layouts.tensoir import export_tensoir, import_tensoir
 from gspi.data.nerf_synthetic import write_rgba
-from tests.fixtures import make_envmap, protocol
+from tests.fixtures import generated_scene, make_envmap, protocol
 from tests.reliability.helpers import run_cli
 
 S = 16  # fixture image size
@@ -62,12 +61,7 @@ def rgba_image(seed: int, size: int = S) -> np.ndarray:
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory):
     """One generated scene at 32 px (LPIPS needs 32) with relit ground truth."""
-    out = tmp_path_factory.mktemp("gen") / "data"
-    cfg = BenchmarkConfig(num_train_scenes=1, num_val_scenes=0, num_test_scenes=0, image_size=32,
-                          supersample=1, env_height=16, num_test_views=2, num_val_views=0,
-                          num_relight_envs=1, point_clouds=False, contact_sheets=False)
-    generate_dataset(out, cfg, seed=3)
-    return read_scene(out / read_splits(out)["train"][0])
+    return generated_scene(tmp_path_factory.mktemp("gen") / "data", 32)
 
 
 def assert_same_views(a, b, *, splits=None):

@@ -9,21 +9,16 @@ import pytest
 import torch
 
 from eval.colorspace import linear_to_srgb
-from eval.layout import read_scene, read_splits, read_view_file
-from gspi.data.generate import BenchmarkConfig, generate_dataset
+from eval.layout import read_scene, read_view_file
 from gspi.data.nerf_synthetic import (blender_c2w_to_opencv_w2c, export_nerf_synthetic,
                                       import_nerf_synthetic, intrinsics_from_angle_x,
                                       opencv_w2c_to_blender_c2w, write_rgba)
+from tests.fixtures import generated_scene
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("nerf") / "data"
-    cfg = BenchmarkConfig(num_train_scenes=1, num_val_scenes=0, num_test_scenes=0, image_size=16,
-                          supersample=1, env_height=16, num_test_views=2, num_val_views=0,
-                          num_relight_envs=1, point_clouds=False, contact_sheets=False)
-    generate_dataset(out, cfg, seed=3)
-    return read_scene(out / read_splits(out)["train"][0])
+    return generated_scene(tmp_path_factory.mktemp("nerf") / "data", 16)
 
 
 def test_camera_convention():
