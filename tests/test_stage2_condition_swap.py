@@ -6,7 +6,8 @@ import json
 import numpy as np
 
 from eval.layout import read_scene, read_view_file
-from gspi.stage2.condition_swap import LATTICE_SPLIT, write_variant
+from gspi.data.asset_conditions import LATTICE_SPLIT
+from gspi.stage2.condition_swap import write_variant
 from tests.stage2_fixtures import make_lattice_scene
 
 

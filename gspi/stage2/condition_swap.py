@@ -26,61 +26,22 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from gspi.data.asset_conditions import asset_lattice_rgb, read_asset, write_asset_conditions
+
 VARIANTS = ("gt", "asset_top_rgb", "asset_prior")
-LATTICE_SPLIT = "train"  # a generated scene's train views are the canonical lattice (view k = camera k)
-
-
-def _link_tree(src: Path, dst: Path, replace: set[str]) -> None:
-    """``dst`` mirrors ``src`` by symlinks, except the relative paths in ``replace`` (and the
-    folders holding them), which the caller writes."""
-    dst.mkdir(parents=True, exist_ok=True)
-    for item in src.iterdir():
-        rel = item.name
-        inner = {r.split("/", 1)[1] for r in replace if r.startswith(rel + "/")}
-        if item.is_dir() and inner:
-            _link_tree(item, dst / rel, inner)
-        elif rel not in replace and not (dst / rel).exists():
-            os.symlink(item.resolve(), dst / rel)
-
-
-def asset_lattice_rgb(asset_ply: Path, image_size: tuple[int, int]) -> np.ndarray:
-    """[V, H, W, 3] linear radiance of the asset's canonical lattice renders."""
-    from gspi.gaussians.lattice_render import render_lattice
-    from gspi.gaussians.ply import read_asset_ply
-
-    gaussians, _ = read_asset_ply(asset_ply)
-    return render_lattice(gaussians, image_size=image_size).rgb
+VARIANT_CONDITIONS = {"gt": (), "asset_top_rgb": ("top_rgb",), "asset_prior": ("prior",)}
 
 
 def write_variant(variant: str, scene_dir: Path, asset_rgb: np.ndarray, out: Path) -> Path:
     """The dataset view of one variant (a one-scene test split); returns its root."""
-    from eval.imageio import write_exr
-    from eval.layout import read_scene
-
-    scene = read_scene(scene_dir)
-    views = [v.id for v in scene.split_views(LATTICE_SPLIT)]
-    if len(views) != len(asset_rgb):
-        raise ValueError(f"{scene_dir}: {len(views)} {LATTICE_SPLIT} views but the asset renders "
-                         f"{len(asset_rgb)} lattice views")
     root = out / variant
-    replace = {"gt_points.npz"} if variant == "asset_top_rgb" else (
-        {f"{LATTICE_SPLIT}/{v}/rgb.exr" for v in views} if variant == "asset_prior" else set())
-    _link_tree(scene_dir, root / scene_dir.name, replace)
-    if variant == "asset_top_rgb":
-        pts = dict(np.load(scene_dir / "gt_points.npz"))
-        rows, cols = pts["pixel"][:, 0], pts["pixel"][:, 1]
-        pts["rgb"] = asset_rgb[pts["view"], rows, cols].astype(pts["rgb"].dtype)
-        np.savez(root / scene_dir.name / "gt_points.npz", **pts)
-    elif variant == "asset_prior":
-        for k, v in enumerate(views):
-            write_exr(root / scene_dir.name / LATTICE_SPLIT / v / "rgb.exr", asset_rgb[k].astype(np.float32))
-    (root / "splits.json").write_text(json.dumps({"train": [], "val": [], "test": [scene_dir.name]}))
+    write_asset_conditions(Path(scene_dir), asset_rgb, root / Path(scene_dir).name, VARIANT_CONDITIONS[variant])
+    (root / "splits.json").write_text(json.dumps({"train": [], "val": [], "test": [Path(scene_dir).name]}))
     return root
 
 
@@ -92,7 +53,7 @@ def condition_swap(checkpoint: Path, scene_dir: Path, asset_ply: Path, out: Path
     from gspi.stage2.evaluate_points import checkpoint_source, evaluate_checkpoint
 
     scene = read_scene(scene_dir)
-    asset_rgb = asset_lattice_rgb(asset_ply, (scene.height, scene.width))
+    asset_rgb = asset_lattice_rgb(read_asset(asset_ply), (scene.height, scene.width))
     model, cfg = load_stage2_checkpoint(checkpoint)
     result = {}
     for variant in VARIANTS:

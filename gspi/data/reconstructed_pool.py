@@ -1,0 +1,163 @@
+"""A Stage II training pool as the paper trains it: conditions from Stage 0 reconstructions.
+
+Paper, "Training vs. Inference Dynamics": "the 32 reference views used by both training and
+evaluation are deterministically rasterized ... from the reconstructed Gaussian asset". A
+generated pool scene holds the exact renders of its 32 lattice views; a run reads Stage I's
+renders of a 2DGS asset fitted to those views, which loses what a surfel asset cannot hold
+(mirror reflections: docs/STAGE2.md "End to end, metal is lost in Stage 0's asset"). This
+writes, for every scene of a dataset whose ``train`` views are the lattice (a pool, a
+``pool_split`` view, a generated benchmark scene):
+
+    <out>/<scene>/                 the scene by symlinks, with its conditions from the asset
+                                   (``gspi.data.asset_conditions``: lattice rgb.exr, Top-RGB)
+    <out>/<scene>/asset/point_cloud.ply   the Stage 0 asset (``recon=<name>``)
+    <out>/<scene>/asset/recon.json        its seconds, surfels and lattice-render statistics
+    <out>/<scene>/reconstructed.json      written last: the scene is done
+    <out>/splits.json                     the source's splits
+
+GT points, materials, depth and masks stay the scene's own: the target is the truth, only the
+conditions are the asset's. Resumable: done scenes are skipped, partial ones redone.
+
+    python -m gspi.data.reconstructed_pool POOL64 RPOOL64 [--recon fast] [--workers 2]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gspi.data.asset_conditions import LATTICE_SPLIT, asset_lattice_rgb, lattice_view_ids, write_asset_conditions
+
+log = logging.getLogger(__name__)
+DONE_FILE = "reconstructed.json"
+FORMAT = "gspi-reconstructed-pool"
+
+
+def recon_config(name: str, overrides: tuple[str, ...] = ()) -> dict:
+    """The resolved ``conf/recon/<name>.yaml`` (gspi-recon's Stage 0 config)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from eval.config import CONF_DIR
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose("gspi_recon", overrides=[f"recon={name}", "scene=unused", "out=unused", *overrides])
+    return OmegaConf.to_container(cfg.recon, resolve=True)
+
+
+def highlight_stats(gt_rgb: np.ndarray, asset_rgb: np.ndarray) -> dict:
+    """What the asset's lattice renders keep of the GT renders' bright end (linear radiance)."""
+    lum = lambda x: x.mean(axis=-1)  # noqa: E731
+    g, a = lum(gt_rgb), lum(asset_rgb)
+    fg = g > 0
+    return {"gt_q99": float(np.quantile(g[fg], 0.99)) if fg.any() else 0.0,
+            "asset_q99": float(np.quantile(a[fg], 0.99)) if fg.any() else 0.0,
+            "gt_frac_above_1": float((g[fg] > 1).mean()) if fg.any() else 0.0,
+            "asset_frac_above_1": float((a[fg] > 1).mean()) if fg.any() else 0.0}
+
+
+def display_psnr(gt_rgb: np.ndarray, asset_rgb: np.ndarray) -> float:
+    """PSNR of the asset's lattice renders against the GT renders on clamped display values."""
+    err = np.mean((np.clip(gt_rgb, 0, 1) - np.clip(asset_rgb, 0, 1)) ** 2)
+    return float(10 * np.log10(1.0 / max(err, 1e-12)))
+
+
+def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], threads: int = 1) -> dict:
+    """Stage 0 on ``scene_dir``'s lattice views, then ``dst`` = the scene with the asset's conditions."""
+    import torch
+
+    from eval.imageio import read_exr
+    from eval.layout import read_scene, write_json_atomic
+    from gspi.gaussians.ply import write_ply
+    from gspi.run.assets import reconstruct
+
+    torch.set_num_threads(threads)
+    scene_dir, dst = Path(scene_dir).resolve(), Path(dst)
+    if dst.exists():
+        shutil.rmtree(dst)
+    t0 = time.perf_counter()
+    cpu0 = time.process_time()
+    scene = read_scene(scene_dir)
+    gaussians, stats = reconstruct(scene, recon_cfg)
+    recon_seconds = time.perf_counter() - t0
+    asset_rgb = asset_lattice_rgb(gaussians, (scene.height, scene.width))
+    gt_rgb = np.stack([read_exr(scene_dir / LATTICE_SPLIT / v / "rgb.exr")[..., :3]
+                       for v in lattice_view_ids(scene_dir)])
+    write_asset_conditions(scene_dir, asset_rgb, dst)
+    write_ply(dst / "asset" / "point_cloud.ply", gaussians)
+    info = {"format": FORMAT, "scene": scene.name, "source": str(scene_dir),
+            "num_gaussians": int(gaussians.num_gaussians), "recon_seconds": round(recon_seconds, 2),
+            "cpu_seconds": round(time.process_time() - cpu0, 2), "threads": threads,
+            "lattice_display_psnr": round(display_psnr(gt_rgb, asset_rgb), 3),
+            "highlights": highlight_stats(gt_rgb, asset_rgb),
+            "recon_stats": {k: v for k, v in stats.items() if isinstance(v, (int, float, str))},
+            "recon_config": recon_cfg}
+    write_json_atomic(dst / "asset" / "recon.json", info)
+    write_json_atomic(dst / DONE_FILE, {"scene": scene.name, "recon_seconds": info["recon_seconds"]})
+    return info
+
+
+def _worker(args: tuple) -> dict:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    return reconstruct_scene(*args)
+
+
+def read_splits(src: Path) -> dict[str, list[str]]:
+    path = Path(src) / "splits.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: not found ({src} is not a dataset folder)")
+    return json.loads(path.read_text())
+
+
+def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", workers: int = 1,
+                     overrides: tuple[str, ...] = ()) -> list[dict]:
+    """Every scene of ``src``'s splits reconstructed into ``out`` (module docstring)."""
+    src, out = Path(src), Path(out)
+    splits = read_splits(src)
+    names = [n for split in ("train", "val", "test") for n in splits.get(split, [])]
+    cfg = recon_config(recon, overrides)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = [n for n in names if not (out / n / DONE_FILE).is_file()]
+    log.info("%s: %d scenes, %d to reconstruct (recon=%s, %d workers)", src, len(names), len(todo), recon, workers)
+    jobs = [(src / n, out / n, cfg, 1) for n in todo]
+    done = []
+    if workers <= 1:
+        for job in jobs:
+            done.append(reconstruct_scene(*job))
+            log.info("%s: %.0f s, %d surfels, lattice %.2f dB", done[-1]["scene"], done[-1]["recon_seconds"],
+                     done[-1]["num_gaussians"], done[-1]["lattice_display_psnr"])
+    else:
+        with ProcessPoolExecutor(workers) as pool:
+            for info in pool.map(_worker, jobs):
+                done.append(info)
+                log.info("%s: %.0f s, %d surfels, lattice %.2f dB", info["scene"], info["recon_seconds"],
+                         info["num_gaussians"], info["lattice_display_psnr"])
+    (out / "splits.json").write_text(json.dumps(splits, indent=1) + "\n")
+    (out / "reconstructed_pool.json").write_text(json.dumps(
+        {"format": FORMAT, "source": str(src.resolve()), "recon": recon, "overrides": list(overrides),
+         "recon_config": cfg, "scenes": len(names)}, indent=1) + "\n")
+    return done
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("src", type=Path, help="dataset folder whose train views are the lattice (a pool view)")
+    parser.add_argument("out", type=Path)
+    parser.add_argument("--recon", default="fast", help="conf/recon/<name>.yaml (default: fast, the demo's)")
+    parser.add_argument("--workers", type=int, default=1, help="scenes in parallel, one thread each")
+    parser.add_argument("overrides", nargs="*", help="recon overrides, e.g. recon.iterations=300")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    reconstruct_pool(args.src, args.out, recon=args.recon, workers=args.workers, overrides=tuple(args.overrides))
+
+
+if __name__ == "__main__":
+    main()
