@@ -7,7 +7,7 @@ import numpy as np
 
 from eval.layout import read_view_file
 from gspi.data.asset_conditions import LATTICE_SPLIT, asset_lattice_rgb
-from gspi.data.reconstructed_pool import DONE_FILE, display_psnr, highlight_stats, reconstruct_pool
+from gspi.data.reconstructed_pool import DONE_FILE, display_psnr, highlight_stats, reconstruct_pool, summary_table
 from gspi.gaussians.ply import read_asset_ply
 from tests.stage2_fixtures import make_lattice_dataset
 
@@ -35,6 +35,7 @@ def test_conditions_are_the_assets_renders_and_the_rest_is_the_scene(tmp_path):
     info = json.loads((scene / "asset" / "recon.json").read_text())
     assert info["num_gaussians"] == gaussians.num_gaussians and info["recon_config"]["iterations"] == 30
     assert reconstruct_pool(src, out, recon="tiny", overrides=FAST) == []  # resumed: nothing left
+    assert "| unclassed | 2 |" in summary_table(out)
 
 
 def test_highlight_stats_and_psnr_golden():

@@ -19,6 +19,7 @@ GT points, materials, depth and masks stay the scene's own: the target is the tr
 conditions are the asset's. Resumable: done scenes are skipped, partial ones redone.
 
     python -m gspi.data.reconstructed_pool POOL64 RPOOL64 [--recon fast] [--workers 2]
+    python -m gspi.data.reconstructed_pool POOL64 RPOOL64 --summary   # per-class table
 """
 from __future__ import annotations
 
@@ -147,6 +148,26 @@ def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", w
     return done
 
 
+def summary_table(out: str | Path) -> str:
+    """Markdown: per material class, what the assets keep of the bright end, and their cost."""
+    rows: dict[str, list[dict]] = {}
+    for path in sorted(Path(out).glob("*/asset/recon.json")):
+        info = json.loads(path.read_text())
+        gen = json.loads((path.parent.parent / "scene.json").read_text()).get("generator", {})
+        cls = gen.get("material", {}).get("class", "unclassed")
+        rows.setdefault(cls, []).append(info)
+    lines = ["| class | scenes | GT px > 1 | asset px > 1 | GT q99 | asset q99 | lattice dB | recon s |",
+             "|---|---|---|---|---|---|---|---|"]
+    med = lambda xs: float(np.median(xs))  # noqa: E731
+    for cls, infos in sorted(rows.items()):
+        h = [i["highlights"] for i in infos]
+        lines.append(f"| {cls} | {len(infos)} | {100 * med([x['gt_frac_above_1'] for x in h]):.2f} % | "
+                     f"{100 * med([x['asset_frac_above_1'] for x in h]):.2f} % | "
+                     f"{med([x['gt_q99'] for x in h]):.3f} | {med([x['asset_q99'] for x in h]):.3f} | "
+                     f"{med([i['lattice_display_psnr'] for i in infos]):.2f} | {med([i['recon_seconds'] for i in infos]):.0f} |")
+    return "\n".join(lines) + "\n(medians over the class's scenes)\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("src", type=Path, help="dataset folder whose train views are the lattice (a pool view)")
@@ -154,7 +175,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--recon", default="fast", help="conf/recon/<name>.yaml (default: fast, the demo's)")
     parser.add_argument("--workers", type=int, default=1, help="scenes in parallel, one thread each")
     parser.add_argument("overrides", nargs="*", help="recon overrides, e.g. recon.iterations=300")
+    parser.add_argument("--summary", action="store_true", help="print the per-class table of OUT and stop")
     args = parser.parse_args(argv)
+    if args.summary:
+        print(summary_table(args.out))
+        return
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     reconstruct_pool(args.src, args.out, recon=args.recon, workers=args.workers, overrides=tuple(args.overrides))
 
