@@ -1,4 +1,4 @@
-"""gspi.data.reconstructed_pool: a pool whose conditions are a Stage 0 asset's lattice renders."""
+"""gspi.recon.reconstructed_pool: a pool whose conditions are a Stage 0 asset's lattice renders."""
 from __future__ import annotations
 
 import json
@@ -6,8 +6,9 @@ import json
 import numpy as np
 
 from eval.layout import read_view_file
-from gspi.data.asset_conditions import LATTICE_SPLIT, asset_lattice_rgb
-from gspi.data.reconstructed_pool import DONE_FILE, display_psnr, highlight_stats, reconstruct_pool, summary_table
+from gspi.data.asset_conditions import LATTICE_SPLIT
+from gspi.gaussians.lattice_render import render_lattice
+from gspi.recon.reconstructed_pool import DONE_FILE, display_psnr, highlight_stats, reconstruct_pool, summary_table
 from gspi.gaussians.ply import read_asset_ply
 from tests.stage2_fixtures import make_lattice_dataset
 
@@ -23,7 +24,7 @@ def test_conditions_are_the_assets_renders_and_the_rest_is_the_scene(tmp_path):
     scene = out / "train_0"
     assert (scene / DONE_FILE).is_file()
     gaussians, _ = read_asset_ply(scene / "asset" / "point_cloud.ply")
-    rendered = asset_lattice_rgb(gaussians, (32, 32))
+    rendered = render_lattice(gaussians, image_size=(32, 32)).rgb
     gt, pts = np.load(src / "train_0" / "gt_points.npz"), np.load(scene / "gt_points.npz")
     np.testing.assert_allclose(pts["rgb"], rendered[gt["view"], gt["pixel"][:, 0], gt["pixel"][:, 1]],
                                rtol=0, atol=1e-5)

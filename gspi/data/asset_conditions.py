@@ -12,7 +12,7 @@ scene's own, as symlinks:
 - ``prior``: the lattice ``rgb.exr`` files replaced by the asset's renders.
 
 Used by ``gspi.stage2.condition_swap`` (one condition at a time) and
-``gspi.data.reconstructed_pool`` (both: a training pool as the paper trains, on lattice renders
+``gspi.recon.reconstructed_pool`` (both: a training pool as the paper trains, on lattice renders
 of reconstructed assets).
 """
 from __future__ import annotations
@@ -37,20 +37,6 @@ def link_tree(src: Path, dst: Path, replace: set[str]) -> None:
             link_tree(item, dst / rel, inner)
         elif rel not in replace and not (dst / rel).exists():
             os.symlink(item.resolve(), dst / rel)
-
-
-def asset_lattice_rgb(gaussians, image_size: tuple[int, int]) -> np.ndarray:
-    """[V, H, W, 3] linear radiance of the asset's canonical lattice renders."""
-    from gspi.gaussians.lattice_render import render_lattice
-
-    return render_lattice(gaussians, image_size=image_size).rgb
-
-
-def read_asset(asset_ply: Path):
-    from gspi.gaussians.ply import read_asset_ply
-
-    gaussians, _ = read_asset_ply(asset_ply)
-    return gaussians
 
 
 def lattice_view_ids(scene_dir: Path) -> list[str]:

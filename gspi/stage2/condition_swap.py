@@ -31,10 +31,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gspi.data.asset_conditions import asset_lattice_rgb, read_asset, write_asset_conditions
+from gspi.data.asset_conditions import write_asset_conditions
 
 VARIANTS = ("gt", "asset_top_rgb", "asset_prior")
 VARIANT_CONDITIONS = {"gt": (), "asset_top_rgb": ("top_rgb",), "asset_prior": ("prior",)}
+
+
+def asset_lattice_rgb(asset_ply: Path, image_size: tuple[int, int]) -> np.ndarray:
+    """[V, H, W, 3] linear radiance of the asset's canonical lattice renders."""
+    from gspi.gaussians.lattice_render import render_lattice
+    from gspi.gaussians.ply import read_asset_ply
+
+    gaussians, _ = read_asset_ply(asset_ply)
+    return render_lattice(gaussians, image_size=image_size).rgb
 
 
 def write_variant(variant: str, scene_dir: Path, asset_rgb: np.ndarray, out: Path) -> Path:
@@ -53,7 +62,7 @@ def condition_swap(checkpoint: Path, scene_dir: Path, asset_ply: Path, out: Path
     from gspi.stage2.evaluate_points import checkpoint_source, evaluate_checkpoint
 
     scene = read_scene(scene_dir)
-    asset_rgb = asset_lattice_rgb(read_asset(asset_ply), (scene.height, scene.width))
+    asset_rgb = asset_lattice_rgb(asset_ply, (scene.height, scene.width))
     model, cfg = load_stage2_checkpoint(checkpoint)
     result = {}
     for variant in VARIANTS:

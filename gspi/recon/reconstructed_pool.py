@@ -18,8 +18,8 @@ writes, for every scene of a dataset whose ``train`` views are the lattice (a po
 GT points, materials, depth and masks stay the scene's own: the target is the truth, only the
 conditions are the asset's. Resumable: done scenes are skipped, partial ones redone.
 
-    python -m gspi.data.reconstructed_pool POOL64 RPOOL64 [--recon fast] [--workers 2]
-    python -m gspi.data.reconstructed_pool POOL64 RPOOL64 --summary   # per-class table
+    python -m gspi.recon.reconstructed_pool POOL64 RPOOL64 [--recon fast] [--workers 2]
+    python -m gspi.recon.reconstructed_pool POOL64 RPOOL64 --summary   # per-class table
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from gspi.data.asset_conditions import LATTICE_SPLIT, asset_lattice_rgb, lattice_view_ids, write_asset_conditions
+from gspi.data.asset_conditions import LATTICE_SPLIT, lattice_view_ids, write_asset_conditions
 
 log = logging.getLogger(__name__)
 DONE_FILE = "reconstructed.json"
@@ -78,7 +78,9 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     from eval.imageio import read_exr
     from eval.layout import read_scene, write_json_atomic
     from gspi.gaussians.ply import write_ply
-    from gspi.run.assets import reconstruct
+    from gspi.gaussians.lattice_render import render_lattice
+    from gspi.recon.data import load_scene_views
+    from gspi.recon.trainer import ReconConfig, fit_gaussians
 
     torch.set_num_threads(threads)
     scene_dir, dst = Path(scene_dir).resolve(), Path(dst)
@@ -87,9 +89,10 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     t0 = time.perf_counter()
     cpu0 = time.process_time()
     scene = read_scene(scene_dir)
-    gaussians, stats = reconstruct(scene, recon_cfg)
+    result = fit_gaussians(load_scene_views(scene, LATTICE_SPLIT), ReconConfig.from_dict(dict(recon_cfg)))
+    gaussians, stats = result.gaussians.to("cpu"), result.stats
     recon_seconds = time.perf_counter() - t0
-    asset_rgb = asset_lattice_rgb(gaussians, (scene.height, scene.width))
+    asset_rgb = render_lattice(gaussians, image_size=(scene.height, scene.width)).rgb
     gt_rgb = np.stack([read_exr(scene_dir / LATTICE_SPLIT / v / "rgb.exr")[..., :3]
                        for v in lattice_view_ids(scene_dir)])
     write_asset_conditions(scene_dir, asset_rgb, dst)
