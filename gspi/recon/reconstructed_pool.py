@@ -30,12 +30,14 @@ import os
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gspi.data.asset_conditions import LATTICE_SPLIT, lattice_view_ids, write_asset_conditions
+from eval.layout import read_splits
+from gspi.data.asset_conditions import LATTICE_SPLIT, write_asset_conditions
 
 log = logging.getLogger(__name__)
 DONE_FILE = "reconstructed.json"
@@ -56,13 +58,12 @@ def recon_config(name: str, overrides: tuple[str, ...] = ()) -> dict:
 
 def highlight_stats(gt_rgb: np.ndarray, asset_rgb: np.ndarray) -> dict:
     """What the asset's lattice renders keep of the GT renders' bright end (linear radiance)."""
-    lum = lambda x: x.mean(axis=-1)  # noqa: E731
-    g, a = lum(gt_rgb), lum(asset_rgb)
+    g, a = gt_rgb.mean(axis=-1), asset_rgb.mean(axis=-1)
     fg = g > 0
-    return {"gt_q99": float(np.quantile(g[fg], 0.99)) if fg.any() else 0.0,
-            "asset_q99": float(np.quantile(a[fg], 0.99)) if fg.any() else 0.0,
-            "gt_frac_above_1": float((g[fg] > 1).mean()) if fg.any() else 0.0,
-            "asset_frac_above_1": float((a[fg] > 1).mean()) if fg.any() else 0.0}
+    if not fg.any():
+        return {"gt_q99": 0.0, "asset_q99": 0.0, "gt_frac_above_1": 0.0, "asset_frac_above_1": 0.0}
+    return {"gt_q99": float(np.quantile(g[fg], 0.99)), "asset_q99": float(np.quantile(a[fg], 0.99)),
+            "gt_frac_above_1": float((g[fg] > 1).mean()), "asset_frac_above_1": float((a[fg] > 1).mean())}
 
 
 def display_psnr(gt_rgb: np.ndarray, asset_rgb: np.ndarray) -> float:
@@ -75,7 +76,6 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     """Stage 0 on ``scene_dir``'s lattice views, then ``dst`` = the scene with the asset's conditions."""
     import torch
 
-    from eval.imageio import read_exr
     from eval.layout import read_scene, write_json_atomic
     from gspi.gaussians.ply import write_ply
     from gspi.gaussians.lattice_render import render_lattice
@@ -89,12 +89,12 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     t0 = time.perf_counter()
     cpu0 = time.process_time()
     scene = read_scene(scene_dir)
-    result = fit_gaussians(load_scene_views(scene, LATTICE_SPLIT), ReconConfig.from_dict(dict(recon_cfg)))
+    views = load_scene_views(scene, LATTICE_SPLIT)
+    result = fit_gaussians(views, ReconConfig.from_dict(dict(recon_cfg)))
     gaussians, stats = result.gaussians.to("cpu"), result.stats
     recon_seconds = time.perf_counter() - t0
     asset_rgb = render_lattice(gaussians, image_size=(scene.height, scene.width)).rgb
-    gt_rgb = np.stack([read_exr(scene_dir / LATTICE_SPLIT / v / "rgb.exr")[..., :3]
-                       for v in lattice_view_ids(scene_dir)])
+    gt_rgb = views.images.numpy()  # the exact lattice renders Stage 0 was fitted to
     write_asset_conditions(scene_dir, asset_rgb, dst)
     write_ply(dst / "asset" / "point_cloud.ply", gaussians)
     info = {"format": FORMAT, "scene": scene.name, "source": str(scene_dir),
@@ -110,22 +110,15 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
 
 
 def _worker(args: tuple) -> dict:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before reconstruct_scene imports torch
     return reconstruct_scene(*args)
-
-
-def read_splits(src: Path) -> dict[str, list[str]]:
-    path = Path(src) / "splits.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: not found ({src} is not a dataset folder)")
-    return json.loads(path.read_text())
 
 
 def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", workers: int = 1,
                      overrides: tuple[str, ...] = ()) -> list[dict]:
     """Every scene of ``src``'s splits reconstructed into ``out`` (module docstring)."""
     src, out = Path(src), Path(out)
-    splits = read_splits(src)
+    splits = read_splits(src)  # eval.layout: names the file and the problem
     names = [n for split in ("train", "val", "test") for n in splits.get(split, [])]
     cfg = recon_config(recon, overrides)
     out.mkdir(parents=True, exist_ok=True)
@@ -133,17 +126,11 @@ def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", w
     log.info("%s: %d scenes, %d to reconstruct (recon=%s, %d workers)", src, len(names), len(todo), recon, workers)
     jobs = [(src / n, out / n, cfg, 1) for n in todo]
     done = []
-    if workers <= 1:
-        for job in jobs:
-            done.append(reconstruct_scene(*job))
-            log.info("%s: %.0f s, %d surfels, lattice %.2f dB", done[-1]["scene"], done[-1]["recon_seconds"],
-                     done[-1]["num_gaussians"], done[-1]["lattice_display_psnr"])
-    else:
-        with ProcessPoolExecutor(workers) as pool:
-            for info in pool.map(_worker, jobs):
-                done.append(info)
-                log.info("%s: %.0f s, %d surfels, lattice %.2f dB", info["scene"], info["recon_seconds"],
-                         info["num_gaussians"], info["lattice_display_psnr"])
+    with ProcessPoolExecutor(workers) if workers > 1 else nullcontext() as pool:
+        for info in (pool.map if pool else map)(_worker, jobs):
+            done.append(info)
+            log.info("%s: %.0f s, %d surfels, lattice %.2f dB", info["scene"], info["recon_seconds"],
+                     info["num_gaussians"], info["lattice_display_psnr"])
     (out / "splits.json").write_text(json.dumps(splits, indent=1) + "\n")
     (out / "reconstructed_pool.json").write_text(json.dumps(
         {"format": FORMAT, "source": str(src.resolve()), "recon": recon, "overrides": list(overrides),
