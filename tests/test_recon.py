@@ -90,6 +90,29 @@ def test_recon_json_fields(recon_run):
     assert "aces" in on_disk["display_transform"]
 
 
+def test_gspi_run_cache_is_the_same_reconstruction_and_record(recon_run, scene_dir, tmp_path):
+    """gspi-run's Stage 0 (assets=null) and gspi-recon are one path: same asset, same record."""
+    from omegaconf import OmegaConf
+
+    from eval.layout import read_scene
+    from gspi.recon.reconstruct import reconstruction_seconds
+    from gspi.run.assets import cached_reconstruction
+
+    out, summary = recon_run
+    cfg = OmegaConf.to_container(recon_config(scene_dir, out).recon, resolve=True)
+    asset, info = cached_reconstruction(read_scene(scene_dir), cfg, tmp_path)
+    cli_asset = read_ply(out / "point_cloud.ply")
+    assert asset.num_gaussians == cli_asset.num_gaussians
+    torch.testing.assert_close(asset.means, cli_asset.means)
+    on_disk = json.loads((Path(info["path"]).parent / "recon.json").read_text())
+    assert set(summary) - set(on_disk) == {"ply", "wall_seconds"}  # what only gspi-recon knows
+    assert on_disk["format"] == summary["format"] == "gspi-recon/2" and on_disk["config"] == summary["config"]
+    assert on_disk["test"]["psnr_masked"] == pytest.approx(summary["test"]["psnr_masked"], abs=1e-4)
+    assert reconstruction_seconds(on_disk) == on_disk["seconds"]["total"] > 0
+    assert reconstruction_seconds({"seconds": 12.5}) == 12.5  # the first schema's float, in old caches
+    assert cached_reconstruction(read_scene(scene_dir), cfg, tmp_path)[1]["cached"]
+
+
 def test_written_ply_is_the_official_layout_and_loads_back(recon_run):
     out, summary = recon_run
     g = read_ply(out / "point_cloud.ply")

@@ -34,7 +34,8 @@ def test_conditions_are_the_assets_renders_and_the_rest_is_the_scene(tmp_path):
     np.testing.assert_allclose(read_view_file(scene / LATTICE_SPLIT / "005", "rgb.exr"), rendered[5], atol=1e-6)
     assert (scene / LATTICE_SPLIT / "005" / "depth.exr").is_symlink()
     info = json.loads((scene / "asset" / "recon.json").read_text())
-    assert info["num_gaussians"] == gaussians.num_gaussians and info["recon_config"]["iterations"] == 30
+    assert info["num_gaussians"] == gaussians.num_gaussians and info["config"]["iterations"] == 30
+    assert info["train_split"] == LATTICE_SPLIT and info["pool_format"] == "gspi-reconstructed-pool"
     assert reconstruct_pool(src, out, recon="tiny", overrides=FAST) == []  # resumed: nothing left
     assert "| unclassed | 2 |" in summary_table(out)
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from eval.layout import read_splits
 from gspi.data.asset_conditions import LATTICE_SPLIT, write_asset_conditions
+from gspi.recon.reconstruct import reconstruction_seconds
 
 log = logging.getLogger(__name__)
 DONE_FILE = "reconstructed.json"
@@ -73,39 +74,36 @@ def display_psnr(gt_rgb: np.ndarray, asset_rgb: np.ndarray) -> float:
 
 
 def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], threads: int = 1) -> dict:
-    """Stage 0 on ``scene_dir``'s lattice views, then ``dst`` = the scene with the asset's conditions."""
+    """Stage 0 on ``scene_dir``'s lattice views, then ``dst`` = the scene with the asset's conditions.
+
+    ``dst/asset/recon.json`` is gspi-recon's record (``gspi.recon.reconstruct``) plus the pool's
+    ``pool_format``, ``source``, ``cpu_seconds``, ``lattice_display_psnr`` and ``highlights``."""
     import torch
 
     from eval.layout import read_scene, write_json_atomic
     from gspi.gaussians.ply import write_ply
     from gspi.gaussians.lattice_render import render_lattice
     from gspi.recon.data import load_scene_views
-    from gspi.recon.trainer import ReconConfig, fit_gaussians
+    from gspi.recon.reconstruct import reconstruct_scene as fit_scene
 
     torch.set_num_threads(threads)
     scene_dir, dst = Path(scene_dir).resolve(), Path(dst)
     if dst.exists():
         shutil.rmtree(dst)
-    t0 = time.perf_counter()
     cpu0 = time.process_time()
     scene = read_scene(scene_dir)
     views = load_scene_views(scene, LATTICE_SPLIT)
-    result = fit_gaussians(views, ReconConfig.from_dict(dict(recon_cfg)))
-    gaussians, stats = result.gaussians.to("cpu"), result.stats
-    recon_seconds = time.perf_counter() - t0
+    gaussians, record = fit_scene(scene, recon_cfg, train_split=LATTICE_SPLIT, views=views)
     asset_rgb = render_lattice(gaussians, image_size=(scene.height, scene.width)).rgb
     gt_rgb = views.images.numpy()  # the exact lattice renders Stage 0 was fitted to
     write_asset_conditions(scene_dir, asset_rgb, dst)
     write_ply(dst / "asset" / "point_cloud.ply", gaussians)
-    info = {"format": FORMAT, "scene": scene.name, "source": str(scene_dir),
-            "num_gaussians": int(gaussians.num_gaussians), "recon_seconds": round(recon_seconds, 2),
-            "cpu_seconds": round(time.process_time() - cpu0, 2), "threads": threads,
+    info = {**record, "pool_format": FORMAT, "source": str(scene_dir),
+            "cpu_seconds": round(time.process_time() - cpu0, 2),
             "lattice_display_psnr": round(display_psnr(gt_rgb, asset_rgb), 3),
-            "highlights": highlight_stats(gt_rgb, asset_rgb),
-            "recon_stats": {k: v for k, v in stats.items() if isinstance(v, (int, float, str))},
-            "recon_config": recon_cfg}
+            "highlights": highlight_stats(gt_rgb, asset_rgb)}
     write_json_atomic(dst / "asset" / "recon.json", info)
-    write_json_atomic(dst / DONE_FILE, {"scene": scene.name, "recon_seconds": info["recon_seconds"]})
+    write_json_atomic(dst / DONE_FILE, {"scene": scene.name, "recon_seconds": record["seconds"]["total"]})
     return info
 
 
@@ -129,7 +127,7 @@ def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", w
     with ProcessPoolExecutor(workers) if workers > 1 else nullcontext() as pool:
         for info in (pool.map if pool else map)(_worker, jobs):
             done.append(info)
-            log.info("%s: %.0f s, %d surfels, lattice %.2f dB", info["scene"], info["recon_seconds"],
+            log.info("%s: %.0f s, %d surfels, lattice %.2f dB", info["scene"], info["seconds"]["total"],
                      info["num_gaussians"], info["lattice_display_psnr"])
     (out / "splits.json").write_text(json.dumps(splits, indent=1) + "\n")
     (out / "reconstructed_pool.json").write_text(json.dumps(
@@ -154,7 +152,7 @@ def summary_table(out: str | Path) -> str:
         lines.append(f"| {cls} | {len(infos)} | {100 * med([x['gt_frac_above_1'] for x in h]):.2f} % | "
                      f"{100 * med([x['asset_frac_above_1'] for x in h]):.2f} % | "
                      f"{med([x['gt_q99'] for x in h]):.3f} | {med([x['asset_q99'] for x in h]):.3f} | "
-                     f"{med([i['lattice_display_psnr'] for i in infos]):.2f} | {med([i['recon_seconds'] for i in infos]):.0f} |")
+                     f"{med([i['lattice_display_psnr'] for i in infos]):.2f} | {med([reconstruction_seconds(i) for i in infos]):.0f} |")
     return "\n".join(lines) + "\n(medians over the class's scenes)\n"
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -122,32 +121,21 @@ def user_asset_path(assets: str | Path, scene_name: str, num_scenes: int) -> Pat
                      f"{', '.join(str(c) for c in candidates)})")
 
 
-def reconstruct(scene: Scene, recon_cfg: Mapping[str, Any], *, device: str = "cpu") -> tuple[Gaussians2D, dict]:
-    """Stage 0 on the scene's ``train`` views (gspi/recon); returns the asset and its stats."""
-    from gspi.recon.data import load_scene_views
-    from gspi.recon.trainer import ReconConfig, fit_gaussians
-
-    rcfg = ReconConfig.from_dict(dict(recon_cfg))
-    views = load_scene_views(scene, "train").to(torch.device(device))
-    result = fit_gaussians(views, rcfg)
-    stats = {k: v for k, v in result.stats.items() if k != "history"}
-    return result.gaussians.to("cpu"), stats
-
-
 def cached_reconstruction(scene: Scene, recon_cfg: Mapping[str, Any], cache_root: Path, *,
                           device: str = "cpu") -> tuple[Gaussians2D, dict]:
-    """Reconstructs once per (scene, recon config); parallel jobs wait on a file lock."""
+    """Stage 0 (``gspi.recon.reconstruct``, gspi-recon's record) once per (scene, recon config),
+    fitted to the ``train`` views with held-out metrics on ``test``; parallel jobs wait on a
+    file lock."""
+    from gspi.recon.reconstruct import reconstruct_scene
+
     folder = Path(cache_root) / "recon" / config_hash(dict(recon_cfg), volatile=("log_every",)) / scene.name
     ply = folder / "point_cloud.ply"
     with file_lock(folder):
         if ply.is_file():
             info = json.loads((folder / "recon.json").read_text()) if (folder / "recon.json").is_file() else {}
             return read_ply(ply), {**info, "cached": True, "path": str(ply)}
-        t0 = time.perf_counter()
-        gaussians, stats = reconstruct(scene, recon_cfg, device=device)
+        gaussians, info = reconstruct_scene(scene, recon_cfg, device=device, eval_split="test")
         folder.mkdir(parents=True, exist_ok=True)
-        info = {"scene": scene.name, "seconds": round(time.perf_counter() - t0, 2), "config": dict(recon_cfg),
-                **{k: v for k, v in stats.items() if isinstance(v, (int, float, str))}}
         write_json_atomic(folder / "recon.json", info)
         with atomic_path(ply) as tmp:  # the PLY last: its presence means the cache entry is whole
             write_ply(tmp, gaussians)

@@ -34,6 +34,7 @@ import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
 from gspi.device import resolve_device
+from gspi.recon.reconstruct import reconstruction_seconds
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
 from gspi.run.methods import Method, build_method
 from gspi.run.record import config_hash, invalidate_result, is_complete, read_result, write_result
@@ -103,7 +104,7 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     if isinstance(stats, dict):
         stats["foreground_coverage"] = round(coverage, 4)
     material_s = clock.seconds(*method.material_stages)
-    recon_s = asset_info.get("seconds") if asset_info.get("source") == "recon" else None
+    recon_s = reconstruction_seconds(asset_info) if asset_info.get("source") == "recon" else None
     end_to_end = None if (method.needs_asset and recon_s is None) else material_s + float(recon_s or 0.0)
     geometry_s = recon_s
     if method.reports_own_runtime:  # the system's own runtime (user value or timed run), not the import's
@@ -116,7 +117,7 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     write_meta(pred_scene, method=method.name, material_s=None if material_s is None else round(material_s, 3),
                end_to_end_s=None if end_to_end is None else round(end_to_end, 3),
                geometry_s=None if geometry_s is None else round(float(geometry_s), 3), config_hash=cfg_hash,
-               stages=clock.stages, asset={k: v for k, v in asset_info.items() if k != "config"},
+               stages=clock.stages, asset={k: v for k, v in asset_info.items() if k not in ("config", "history")},
                stats=stats)
     return read_meta(pred_scene)
 
