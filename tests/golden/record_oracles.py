@@ -1,9 +1,10 @@
-"""Record the outputs of the two reference packages the tests compare against, once, as goldens.
+"""Record the outputs of the three reference packages the tests compare against, once, as goldens.
 
-diffusers (the DDIM schedule oracle of tests/test_stage2_schedule.py) and the original LPIPS
-package (richzhang/PerceptualSimilarity, the oracle of tests/test_lpips_net.py) are not part of
+diffusers (the DDIM schedule oracle of tests/test_stage2_schedule.py), the original LPIPS
+package (richzhang/PerceptualSimilarity, the oracle of tests/test_lpips_net.py) and gsplat's
+densify strategy (the oracle of the builtin port, tests/test_recon.py) are not part of
 the default install, so `make test` could never run them. This script runs the real packages once
-and writes what they return to tests/golden/diffusers_ddim.json and tests/golden/lpips_package.json,
+and writes what they return to tests/golden/diffusers_ddim.json, lpips_package.json and gsplat_densify.json,
 which the tests read on every commit. Regenerate only on purpose (a new fixture or a new version).
 
 Run from the repository root with the packages on a throwaway path (never the project's venv)::
@@ -12,6 +13,9 @@ Run from the repository root with the packages on a throwaway path (never the pr
     python -m pip install --target /tmp/oracle --no-deps diffusers lpips safetensors regex torchvision
     python -m pip install --target /tmp/oracle huggingface_hub
     PYTHONPATH=/tmp/oracle:. python -m tests.golden.record_oracles
+    # gsplat's densify strategy is plain torch: it runs on the CPU without its CUDA kernels
+    python -m pip install --target /tmp/gsplat --no-deps gsplat==1.5.3
+    PYTHONPATH=/tmp/gsplat:. python -m tests.golden.record_oracles gsplat_densify.json
 
 (recorded with diffusers 0.42.1, lpips 0.1.4, torchvision 0.29.1 on torch 2.13.0+cpu; the
 versions are written into each golden's ``producer``)
@@ -24,6 +28,7 @@ register its C ops; AlexNet uses none of them, so :func:`_import_torchvision_wit
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import torch
@@ -31,6 +36,7 @@ import torch
 GOLDEN = Path(__file__).parent
 DIFFUSERS_JSON = GOLDEN / "diffusers_ddim.json"
 LPIPS_JSON = GOLDEN / "lpips_package.json"
+GSPLAT_JSON = GOLDEN / "gsplat_densify.json"
 
 
 def _import_torchvision_without_ops() -> None:
@@ -109,8 +115,25 @@ def record_lpips() -> dict:
             "spatial": summarize_spatial(spatial), "spatial_stride": SPATIAL_STRIDE}
 
 
+def record_gsplat_densify() -> dict:
+    """gsplat's DefaultStrategy on tests/recon_fixtures.densify_case (the builtin port's oracle)."""
+    from importlib.metadata import version
+
+    from tests.recon_fixtures import densify_step
+
+    params, optimizers = densify_step("gsplat")
+    return {"producer": {"gsplat": version("gsplat"), "torch": torch.__version__},
+            "case": "tests/recon_fixtures.densify_step('gsplat'): one refine step at iteration 200",
+            "params": {k: p.detach().tolist() for k, p in params.items()},
+            "exp_avg_sq": {k: optimizers[k].state[p]["exp_avg_sq"].tolist() for k, p in params.items()}}
+
+
 def main() -> None:
-    for path, record in ((DIFFUSERS_JSON, record_diffusers), (LPIPS_JSON, record_lpips)):
+    only = set(sys.argv[1:])  # e.g. gsplat_densify.json: record one golden
+    for path, record in ((DIFFUSERS_JSON, record_diffusers), (LPIPS_JSON, record_lpips),
+                         (GSPLAT_JSON, record_gsplat_densify)):
+        if only and path.name not in only:
+            continue
         path.write_text(json.dumps(record(), indent=1) + "\n")
         print(f"wrote {path}")
 
