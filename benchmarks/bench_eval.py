@@ -7,7 +7,7 @@ from __future__ import annotations
 import torch
 
 from benchmarks.common import machine, median_seconds
-from eval.lpips_net import load_lpips
+from eval.lpips.net import load_lpips
 from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.relight import clear_prefilter_cache, prefilter_environment, split_sum
 

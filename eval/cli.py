@@ -24,7 +24,7 @@ from eval.cli_entry import hydra_cli
 from eval.config import register_configs, validate_protocol
 from eval.device import resolve_device
 from eval.evaluate import evaluate
-from eval.report import clear_result, format_summary, write_result
+from eval.records.eval_folder import clear_result, format_summary, write_result
 
 log = logging.getLogger(__name__)
 

@@ -198,7 +198,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     gt_scenes = find_scenes(Path(gt_root))
     names = scenes_in_prediction(Path(pred_root), gt_scenes)
     if net is None and "lpips" in METRICS:
-        from eval.lpips_net import load_lpips
+        from eval.lpips.net import load_lpips
         net = load_lpips(net=protocol.lpips.net, version=str(protocol.lpips.version), device=device)
     if getattr(net, "net_name", protocol.lpips.net) != protocol.lpips.net:
         raise ValueError(f"the LPIPS network passed in is {net.net_name!r} but the protocol "

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.atomic import write_json_atomic  # noqa: F401  (re-exported: its callers import it from here)
+from eval.atomic import write_json_atomic
 from eval.errors import StatedError
 from eval.imageio import ImageFormatError, read_exr, read_png, write_exr, write_png
 

@@ -16,7 +16,7 @@ Inputs: `pred`, `gt` float tensors in [0, 1] of shape [H, W, C] (C = 1 or 3); `m
   data_range=1)`. `region="image"`: the map of the composited images averaged over the
   whole image; with `padding="same"` and background 0 this is Stanford-ORB's
   `1 - 2 kornia.losses.ssim_loss(window 3)` on mask-multiplied images.
-- LPIPS: LPIPS v0.1 (eval.lpips_net; AlexNet or VGG16, the network passed in) on inputs
+- LPIPS: LPIPS v0.1 (eval.lpips.net; AlexNet or VGG16, the network passed in) on inputs
   scaled to [-1, 1] (or fed as [0, 1] with `normalize=False`), grey maps replicated to 3
   channels, both images composited on `background`; mode "masked_mean" averages the
   spatial LPIPS map inside the mask, mode "composite" takes the ordinary full-image LPIPS of
@@ -242,7 +242,7 @@ def masked_lpips(pred: Tensor, gt: Tensor, mask: Tensor, *, net=None, mode: str 
     """LPIPS v0.1 (the network `net` was built with) restricted to the mask (module docstring).
 
     Args:
-        net: an `eval.lpips_net.LPIPS`; AlexNet from the local weight cache when None.
+        net: an `eval.lpips.net.LPIPS`; AlexNet from the local weight cache when None.
         mode: "masked_mean" (spatial map averaged in the mask) or "composite" (full image).
         normalize: map inputs from [0, 1] to [-1, 1] first (the reference usage).
         mask_pred: composite the prediction on `background` too (False: GS-IR's evaluation).
@@ -254,7 +254,7 @@ def masked_lpips(pred: Tensor, gt: Tensor, mask: Tensor, *, net=None, mode: str 
         raise ValueError(f"image {tuple(mask.shape)} too small for LPIPS "
                          f"(needs >= {LPIPS_MIN_SIZE} px per side)")
     if net is None:
-        from eval.lpips_net import load_lpips
+        from eval.lpips.net import load_lpips
         net = load_lpips()
     device = next(net.parameters()).device
     x = _to_lpips_input(composite(pred, mask, background) if mask_pred else pred, normalize).to(device)

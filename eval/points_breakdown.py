@@ -1,7 +1,7 @@
 """Where a Stage II model wins or loses: Table 2's measure broken down by scene group.
 
 For folders of Stage II point-cloud evaluations (`scores.json`, format gspi-points-eval, see
-`eval.points_folders`), the mean PSNR of each model (its ablation) and of the no-decomposition
+`eval.records.points_scores`), the mean PSNR of each model (its ablation) and of the no-decomposition
 baseline per group of scenes: by material class (the scene name's suffix, e.g.
 `p0230_multipart_metal` -> `metal`), by image size (the scene's `scene.json` width: the pool
 mixes the presets' 64 and 128 px, hence their point densities) and per channel.
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.points_folders import BASELINE_KEY, MODEL_KEY, SCORES_NAME, find_points_folders, read_points_scores
-from eval.tables_sweep import AVG_CHANNELS as CHANNELS
+from eval.records.points_scores import BASELINE_KEY, MODEL_KEY, SCORES_NAME, find_points_folders, read_points_scores
+from eval.tables.build import AVG_CHANNELS as CHANNELS
 
 MATERIAL_CLASSES = ("rough_plastic", "glossy_plastic", "painted_metal", "metal", "fabric", "ceramic")
 

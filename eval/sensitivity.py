@@ -20,7 +20,7 @@ import pandas as pd
 
 from eval.errors import exit_on_stated_error
 from eval.evaluate import EXTRA_METRICS, METRICS, evaluate
-from eval.tables_render import write_text_atomic
+from eval.atomic import write_text_atomic
 
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False, "psnr_h": True, "mae": False,
                     "iou": True, "psnr_metal": True}
@@ -48,7 +48,7 @@ def compose_protocol(overrides: list[str]):
 def score_all(gt: Path, methods: dict[str, Path], conventions: dict[str, list[str]],
               nets: dict | None = None) -> pd.DataFrame:
     """Long frame: convention, method, channel, metric, value (display units)."""
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
 
     nets = {} if nets is None else nets
     rows = []

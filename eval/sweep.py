@@ -24,7 +24,7 @@ import pandas as pd
 from eval.errors import MissingInputError, StatedError
 from eval.layout import read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
-from eval.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
+from eval.records.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
 
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 METRICS = ("psnr", "ssim", "lpips")
@@ -110,7 +110,7 @@ def _subfolder(path: Path, data: dict, key: str) -> Path | None:
 def read_record(path: str | Path) -> RunRecord:
     """Parse and validate one `result.json` (docs/TABLES.md, "Run record")."""
     path = Path(path)
-    try:  # the one schema (eval/run_record.py), shared with the writer
+    try:  # the one schema (eval/records/run_record.py), shared with the writer
         data = load_record_json(path)
         check_record(data, path)
     except RecordError as exc:

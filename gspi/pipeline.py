@@ -20,7 +20,8 @@ from typing import Any, Mapping, Optional
 
 import numpy as np
 
-from eval.layout import Scene, write_json_atomic
+from eval.layout import Scene
+from eval.atomic import write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import write_ply
 from gspi.stage_clock import StageClock

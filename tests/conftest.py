@@ -46,7 +46,7 @@ def isolated_logging():
 
 @pytest.fixture(scope="session")
 def lpips_net():
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
     return load_lpips()
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from eval.imageio import write_exr
-from eval.layout import Scene, View, write_json_atomic, write_material, write_scene_json, \
-    write_view_file
+from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
+from eval.atomic import write_json_atomic
 
 RADIUS = 0.8
 

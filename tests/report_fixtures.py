@@ -19,7 +19,7 @@ from omegaconf import OmegaConf
 
 from eval.config import ProtocolConfig, validate_protocol
 from eval.evaluate import evaluate
-from eval.report import write_result
+from eval.records.eval_folder import write_result
 from tests.fixtures import make_dataset, make_prediction
 
 METHODS = ("gspi", "no_decomposition", "joint_ir")

@@ -46,7 +46,7 @@ def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0
 
 
 def make_lattice_dataset(root: Path, *, num_train: int = 2, num_test: int = 1) -> Path:
-    from eval.layout import write_json_atomic
+    from eval.atomic import write_json_atomic
 
     names = {"train": [f"train_{k}" for k in range(num_train)], "test": [f"test_{k}" for k in range(num_test)]}
     for k, name in enumerate(names["train"] + names["test"]):

@@ -57,9 +57,9 @@ def test_table_cell_says_total_only(tmp_path):
     """Table 1's runtime cell: "material (end-to-end)", or "T total only" for a joint run."""
     import json
 
-    from eval.eval_folders import load_eval_folders
-    from eval.tables_render import to_markdown
-    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+    from eval.records.eval_folder import load_eval_folders
+    from eval.tables.render import to_markdown
+    from eval.tables.build import TABLE_SPECS, build_sweep_table
 
     scores = {c: {"psnr": 20.0, "ssim": 0.5, "lpips": 0.1} for c in ("albedo", "relight")}
     for name, runtime in (("joint", {"material": None, "end_to_end": 16.7}),

@@ -27,7 +27,7 @@ def test_gspi_eval_then_gspi_table(sphere_dataset, tmp_path):
     rows = (tmp_path / "ev" / "per_view.csv").read_text().splitlines()
     assert rows[0] == "scene,view,channel,env,psnr,ssim,lpips,psnr_floored,mae,iou,psnr_metal"
     assert len(rows) == 1 + 2 * 3 * 2
-    table = _run("eval.tables", str(tmp_path / "ev"), f"out={tmp_path / 'tables'}")
+    table = _run("eval.tables.cli", str(tmp_path / "ev"), f"out={tmp_path / 'tables'}")
     assert "| offset |" in table and (tmp_path / "tables" / "table1.tex").is_file()
     # the footer names every knob and the image counts
     for knob in ("gspi-decoupled v1 #", "split test", "albedo alignment none (scope scene)",
@@ -39,7 +39,7 @@ def test_gspi_eval_then_gspi_table(sphere_dataset, tmp_path):
     # the same predictions under an override that keeps the name: gspi-table refuses the mix
     _run("eval.cli", f"gt={sphere_dataset}", f"pred={pred}", f"out={tmp_path / 'ev2'}",
          "progress=false", "eval.channels=[roughness,metallic]", "eval.ssim.window=3")
-    proc = subprocess.run([sys.executable, "-m", "eval.tables", str(tmp_path / "ev"),
+    proc = subprocess.run([sys.executable, "-m", "eval.tables.cli", str(tmp_path / "ev"),
                            str(tmp_path / "ev2"), f"out={tmp_path / 't2'}"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode != 0

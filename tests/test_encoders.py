@@ -27,7 +27,7 @@ def test_alexnet_shapes_and_layers():
 
 
 def test_alexnet_uses_the_lpips_imagenet_weights():
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
 
     enc = build_encoder({"encoder": "alexnet"})
     conv1 = enc.net[0][0]

@@ -60,7 +60,7 @@ def test_missing_view_is_reported(sphere_dataset, tmp_path, lpips_net):
 
 
 def test_missing_scene_is_reported_not_silently_dropped(sphere_dataset, tmp_path, lpips_net):
-    from eval.report import format_summary
+    from eval.records.eval_folder import format_summary
 
     pred = make_prediction(sphere_dataset, tmp_path / "pred")
     full = evaluate(sphere_dataset, pred, protocol(channels=["roughness"]), net=lpips_net)

@@ -193,3 +193,24 @@ def test_no_module_under_tests_imports_a_test_module():
     bad = sorted({f"{path.relative_to(ROOT)}:{line} imports from {target}" for path in modules.values()
                   for name, line in imported_names(path) if (target := imported_test_module(name, modules))})
     assert not bad, "move the shared helpers to a helper module under tests/:\n" + "\n".join(bad)
+
+
+ATOMIC_WRITERS = ("atomic_path", "write_text_atomic", "write_json_atomic")
+
+
+def test_the_atomic_writers_have_one_door():
+    """Everyone imports the atomic writers from eval.atomic, never through a re-export (issue 25)."""
+    files = [p for pkg in (*PACKAGES, "tests", "benchmarks") for p in sorted((ROOT / pkg).rglob("*.py"))]
+    bad = sorted(f"{p.relative_to(ROOT)}:{line} imports {name}" for p in files for name, line in imported_names(p)
+                 if name.rpartition(".")[2] in ATOMIC_WRITERS and name.rpartition(".")[0] != "eval.atomic")
+    assert not bad, "import the atomic writers from eval.atomic:\n" + "\n".join(bad)
+
+
+def test_eval_is_in_rooms():
+    """eval/'s sub-packages stand for what the old name prefixes did (tables_*, lpips_*, *_folders)."""
+    flat = sorted(p.name for p in (ROOT / "eval").glob("*.py")
+                  if p.stem.startswith(("tables_", "lpips_", "points_folders", "eval_folders", "run_record"))
+                  or p.stem in ("tables", "report"))
+    assert not flat, f"eval/ modules outside their rooms: {flat}"
+    for room in ("tables", "lpips", "records", "report_site"):
+        assert (ROOT / "eval" / room / "__init__.py").is_file(), room

@@ -1,6 +1,6 @@
-"""Tests of the hand-written AlexNet LPIPS v0.1 (eval/lpips_net.py, eval/lpips_weights.py).
+"""Tests of the hand-written AlexNet LPIPS v0.1 (eval/lpips/net.py, eval/lpips/weights.py).
 
-They need the converted weights: run `python -m eval.lpips_weights` (or `make install`).
+They need the converted weights: run `python -m eval.lpips.weights` (or `make install`).
 
 Reference numbers: the original test_network.py prints "Distances: (0.722, 0.138)" for
 ex_ref vs ex_p0 / ex_p1 with alex v0.1, as reported in
@@ -21,8 +21,8 @@ import pytest
 import torch
 from PIL import Image
 
-from eval import lpips_weights
-from eval.lpips_net import LPIPS, load_lpips
+from eval.lpips import weights as lpips_weights
+from eval.lpips.net import LPIPS, load_lpips
 from tests.oracle_fixtures import SPATIAL_STRIDE, lpips_inputs, state_dict_sha256, summarize_spatial
 
 DATA = Path(__file__).parent / "data" / "lpips-ref"
@@ -39,7 +39,7 @@ def _im2tensor(name: str) -> torch.Tensor:
 @pytest.fixture(scope="module")
 def model() -> LPIPS:
     if not lpips_weights.weights_path().is_file():
-        pytest.fail(f"LPIPS weights missing at {lpips_weights.weights_path()}; run `python -m eval.lpips_weights`")
+        pytest.fail(f"LPIPS weights missing at {lpips_weights.weights_path()}; run `python -m eval.lpips.weights`")
     return load_lpips()
 
 
@@ -96,7 +96,7 @@ def test_linear_heads_of_both_sources_agree_and_conversion_matches_cache():
     try:
         ckpt, pth = lpips_weights.read_cached_sources()
     except lpips_weights.WeightsError as e:
-        pytest.skip(f"source files not cached (re-run `python -m eval.lpips_weights --force`): {e}")
+        pytest.skip(f"source files not cached (re-run `python -m eval.lpips.weights --force`): {e}")
     sd, max_diff = lpips_weights.convert(ckpt, pth)
     assert max_diff <= 1e-7
     cached = torch.load(lpips_weights.weights_path(), map_location="cpu", weights_only=True)
@@ -123,7 +123,7 @@ def test_converter_rejects_disagreeing_heads_and_foreign_pickles():
 
 def test_missing_weights_give_clear_error(monkeypatch, tmp_path):
     monkeypatch.setenv("GSPI_CACHE", str(tmp_path))
-    with pytest.raises(FileNotFoundError, match=r"python -m eval\.lpips_weights"):
+    with pytest.raises(FileNotFoundError, match=r"python -m eval\.lpips\.weights"):
         load_lpips()
 
 
@@ -151,7 +151,7 @@ VGG_REGRESSION = {"ex_ref_vs_ex_p0": 0.568612813949585, "ex_ref_vs_ex_p1": 0.421
 @pytest.fixture(scope="module")
 def vgg() -> LPIPS:
     if not lpips_weights.weights_path("vgg").is_file():
-        pytest.fail("VGG LPIPS weights missing; run `python -m eval.lpips_weights --net vgg`")
+        pytest.fail("VGG LPIPS weights missing; run `python -m eval.lpips.weights --net vgg`")
     return load_lpips("vgg")
 
 

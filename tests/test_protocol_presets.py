@@ -41,7 +41,7 @@ def const(value, size=32, channels=3) -> torch.Tensor:
 
 @pytest.fixture(scope="module")
 def vgg():
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
     return load_lpips("vgg")
 
 

@@ -180,7 +180,7 @@ def test_hydra_overrides_compose():
     from hydra import compose, initialize_config_dir
 
     from eval.config import CONF_DIR
-    from eval.tables import positional_to_overrides
+    from eval.tables.cli import positional_to_overrides
 
     overrides = positional_to_overrides(["/tmp", "out=/tmp/r", "gt=/tmp/data", "max_views=2"])
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):

@@ -28,7 +28,7 @@ def test_external_outputs_give_a_table1_row(micro_dataset, tmp_path):
                       reraise=False)
     assert missing["status"] == "failed" and "outputs" in missing["error"]
     tables = tmp_path / "tables"
-    proc = subprocess.run([sys.executable, "-m", "eval.tables", str(sweep), f"out={tables}"],
+    proc = subprocess.run([sys.executable, "-m", "eval.tables.cli", str(sweep), f"out={tables}"],
                           cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     with open(tables / "table1.csv") as f:

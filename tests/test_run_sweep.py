@@ -51,7 +51,7 @@ def test_killed_multirun_is_completed_by_a_rerun_without_loss_or_duplicates(micr
         assert after[name]["mtime"] == rec["mtime"]
 
     tables = tmp_path / "tables"
-    table = subprocess.run([sys.executable, "-m", "eval.tables", str(sweep), f"out={tables}"], cwd=REPO,
+    table = subprocess.run([sys.executable, "-m", "eval.tables.cli", str(sweep), f"out={tables}"], cwd=REPO,
                            capture_output=True, text=True, timeout=600)
     assert table.returncode == 0, table.stderr[-3000:]
     with open(tables / "table3.csv") as f:

@@ -171,11 +171,11 @@ def test_run_smoke_writes_run_files(dataset, tmp_path):
         assert all(np.isfinite(v) for ch in method.values() for v in ch.values())
     assert "No decomposition" in (tmp_path / "eval_points" / "table.md").read_text()
     assert stats["eval_points"]["split"] == "test"
-    # the folder is a Table 2 run of its ablation for gspi-table (eval/points_folders.py)
+    # the folder is a Table 2 run of its ablation for gspi-table (eval/records/points_scores.py)
     assert (scores["format"], scores["ablation"], scores["checkpoint_step"]) == \
         ("gspi-points-eval", "a5_multiview_injection", 4)
-    from eval.tables import load_sources
-    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+    from eval.tables.cli import load_sources
+    from eval.tables.build import TABLE_SPECS, build_sweep_table
     table = build_sweep_table(load_sources([tmp_path / "eval_points"], ("table2",)), TABLE_SPECS["table2"])
     assert table.labels == ["No decomposition", "A5: Direct multi-view injection"]
     assert table.mean.loc["A5: Direct multi-view injection", "psnr/avg"] == \

@@ -6,10 +6,10 @@ import json
 import pytest
 from omegaconf import OmegaConf
 
-from eval.eval_folders import find_eval_folders, load_eval_folders
-from eval.tables import positional_to_overrides, run
-from eval.tables_render import to_latex, to_markdown
-from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+from eval.records.eval_folder import find_eval_folders, load_eval_folders
+from eval.tables.cli import positional_to_overrides, run
+from eval.tables.render import to_latex, to_markdown
+from eval.tables.build import TABLE_SPECS, build_sweep_table
 
 
 def build(root):
@@ -104,7 +104,7 @@ def test_missing_folder_is_an_error(tmp_path):
 
 def test_positional_folders_may_contain_equals_signs(tmp_path):
     """Hydra names sweep job folders `method=gspi`: an existing path is a folder, not an override."""
-    from eval.tables import positional_to_overrides
+    from eval.tables.cli import positional_to_overrides
 
     job = tmp_path / "method=gspi"
     job.mkdir()

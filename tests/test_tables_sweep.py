@@ -13,10 +13,10 @@ from omegaconf import OmegaConf
 
 from eval.stats import paired_bootstrap_ci
 from eval.sweep import SweepError, load_sweep, read_record
-from eval.tables import run
-from eval.tables_render import per_scene_markdown, to_csv, to_latex, to_markdown, \
-    write_text_atomic
-from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+from eval.tables.cli import run
+from eval.atomic import write_text_atomic
+from eval.tables.render import per_scene_markdown, to_csv, to_latex, to_markdown
+from eval.tables.build import TABLE_SPECS, build_sweep_table
 
 SCENES = ("s0", "s1", "s2")
 SEEDS = (0, 1)
@@ -377,7 +377,7 @@ def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net)
     import pandas as pd
 
     from eval.evaluate import evaluate
-    from eval.report import write_result
+    from eval.records.eval_folder import write_result
     from tests.fixtures import make_prediction, protocol
 
     prot = protocol(channels=["albedo", "roughness", "metallic"])
@@ -426,7 +426,7 @@ def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net)
 
 
 def test_row_labels_come_from_the_paper_ids():
-    from eval.tables_labels import row_label, row_order
+    from eval.tables.labels import row_label, row_order
     assert row_label("gspi", "a9_freeze_both", "table3") == "A9: Freeze opacity & scaling"
     assert row_label("gspi", "a9_freeze_opacity_scaling", "table3") == \
         "A9: Freeze opacity & scaling"

@@ -39,7 +39,7 @@ class Site:
 def build_tables(paths: list, bootstrap: dict, problems: list[Problem]):
     """(Sweep, {name: SweepTable}); a sweep that cannot be tabulated becomes a problem."""
     from eval.sweep import SweepError, load_sweep
-    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+    from eval.tables.build import TABLE_SPECS, build_sweep_table
 
     try:
         sweep = load_sweep(paths)

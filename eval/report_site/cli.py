@@ -40,7 +40,7 @@ def run(cfg):
 
 def main() -> None:
     from eval.cli_entry import hydra_cli
-    from eval.tables import positional_to_overrides
+    from eval.tables.cli import positional_to_overrides
 
     hydra_cli(run, "gspi_report", rewrite=positional_to_overrides)()
 

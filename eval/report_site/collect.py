@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from eval.sweep import PREDICTION_DIRS, SweepError, find_records, read_record
-from eval.tables_labels import row_label, row_order
+from eval.tables.labels import row_label, row_order
 
 LOG_NAMES = ("run.log",)
 CONFIG_NAME = Path(".hydra") / "config.yaml"
@@ -34,7 +34,7 @@ class Job:
     ablation: str
     table: str
     seed: int
-    label: str                       # the paper's row name (eval.tables_labels)
+    label: str                       # the paper's row name (eval.tables.labels)
     data: Path | None                # ground-truth dataset folder, None if not found
     predictions: Path | None
     eval_dir: Path | None

@@ -1,4 +1,4 @@
-"""Sweep tables (`eval.tables_sweep.SweepTable`) as sortable HTML tables with their footer.
+"""Sweep tables (`eval.tables.build.SweepTable`) as sortable HTML tables with their footer.
 
 Cells read "mean ± SE" like the Markdown tables; each cell carries its mean in `data-v` so the
 page sorts by value. Best and second best of a column (`SweepTable.marks`) get the classes
@@ -12,8 +12,8 @@ from html import escape
 import pandas as pd
 
 from eval.sweep import Sweep
-from eval.tables_render import METRIC_LABELS, footer_lines
-from eval.tables_sweep import SweepTable
+from eval.tables.render import METRIC_LABELS, footer_lines
+from eval.tables.build import SweepTable
 
 MARK_CLASSES = {1: "best", 2: "second"}
 

@@ -53,7 +53,8 @@ def run(cfg: DictConfig) -> dict:
     """Extracts ``cfg.asset`` into ``cfg.out``; returns stage1.json's content."""
     import torch
 
-    from eval.layout import read_scene, write_json_atomic
+    from eval.layout import read_scene
+    from eval.atomic import write_json_atomic
     from gspi.gaussians.ply import read_ply
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud

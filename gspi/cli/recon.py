@@ -34,7 +34,8 @@ def run(cfg: DictConfig) -> dict:
     """Reconstructs ``cfg.scene`` into ``cfg.out``; returns recon.json's content."""
     import torch
 
-    from eval.layout import read_scene, write_json_atomic
+    from eval.layout import read_scene
+    from eval.atomic import write_json_atomic
     from gspi.device import resolve_device
     from gspi.gaussians.ply import write_ply
     from gspi.recon.data import ReconInputError

@@ -72,7 +72,7 @@ def run(cfg: DictConfig) -> dict:
     import torch
     from PIL import Image
 
-    from eval.layout import write_json_atomic
+    from eval.atomic import write_json_atomic
     from eval.relight import prefilter_environment
     from gspi.gaussians.ply import read_ply
     from gspi.relight import framing, load_environment, rotate_environment

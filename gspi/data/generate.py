@@ -32,7 +32,8 @@ from typing import Any, ClassVar, Optional
 
 import torch
 
-from eval.layout import read_scene, write_json_atomic
+from eval.layout import read_scene
+from eval.atomic import write_json_atomic
 from gspi.data.contact_sheet import write_contact_sheet
 from gspi.data.environments import env_names
 from gspi.data.lattice import CANONICAL_LATTICE

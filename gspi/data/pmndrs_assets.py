@@ -7,7 +7,7 @@ ES module `export default 'data:<mime>;base64,<payload>'`. `install()` runs `npm
 decodes every payload to `<cache>/pmndrs-assets-1.7.0/{hdri/<name>.exr, models/<name>.glb}`
 and writes a `MANIFEST` (one `sha256  relative/path` line per file) last, so a half-finished
 install is never mistaken for a finished one. `asset_dir()` returns the folder, installing on
-first use; `<cache>` is `eval.lpips_weights.cache_dir()` ($GSPI_CACHE, else ~/.cache/gspi).
+first use; `<cache>` is `eval.lpips.weights.cache_dir()` ($GSPI_CACHE, else ~/.cache/gspi).
 
 Without `npm`, `AssetsUnavailable` says so in one line; callers keep the procedural
 environments. CLI: `python -m gspi.data.pmndrs_assets [--from-tgz FILE] [--force]`.
@@ -25,7 +25,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from eval.lpips_weights import cache_dir
+from eval.lpips.weights import cache_dir
 
 PACKAGE = "@pmndrs/assets@1.7.0"
 TARBALL = "pmndrs-assets-1.7.0.tgz"

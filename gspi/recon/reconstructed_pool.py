@@ -80,7 +80,8 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     ``pool_format``, ``source``, ``cpu_seconds``, ``lattice_display_psnr`` and ``highlights``."""
     import torch
 
-    from eval.layout import read_scene, write_json_atomic
+    from eval.layout import read_scene
+    from eval.atomic import write_json_atomic
     from gspi.gaussians.ply import write_ply
     from gspi.gaussians.lattice_render import render_lattice
     from gspi.recon.data import load_scene_views

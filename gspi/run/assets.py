@@ -18,7 +18,8 @@ import torch
 
 from eval.atomic import atomic_path
 from eval.errors import StatedError
-from eval.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file, write_json_atomic
+from eval.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file
+from eval.atomic import write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import read_asset_ply, read_ply, write_ply
 from gspi.run.locks import file_lock

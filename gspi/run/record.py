@@ -1,6 +1,6 @@
 """The run record `result.json` of a `gspi-run` job: the config hash, and reading/writing it.
 
-The schema is defined once, in ``eval/run_record.py`` (gspi-table reads it there too). The
+The schema is defined once, in ``eval/records/run_record.py`` (gspi-table reads it there too). The
 protocol: :func:`invalidate_result` removes the folder's record before a job overwrites anything,
 :func:`write_result` writes the new one LAST and atomically, so a record with ``status ==
 "complete"`` means every file it names is complete and from this config. A rerun of the same
@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Mapping, Optional
 
 from eval.atomic import write_json_atomic
-from eval.run_record import RECORD_NAME, RecordError, build_record, invalidate_record, read_record_json
+from eval.records.run_record import RECORD_NAME, RecordError, build_record, invalidate_record, read_record_json
 
 RESULT_FILE = RECORD_NAME
 # Keys that do not change any number a run produces.
@@ -49,7 +49,7 @@ def invalidate_result(run_dir: Path) -> Optional[dict]:
 
 
 def write_result(run_dir: Path, **fields) -> Path:
-    """Writes ``<run_dir>/result.json`` atomically (fields: eval.run_record.build_record); returns its path."""
+    """Writes ``<run_dir>/result.json`` atomically (fields: eval.records.run_record.build_record); returns its path."""
     path = Path(run_dir) / RESULT_FILE
     write_json_atomic(path, build_record(**fields))
     return path

@@ -32,7 +32,8 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from eval.layout import Scene, read_meta, read_scene, read_splits, write_json_atomic, write_meta
+from eval.layout import Scene, read_meta, read_scene, read_splits, write_meta
+from eval.atomic import write_json_atomic
 from gspi.device import resolve_device
 from gspi.recon.reconstruct import reconstruction_seconds
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
@@ -244,7 +245,7 @@ def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, meth
 
     from eval.config import validate_protocol
     from eval.evaluate import evaluate
-    from eval.report import write_result as write_eval
+    from eval.records.eval_folder import write_result as write_eval
 
     protocol = OmegaConf.create(cfg["eval"])
     validate_protocol(protocol)

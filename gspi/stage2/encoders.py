@@ -5,7 +5,7 @@ One interface (:class:`PriorEncoder`): ``encode(images [V, 3, H, W] in [0, 1]) -
 plus ``feature_dim`` (D) and ``name``. Built by :func:`build_encoder` from ``stage2.prior``:
 
 * ``alexnet`` (offline default): the ImageNet AlexNet conv trunk shipped with the LPIPS
-  weights (``eval.lpips_net.load_lpips().net``, torchvision ``alexnet.features``), layer
+  weights (``eval.lpips.net.load_lpips().net``, torchvision ``alexnet.features``), layer
   ``relu5`` (D = 256; ``relu3``/``relu4`` = 384/256 also allowed). Input: bilinear (antialiased)
   resize to ``input_size`` (224, AlexNet's training size: relu5 is then 13 x 13), ImageNet
   mean/std normalisation. The paper uses DINOv2; AlexNet is the prior that needs no download.
@@ -78,7 +78,7 @@ class AlexNetEncoder:
     def __init__(self, *, layer: str = "relu5", input_size: int = 224, device: str = "cpu"):
         if layer not in ALEXNET_LAYERS:
             raise ValueError(f"unknown AlexNet layer {layer!r}; allowed: {sorted(ALEXNET_LAYERS)}")
-        from eval.lpips_net import load_lpips  # the weights live with the LPIPS network
+        from eval.lpips.net import load_lpips  # the weights live with the LPIPS network
 
         self.layer, self.input_size = layer, int(input_size)
         num_slices, self.feature_dim = ALEXNET_LAYERS[layer]
@@ -92,7 +92,7 @@ class AlexNetEncoder:
         return F.adaptive_avg_pool2d(self.net(x), GRID_SIZE).float().cpu()
 
     def identity(self) -> dict:
-        from eval import lpips_weights
+        from eval.lpips import weights as lpips_weights
 
         return {"name": self.name, "layer": self.layer, "input_size": self.input_size,
                 "weights": lpips_weights.weights_path().name, "version": ENCODER_CACHE_VERSION}

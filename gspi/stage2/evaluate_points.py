@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping
 
 import torch
 
-from eval.atomic import write_json_atomic
+from eval.records.points_scores import write_points_scores
 from gspi.stage2.data import PointDataConfig, ScenePoints
 from gspi.stage2.points_measure import (CHANNELS, PSNR_CAP_DB, PointSampling, baseline_prediction,
                                         evaluate_scenes, subset_prediction, training_constants)
@@ -63,14 +63,12 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
                          "data)") from exc
     rough, metal = training_constants(train_scenes)
     result = evaluate_scenes(scenes, lambda s: predict(s, scenes.index(s)), lambda s: baseline_prediction(s, rough, metal))
-    result.update(format="gspi-points-eval", version=1, train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
+    result.update(train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
                   split=split, scenes=[s.name for s in scenes], baseline_constants={"roughness": rough, "metallic": metal},
                   baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
-                  lpips="AlexNet LPIPS v0.1 (eval.lpips_net), masked_mean", encoder=stage2["prior"]["encoder"],
+                  lpips="AlexNet LPIPS v0.1 (eval.lpips.net), masked_mean", encoder=stage2["prior"]["encoder"],
                   **dict(record))
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out_dir / "scores.json", result, allow_nan=True)
+    write_points_scores(out_dir, result)  # eval.records.points_scores: the format's one writer
     return result
 
 
@@ -83,7 +81,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
     seed, the dataset and ``source`` (e.g. the checkpoint's path and step), so that
-    ``gspi-table`` can build Table 2 from such folders (``eval/points_folders.py``).
+    ``gspi-table`` can build Table 2 from such folders (``eval/records/points_scores.py``).
     ``max_points``: predict a seeded subset of that many points per scene and fill the rest by
     1-NN (the validation measure, ``gspi.stage2.validate``); None = every point.
     ``baseline_train``: the dataset whose train split gives the baseline's constants (default

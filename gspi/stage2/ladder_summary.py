@@ -18,8 +18,8 @@ import numpy as np
 
 from eval.points_breakdown import MATERIAL_CLASSES as CLASSES
 from eval.points_breakdown import material_class as scene_class
-from eval.points_folders import BASELINE_KEY as BASELINE
-from eval.tables_sweep import AVG_CHANNELS as CHANNELS
+from eval.records.points_scores import BASELINE_KEY as BASELINE
+from eval.tables.build import AVG_CHANNELS as CHANNELS
 
 
 def rung_of(data: dict) -> str:

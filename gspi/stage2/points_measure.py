@@ -84,7 +84,7 @@ def baseline_prediction(scene: ScenePoints, roughness: float, metallic: float) -
 def evaluate_scenes(scenes: list[ScenePoints], predict: Callable[[ScenePoints], np.ndarray],
                     baseline: Callable[[ScenePoints], np.ndarray], *, lpips_net=None) -> dict[str, Any]:
     """{"stage2": {scene: scores}, "no_decomposition": {...}, "mean": {method: scores}}."""
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
 
     net = lpips_net if lpips_net is not None else load_lpips()
     per_scene: dict[str, dict] = {"stage2": {}, "no_decomposition": {}}

@@ -70,14 +70,14 @@ def score_generated_points(points: PointCloud, pbr: np.ndarray, scene_dir: Path,
         points: P Stage I points extracted at the scene's image size.
         pbr: [P, 5] predictions in [0, 1]: albedo (sRGB-encoded), roughness, metallic.
         scene_dir: canonical scene folder whose ``train`` split is the 32-view lattice.
-        lpips_net: a loaded ``eval.lpips_net`` network (loaded here if None).
+        lpips_net: a loaded ``eval.lpips.net`` network (loaded here if None).
     Returns:
         {"albedo" | "roughness" | "metallic" | "avg": {"psnr", "ssim", "lpips"}}, per view masked
         scores averaged over the views with at least one scored pixel.
     Raises:
         ValueError: size mismatch, bad shapes, or no pixel where GT mask and points overlap.
     """
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
     from gspi.stage2.points_measure import CHANNELS, METRICS, score_maps
 
     scene_dir = Path(scene_dir)

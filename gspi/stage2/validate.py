@@ -45,7 +45,7 @@ class Validator:
     """Scores a model on fixed validation scenes; remembers the best score."""
 
     def __init__(self, cfg: ValidationConfig, scenes: list[ScenePoints], data_cfg: PointDataConfig):
-        from eval.lpips_net import load_lpips
+        from eval.lpips.net import load_lpips
 
         if not scenes:
             raise ValueError(f"stage2.validate: split {cfg.split!r} has no scenes")

@@ -91,7 +91,7 @@ def record_lpips() -> dict:
     _import_torchvision_without_ops()
     import lpips
 
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
     from tests.oracle_fixtures import SPATIAL_STRIDE, lpips_inputs, state_dict_sha256, summarize_spatial
 
     ref = lpips.LPIPS(net="alex", version="0.1", pnet_rand=True, verbose=False).eval()
@@ -109,7 +109,7 @@ def record_lpips() -> dict:
                          "torchvision": version("torchvision"), "torch": torch.__version__,
                          "net": "alex", "version": "0.1", "script": "tests/golden/record_oracles.py",
                          "weights_sha256": state_dict_sha256(ref.state_dict())},
-            "note": "lpips.LPIPS(pnet_rand=True) with eval.lpips_weights' converted weights loaded: "
+            "note": "lpips.LPIPS(pnet_rand=True) with eval.lpips.weights' converted weights loaded: "
                     "checks our forward pass against the original code",
             "non_spatial": non_spatial.flatten().tolist(),
             "spatial": summarize_spatial(spatial), "spatial_stride": SPATIAL_STRIDE}

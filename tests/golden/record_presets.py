@@ -10,7 +10,7 @@ their file by line range, after the file's sha256 is checked, with the loop's va
 the fixture (tests/preset_fixtures.py). Only what reads files from disk or renders a model is
 replaced by the fixture's arrays; ``Tensor.cuda`` is the identity (CPU). LPIPS is the official
 ``lpips`` package (and IRGS's own ``lpipsPyTorch``) with the PerceptualSimilarity weights that
-eval.lpips_weights installs, handed to torchvision/torch.hub through a temporary TORCH_HOME
+eval.lpips.weights installs, handed to torchvision/torch.hub through a temporary TORCH_HOME
 (no download).
 
     git clone https://github.com/Haian-Jin/TensoIR /tmp/ext/tensoir   # at 8f7b8dd
@@ -105,9 +105,9 @@ def _import_torchvision_without_ops() -> None:
 
 def _torch_home_with_weights(home: Path) -> None:
     """torchvision's VGG16 / AlexNet ImageNet files and PerceptualSimilarity's v0.1 heads under
-    ``home``/hub/checkpoints, from eval.lpips_weights' converted weights (torch.hub checks a
+    ``home``/hub/checkpoints, from eval.lpips.weights' converted weights (torch.hub checks a
     file's hash only when it downloads it)."""
-    from eval.lpips_net import load_lpips
+    from eval.lpips.net import load_lpips
 
     ckpt = home / "hub" / "checkpoints"
     ckpt.mkdir(parents=True, exist_ok=True)

@@ -57,7 +57,7 @@ SUMMARY_CASES = {"truncated": '{"albedo": {"psnr": 2', "list": "[1]", "deep": DE
 @pytest.mark.parametrize("case", sorted(SUMMARY_CASES))
 def test_gspi_table_names_a_malformed_summary_json(tmp_path, case):
     """A NaN showed as `--` ("not modelled"); a list or truncated file gave a raw error."""
-    from eval.tables import main
+    from eval.tables.cli import main
 
     ev = tmp_path / "ev"
     ev.mkdir()
@@ -70,7 +70,7 @@ def test_gspi_table_names_a_malformed_summary_json(tmp_path, case):
 
 @pytest.mark.parametrize("content", ["[1]", DEEP, '{"format": "gspi-run"'])
 def test_gspi_table_names_a_malformed_run_record(tmp_path, content):
-    from eval.tables import main
+    from eval.tables.cli import main
 
     job = tmp_path / "sweep" / "job"
     (job / ".hydra").mkdir(parents=True)

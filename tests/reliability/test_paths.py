@@ -15,7 +15,7 @@ AWKWARD = ["method=gspi", "it's", "a,b", "ünï cödé", "x=1,y='2'"]
 @pytest.mark.parametrize("folder", AWKWARD)
 def test_gspi_eval_then_gspi_table_accept_any_folder_name(workspace, folder):
     from eval.cli import main
-    from eval.tables import main as table_main
+    from eval.tables.cli import main as table_main
 
     root = workspace / "runs" / folder
     shutil.move(str(workspace / "pred"), str(root / "predictions"))

@@ -76,7 +76,7 @@ def test_gspi_run_killed_rerun_of_another_config_leaves_no_stale_record(micro_da
     assert meta["config_hash"] != record_a["config_hash"]  # the scores name their config
 
     # gspi-table: the killed job is listed as unfinished, never tabulated as A
-    from eval.tables import main as table_main
+    from eval.tables.cli import main as table_main
     code, text = run_cli(table_main, [str(tmp_path / "runs"), f"out={tmp_path / 'tables'}"])
     assert "without result.json" in text or "unfinished" in text, text[-2000:]
     assert not (tmp_path / "tables" / "table1.md").exists() or \
@@ -122,7 +122,7 @@ def test_gspi_table_killed_while_writing_keeps_the_previous_table(workspace):
 
     import eval.atomic as atomic
     import eval.cli as cli
-    from eval.tables import main as table_main
+    from eval.tables.cli import main as table_main
 
     run_cli(cli.main, [f"gt={workspace / 'gt'}", f"pred={workspace / 'pred'}", f"out={workspace / 'ev'}", *EVAL_FAST])
     tables = workspace / "tables"

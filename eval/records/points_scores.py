@@ -1,4 +1,5 @@
-"""Stage II point-cloud evaluation folders -> a `Sweep` of Table 2 rows.
+"""Table 2's point-level `scores.json` (format "gspi-points-eval"): its writer, reader and the
+`Sweep` of Table 2 rows it becomes.
 
 `python -m gspi.stage2.evaluate_points CKPT DATA OUT` writes `OUT/scores.json` (format
 "gspi-points-eval"): Table 2's measure of one trained Stage II model on the GT point clouds
@@ -7,7 +8,7 @@ such folder per ablation (a CPU-scale Table 2 trained outside gspi-run, docs/RES
 
     gspi-table runs/t2/*/eval_heldout out=runs/t2_tables table=table2
 
-builds Table 2 with the one builder and renderer (`eval.tables_sweep`, `eval.tables_render`):
+builds Table 2 with the one builder and renderer (`eval.tables.build`, `eval.tables.render`):
 each folder is one run of `gspi` with its checkpoint's ablation (runs of one ablation with
 different training seeds are its seeds); the baseline is one more row ("No decomposition"),
 taken once, because it does not depend on the model (the folders must agree on it).
@@ -23,9 +24,10 @@ import pandas as pd
 from eval.errors import MissingInputError
 from eval.layout import LayoutError, read_json_object
 from eval.sweep import COLUMNS, RunRecord, Sweep, per_scene_rows
-from eval.tables_sweep import TABLE_SPECS
+from eval.tables.build import TABLE_SPECS
 
 FORMAT = "gspi-points-eval"
+VERSION = 1
 SCORES_NAME = "scores.json"
 TABLE = "table2"
 MODEL_KEY, BASELINE_KEY = "stage2", "no_decomposition"
@@ -46,6 +48,17 @@ def find_points_folders(paths: list[str | Path]) -> list[Path]:
             if s.is_file() and _is_points_scores(s):
                 found.append(s.parent)
     return sorted(set(found))
+
+
+def write_points_scores(out_dir: str | Path, result: dict) -> Path:
+    """``<out_dir>/scores.json`` with this format's name and version, atomically (NaN allowed:
+    a channel the protocol cannot score)."""
+    from eval.atomic import write_json_atomic
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return write_json_atomic(out_dir / SCORES_NAME, {**result, "format": FORMAT, "version": VERSION},
+                             allow_nan=True)
 
 
 def _is_points_scores(path: Path) -> bool:

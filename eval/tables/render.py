@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from eval.atomic import write_text_atomic  # noqa: F401  (re-exported for eval.tables)
+from eval.atomic import write_text_atomic
 from eval.sweep import Sweep
-from eval.tables_sweep import Column, SweepTable
+from eval.tables.build import Column, SweepTable
 
 LATEX_COLORS = (r"\definecolor{BaselineBestCell}{RGB}{255,235,238}",
                 r"\definecolor{BaselineSecondCell}{RGB}{255,249,196}")

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.points_folders import load_points_folders
+from eval.records.points_scores import load_points_folders
 from eval.stats import paired_bootstrap_ci
-from eval.tables import load_sources
-from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+from eval.tables.cli import load_sources
+from eval.tables.build import TABLE_SPECS, build_sweep_table
 
 SCENES = ("p0224_a", "p0225_b", "p0226_c", "p0227_d")
 CHANNELS = ("albedo", "roughness", "metallic")
@@ -77,7 +77,7 @@ def test_rows_cells_and_delta(folders):
 def test_gspi_table_says_the_measure_is_on_gt_point_clouds(folders, tmp_path):
     from omegaconf import OmegaConf
 
-    from eval.tables import run
+    from eval.tables.cli import run
 
     run(OmegaConf.create({"runs": [str(folders)], "out": str(tmp_path / "tables"), "table": "table2",
                           "bootstrap": {"n": 200, "seed": 0}}))

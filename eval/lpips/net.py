@@ -5,7 +5,7 @@ Why hand-written: the reference ``lpips`` package builds its backbone with
 does not import in this environment) and downloads the ImageNet weights at run
 time. This module re-implements the same network (richzhang/PerceptualSimilarity,
 ``lpips/lpips.py`` and ``lpips/pretrained_networks.py``, net='alex' or 'vgg',
-version='0.1') and loads weights converted once by ``python -m eval.lpips_weights``
+version='0.1') and loads weights converted once by ``python -m eval.lpips.weights``
 (``--net vgg`` for VGG16).
 
 Parameter names follow the reference module (``net.sliceK.I.*``,
@@ -171,7 +171,7 @@ def load_lpips(net: str = "alex", version: str = "0.1", device: str | torch.devi
         raise ValueError(f"LPIPS net {net!r} is not supported; allowed: {list(ALLOWED_NETS)}")
     if version not in ALLOWED_VERSIONS:
         raise ValueError(f"LPIPS version {version!r} is not supported; allowed: {list(ALLOWED_VERSIONS)}")
-    from eval import lpips_weights  # local import: nothing happens at module import
+    from eval.lpips import weights as lpips_weights  # local import: nothing happens at module import
 
     path = lpips_weights.weights_path(net)
     key = (str(path), str(torch.device(device)))
@@ -179,7 +179,7 @@ def load_lpips(net: str = "alex", version: str = "0.1", device: str | torch.devi
         if not path.is_file():
             raise FileNotFoundError(
                 f"LPIPS {net} weights not found at {path}. Install them once with "
-                f"`python -m eval.lpips_weights --net {net}` (or `make install`)."
+                f"`python -m eval.lpips.weights --net {net}` (or `make install`)."
             )
         lpips_weights.verify_converted(path)
         model = LPIPS(net)

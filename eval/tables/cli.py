@@ -8,11 +8,11 @@
 Three sources, one table builder and one renderer: folders holding gspi-run records
 (result.json, docs/TABLES.md) give Tables 1-3 (`eval.sweep`); plain gspi-eval folders
 (summary.json + eval_meta.json, searched recursively) give Table 1, each folder one run of its
-method (`eval.eval_folders`); Stage II point-cloud evaluations (`python -m
+method (`eval.records.eval_folder`); Stage II point-cloud evaluations (`python -m
 gspi.stage2.evaluate_points`, scores.json) give Table 2, each folder one run of its
-ablation (`eval.points_folders`). Either way every cell is mean ± SE over (scene, run) units, Δ
+ablation (`eval.records.points_scores`). Either way every cell is mean ± SE over (scene, run) units, Δ
 is the paired bootstrap against GS-PI where it is a row, and the footer names the protocol,
-the image counts and every folder left out (`eval.tables_sweep`, `eval.tables_render`).
+the image counts and every folder left out (`eval.tables.build`, `eval.tables.render`).
 "--" marks a channel the method does not model; the best value of a column is bold (LaTeX:
 red cell), the second underlined (LaTeX: yellow cell). Numbers are never typed by hand.
 """
@@ -39,10 +39,10 @@ def is_sweep(paths: list[str | Path]) -> bool:
 
 def load_sources(runs: list, tables: tuple[str, ...]):
     """The Sweep of gspi-run records below `runs`; else of their Stage II point-cloud
-    evaluations (Table 2, `eval.points_folders`) when there are only those; else of their
+    evaluations (Table 2, `eval.records.points_scores`) when there are only those; else of their
     plain gspi-eval folders (Table 1)."""
-    from eval.eval_folders import find_eval_folders, load_eval_folders
-    from eval.points_folders import find_points_folders, load_points_folders
+    from eval.records.eval_folder import find_eval_folders, load_eval_folders
+    from eval.records.points_scores import find_points_folders, load_points_folders
     from eval.sweep import load_sweep
 
     if is_sweep(runs):
@@ -60,8 +60,8 @@ def load_sources(runs: list, tables: tuple[str, ...]):
 def run(cfg) -> dict:
     """Tables 1-3 (those with rows, or `cfg.table`) -> files; returns {name: SweepTable}."""
     from eval.sweep import TABLES
-    from eval.tables_render import to_markdown, write_sweep_table
-    from eval.tables_sweep import TABLE_SPECS, build_sweep_table
+    from eval.tables.render import to_markdown, write_sweep_table
+    from eval.tables.build import TABLE_SPECS, build_sweep_table
 
     runs = list(cfg.runs) if cfg.runs else []
     if not runs:

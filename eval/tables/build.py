@@ -4,7 +4,7 @@ Averaging order (docs/TABLES.md): per view -> per scene (the evaluation files' `
 -> for "avg" columns the mean of albedo, roughness and metallic within each (scene, seed)
 unit -> mean ± standard error over the units of a row (every scene x every seed). The Δ
 column is the paired bootstrap of the main metric (PSNR) against the reference row (GS-PI,
-ablation "full"), paired on (scene, seed). Rendering is in `eval.tables_render`.
+ablation "full"), paired on (scene, seed). Rendering is in `eval.tables.render`.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pandas as pd
 from eval.protocol_id import check_one_protocol, describe_counts, describe_protocol, sum_counts
 from eval.stats import mean_and_sem, paired_bootstrap_ci, paired_differences
 from eval.sweep import Sweep
-from eval.tables_labels import REFERENCE_ABLATION, row_label, row_order
+from eval.tables.labels import REFERENCE_ABLATION, row_label, row_order
 
 AVG_CHANNELS = ("albedo", "roughness", "metallic")
 UNIT = ["method", "ablation", "scene", "seed"]
