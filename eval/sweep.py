@@ -8,7 +8,7 @@ job folders without a record (killed mid-way), and returns one row per
 
     (method, ablation, table, seed, scene, measure, channel, metric) -> value
 
-with measure "material" (eval_meta.json per_scene), "points" (points_eval summary.json
+with measure "material" (eval_meta.json per_scene), "points" (points_eval/points_summary.json
 per_scene) or "runtime" (minutes). Values are in file units: PSNR dB, SSIM and LPIPS as
 fractions. Nothing here knows how the runs were made.
 """
@@ -24,6 +24,8 @@ import pandas as pd
 from eval.errors import MissingInputError, StatedError
 from eval.layout import read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
+from eval.records.eval_folder import META_NAME, SUMMARY_NAME
+from eval.records.run_points import run_points_path
 from eval.records.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
 
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
@@ -144,7 +146,7 @@ def find_records(paths: list[str | Path]) -> tuple[list[Path], list[Path]]:
         hydra_dirs |= {h.parent for h in p.rglob(".hydra") if h.is_dir()}
     owners = hydra_dirs | {r.parent for r in records}
     unfinished = {d for d in hydra_dirs
-                  if not (d / RECORD_NAME).is_file() and not (d / "summary.json").is_file()
+                  if not (d / RECORD_NAME).is_file() and not (d / SUMMARY_NAME).is_file()
                   and not any(a in owners for a in d.parents)}
     return sorted(records), sorted(unfinished)
 
@@ -227,15 +229,15 @@ def record_values(record: RunRecord) -> tuple[list[dict], list[str]]:
     """Rows (without the record's own columns) and notes (scenes the record lists but lacks)."""
     rows, notes, protocol = [], [], {}
     if record.material_eval is not None:
-        meta_path = record.material_eval / "eval_meta.json"
-        meta = _read_json(meta_path, "eval_meta.json of material_eval")
-        _read_json(record.material_eval / "summary.json", "summary.json of material_eval")
+        meta_path = record.material_eval / META_NAME
+        meta = _read_json(meta_path, f"{META_NAME} of material_eval")
+        _read_json(record.material_eval / SUMMARY_NAME, f"{SUMMARY_NAME} of material_eval")
         material = per_scene_rows(meta.get("per_scene"), meta_path, "material")
         protocol["material"] = material_protocol_label(meta)
         rows += material + _runtime_rows(record, meta, sorted({r["scene"] for r in material}))
     if record.points_eval is not None:
-        summary_path = record.points_eval / "summary.json"
-        summary = _read_json(summary_path, "summary.json of points_eval")
+        summary_path = run_points_path(record.points_eval)
+        summary = _read_json(summary_path, f"{summary_path.name} of points_eval")
         rows += per_scene_rows(summary.get("per_scene"), summary_path, "points")
         protocol["points"] = protocol_name(summary.get("protocol"), "points-eval")
     present = {r["scene"] for r in rows}

@@ -57,7 +57,7 @@ def test_table_cell_says_total_only(tmp_path):
     """Table 1's runtime cell: "material (end-to-end)", or "T total only" for a joint run."""
     import json
 
-    from eval.records.eval_folder import load_eval_folders
+    from eval.tables.sources import load_eval_folders
     from eval.tables.render import to_markdown
     from eval.tables.build import TABLE_SPECS, build_sweep_table
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.records.points_scores import load_points_folders
+from eval.tables.sources import load_points_folders
 from eval.stats import paired_bootstrap_ci
 from eval.tables.cli import load_sources
 from eval.tables.build import TABLE_SPECS, build_sweep_table

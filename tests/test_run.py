@@ -93,7 +93,7 @@ def test_tiny_end_to_end_run_then_rerun_skips(micro_dataset, tmp_path):
     assert meta["runtime_s"]["material"] > 0 and meta["runtime_s"]["end_to_end"] >= meta["runtime_s"]["material"]
     summary = json.loads((out / "eval" / "summary.json").read_text())
     assert set(summary) == {"albedo", "roughness", "metallic", "relight"}
-    points = json.loads((out / "points_eval" / "summary.json").read_text())
+    points = json.loads((out / "points_eval" / "points_summary.json").read_text())
     assert set(points["per_scene"]) == {test_scene} and "avg" in points["mean"]
     assert (out / "work" / test_scene / "pbr_gs.ply").is_file() and (out / "figures" / f"{test_scene}.png").is_file()
     stamp = (out / "result.json").stat().st_mtime_ns

@@ -6,7 +6,8 @@ import json
 import pytest
 from omegaconf import OmegaConf
 
-from eval.records.eval_folder import find_eval_folders, load_eval_folders
+from eval.records.eval_folder import find_eval_folders
+from eval.tables.sources import load_eval_folders
 from eval.tables.cli import positional_to_overrides, run
 from eval.tables.render import to_latex, to_markdown
 from eval.tables.build import TABLE_SPECS, build_sweep_table

@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
@@ -57,7 +58,7 @@ def write_job(root: Path, name: str, *, method="gspi", ablation="full", table="t
             (job / "points_eval").mkdir()
             ps_avg = {s: dict(v, avg={"psnr": -999.0, "ssim": 0.0, "lpips": 9.0})  # ignored
                       for s, v in ps.items()}
-            (job / "points_eval" / "summary.json").write_text(json.dumps(
+            (job / "points_eval" / "points_summary.json").write_text(json.dumps(
                 {"mean": {}, "per_scene": ps_avg}))
             record["points_eval"] = "points_eval"
         else:
@@ -242,7 +243,7 @@ class TestRecordValidation:
 
     def test_missing_subfolder(self, tmp_path):
         job = write_job(tmp_path, "j")
-        (job / "points_eval" / "summary.json").unlink()
+        (job / "points_eval" / "points_summary.json").unlink()
         (job / "points_eval").rmdir()
         with pytest.raises(SweepError, match="points_eval names 'points_eval' but"):
             read_record(job / "result.json")
@@ -254,11 +255,21 @@ class TestRecordValidation:
         with pytest.raises(SweepError, match=r"missing key\(s\) \['seed'\]"):
             read_record(path)
         job = write_job(tmp_path, "k")
-        summary = job / "points_eval" / "summary.json"
+        summary = job / "points_eval" / "points_summary.json"
         summary.write_text(json.dumps({"per_scene": {"s0": {"albedo": {"psnr": 1.0}}}}))
         with pytest.raises(SweepError, match="per_scene.s0.albedo lacks 'ssim'"):
             load_sweep([job])
 
+
+    def test_a_job_written_before_points_summary_json_is_still_read(self, tmp_path):
+        """points_eval/summary.json (its name before session 12) reads as points_summary.json."""
+        job = write_job(tmp_path, "j")
+        want = load_sweep([job]).values
+        (job / "points_eval" / "points_summary.json").rename(job / "points_eval" / "summary.json")
+        got = load_sweep([job]).values
+        pd.testing.assert_frame_equal(got.drop(columns=["run"], errors="ignore"),
+                                      want.drop(columns=["run"], errors="ignore"))
+        assert (got["measure"] == "points").sum() == (want["measure"] == "points").sum() > 0
 
 class TestTables1And3:
     def test_table3_averages_material_eval_channels(self, tmp_path):

@@ -1,15 +1,7 @@
 """The gspi-eval folder, one format with one owner: what `gspi-eval` writes and what
-`gspi-table` reads (per_view.csv, eval_meta.json, summary.json LAST: its presence means the other
-two belong to the same evaluation; docs/RELIABILITY.md).
-
-Reading: plain `gspi-eval` folders (no gspi-run record) -> a `Sweep` of Table 1 rows.
-`gspi-table runs/gspi/eval runs/r3dg/eval out=tables` tabulates evaluation folders that no
-sweep wrote (baseline imports, hand-made predictions). Each complete folder (summary.json and
-eval_meta.json) becomes one run of its method, so Table 1 has one builder and one renderer
-(`eval.tables.build`, `eval.tables.render`) whichever way the scores were made. Cells are means
-over (scene, run) units: per scene from eval_meta.json's `per_scene`; several folders of one
-method are its repeated runs (numbered like seeds). A folder written before `per_scene` existed
-counts as one unit (scene "*") from summary.json.
+`gspi-table` and `gspi-run`'s sweep reader read (per_view.csv, eval_meta.json, summary.json
+LAST: its presence means the other two belong to the same evaluation; docs/RELIABILITY.md).
+How plain folders become Table 1 rows: ``eval.tables.sources``.
 """
 from __future__ import annotations
 
@@ -19,19 +11,18 @@ import platform
 import subprocess
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
 
 from eval.atomic import write_text_atomic
 from eval.errors import MissingInputError
-from eval.evaluate import EvalResult
 from eval.layout import LayoutError, read_json_object
-from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.run_record import RECORD_NAME
-from eval.sweep import (COLUMNS, RunRecord, Sweep, material_protocol_label, per_scene_rows,
-                        runtime_min_rows)
 
-TABLE = "table1"
+if TYPE_CHECKING:  # the writer's argument type only: reading a folder needs no evaluator
+    from eval.evaluate import EvalResult
+
 SUMMARY_NAME = "summary.json"      # written last: the folder is complete
 META_NAME = "eval_meta.json"
 PER_VIEW_NAME = "per_view.csv"
@@ -164,55 +155,3 @@ def read_eval_meta(path: Path) -> dict:
     if not isinstance(meta.get("protocol", {}), dict):
         raise LayoutError(f"{path}: protocol must be an object {{name, version}}")
     return meta
-
-
-def _score_rows(folder: Path, summary: dict, meta: dict) -> list[dict]:
-    """Per-scene material rows; a folder without `per_scene` is one unit, scene "*"."""
-    if meta.get("per_scene") is not None:
-        return per_scene_rows(meta["per_scene"], folder / META_NAME, "material")
-    return per_scene_rows({"*": summary}, folder / SUMMARY_NAME, "material")
-
-
-def check_same_scenes(metas: dict[Path, dict]) -> None:
-    """Refuse to average folders of one method scored on different scene sets (the error
-    names the folders); folders without a recorded scene list are not compared."""
-    by_method: dict[str, list[Path]] = {}
-    for folder, meta in metas.items():
-        by_method.setdefault(str(meta.get("method", folder.name)), []).append(folder)
-    for method, folders in by_method.items():
-        scenes = {tuple(sorted(metas[f].get("scenes") or [])) for f in folders}
-        scenes.discard(())
-        if len(scenes) > 1:
-            lines = [f"{f}: {metas[f].get('scenes')}" for f in folders]
-            raise ValueError(f"method {method!r}: its runs were scored on different scene "
-                             "sets, so their mean would mix them:\n  " + "\n  ".join(lines))
-
-
-def load_eval_folders(paths: list[str | Path]) -> Sweep:
-    """Every complete gspi-eval folder below `paths` as a Table 1 run of its method."""
-    complete, incomplete = find_eval_folders(paths)
-    summaries = {f: read_summary(f / SUMMARY_NAME) for f in complete}
-    metas = {f: read_eval_meta(f / META_NAME) for f in complete}
-    check_same_scenes(metas)
-    rows, records, protocols, counts, runs_of = [], [], {}, {}, {}
-    for folder in complete:
-        meta = metas[folder]
-        method = str(meta.get("method", folder.name))
-        seed = runs_of[method] = runs_of.get(method, -1) + 1
-        protocol = recorded_protocol(meta)
-        record = RunRecord(path=folder / META_NAME, status="complete", error=None,
-                           method=method, ablation="full", table=TABLE, seed=seed,
-                           config_hash=protocol_hash(protocol), data=meta.get("data"),
-                           scenes=tuple(meta.get("scenes") or ()), material_eval=folder,
-                           points_eval=None, mtime=(folder / META_NAME).stat().st_mtime)
-        records.append(record)
-        protocols[str(folder)], counts[str(folder)] = protocol, meta.get("counts") or {}
-        own = {"method": method, "ablation": "full", "table": TABLE, "seed": seed,
-               "config_hash": record.config_hash, "data": record.data or "", "run": str(folder),
-               "protocol": material_protocol_label(meta)}
-        rows += [dict(own, **r) for r in _score_rows(folder, summaries[folder], meta)
-                 + runtime_min_rows(meta)]
-    notes = ([f"Incomplete gspi-eval folder(s) left out (killed before eval_meta.json): "
-              f"{', '.join(map(str, incomplete))}"] if incomplete else [])
-    return Sweep(values=pd.DataFrame(rows, columns=COLUMNS), records=records, notes=notes,
-                 protocols=protocols, counts=counts)

@@ -41,8 +41,9 @@ def load_sources(runs: list, tables: tuple[str, ...]):
     """The Sweep of gspi-run records below `runs`; else of their Stage II point-cloud
     evaluations (Table 2, `eval.records.points_scores`) when there are only those; else of their
     plain gspi-eval folders (Table 1)."""
-    from eval.records.eval_folder import find_eval_folders, load_eval_folders
-    from eval.records.points_scores import find_points_folders, load_points_folders
+    from eval.records.eval_folder import find_eval_folders
+    from eval.records.points_scores import find_points_folders
+    from eval.tables.sources import load_eval_folders, load_points_folders
     from eval.sweep import load_sweep
 
     if is_sweep(runs):

@@ -5,7 +5,7 @@
                                                             <views> = eval.split (test | train)
       work/<scene>/                                         intermediate files (pipeline.py)
       eval/        per_view.csv, summary.json, eval_meta.json   (as gspi-eval writes them)
-      points_eval/summary.json                               Table 2's measure (GS-PI only)
+      points_eval/points_summary.json                        Table 2's measure (GS-PI only)
       figures/<scene>.png                                    GT vs prediction, PSNR under each
       result.json                                            written LAST (gspi/run/record.py)
 
@@ -34,6 +34,8 @@ import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_meta
 from eval.atomic import write_json_atomic
+from eval.records import run_points
+from eval.records.run_points import write_run_points
 from gspi.device import resolve_device
 from gspi.recon.reconstruct import reconstruction_seconds
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
@@ -213,7 +215,7 @@ def points_summary(out: Path, names: list[str]) -> Optional[dict]:
 # Rebuilt by every job that is not skipped: the files removed first (by name, never a whole
 # folder, so `out=.` cannot delete anything but these).
 DERIVED_FILES = {"eval": ("per_view.csv", "summary.json", "eval_meta.json"),
-                 "points_eval": ("summary.json",), "figures": ("*.png",)}
+                 run_points.FOLDER: (run_points.NAME, run_points.LEGACY_NAME), "figures": ("*.png",)}
 
 
 def clear_stale_outputs(out: Path, cfg_hash: str) -> list[str]:
@@ -306,8 +308,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
             tracker.log_table("eval/per_view", pd.DataFrame(result.rows))
             pts = points_summary(out, done)
             if pts is not None:
-                write_json_atomic(out / "points_eval" / "summary.json", pts)
-                points_eval = "points_eval"
+                points_eval = write_run_points(out, pts).parent.name
                 tracker.summary(flatten("points_eval", pts["mean"]))
             if cfg.get("figures", True):
                 write_figures(cfg, data_dir, out, done, tracker)
