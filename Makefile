@@ -33,7 +33,7 @@ real-assets: $(STAMP)
 	$(PY) -m gspi.data.pmndrs_assets --force
 
 test: install
-	$(PY) -m pytest -q -m "not slow and not gpu"
+	$(PY) -m pytest -q -m "not slow and not gpu" --durations=20
 
 test-all: install
 	$(PY) -m pytest -q -m "not gpu"
