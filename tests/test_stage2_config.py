@@ -116,23 +116,29 @@ def test_gspi_run_refuses_a_time_budget_for_the_model_it_trains(key):
     check_run_config({**cfg, "stage2": {"checkpoint": None, "train": {key: None}}})
 
 
-def test_the_shipped_pool_checkpoint_is_its_recipe():
-    """checkpoints/stage2_pool_trunc_snr.pt (gspi-run's default Stage II model) loads, is under
-    20 MB, and is what conf/stage2/cpu_pool_trunc_snr.yaml trains: the truncated-SNR weight,
-    the recipe's steps and sizes."""
+@pytest.mark.parametrize("name, preset", [("stage2_pool_trunc_snr", "cpu_pool_trunc_snr"),
+                                          ("stage2_pool_recon", "cpu_pool_recon")])
+def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset):
+    """checkpoints/<name>.pt loads, is under 20 MB, is what conf/stage2/<preset>.yaml trains (the
+    truncated-SNR weight, the recipe's steps and sizes) and is the file its json card hashes."""
+    import hashlib
+    import json
+
     from hydra import compose, initialize_config_dir
 
     from eval.config import CONF_DIR
     from gspi.stage2.checkpoint import load_stage2_checkpoint
 
-    path = ROOT / "checkpoints" / "stage2_pool_trunc_snr.pt"
+    path = ROOT / "checkpoints" / f"{name}.pt"
     assert path.stat().st_size < 20e6
+    card = json.loads(path.with_suffix(".json").read_text())
+    assert card["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest() and card["size_bytes"] == path.stat().st_size
     model, cfg = load_stage2_checkpoint(path)
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        recipe = compose("gspi_train", overrides=["stage2=cpu_pool_trunc_snr", "data_dir=d", "out=o"])
-    assert recipe.stage2.checkpoint == "checkpoints/stage2_pool_trunc_snr.pt"
+        recipe = compose("gspi_train", overrides=[f"stage2={preset}", "data_dir=d", "out=o"])
+    assert recipe.stage2.checkpoint == f"checkpoints/{name}.pt"
     stage2 = cfg["stage2"]
     assert stage2["diffusion"]["min_snr_floor"] == 1.0 and stage2["diffusion"]["prediction"] == "x0"
     assert stage2["train"]["steps"] == recipe.stage2.train.steps == 2500
     assert stage2["model"] == {k: recipe.stage2.model[k] for k in stage2["model"]}
-    assert not model.training and sum(p.numel() for p in model.parameters()) == 349141
+    assert not model.training and sum(p.numel() for p in model.parameters()) == card["parameters"] == 349141
