@@ -100,6 +100,22 @@ class TestErodeMask:
             erode_mask(mask, -1)
 
 
+    @pytest.mark.parametrize("radius", [1, 2, 3, 7, 40, 1000])
+    def test_equals_kornias_square_erosion_on_random_masks(self, radius):
+        """The separable max-pool erosion is kornia.morphology.erosion with the full square kernel
+        (the implementation before session 12), border included; a radius beyond the image too."""
+        import kornia
+
+        gen = torch.Generator().manual_seed(radius)
+        for shape in ((17, 23), (40, 31)):
+            mask = torch.rand(shape, generator=gen) > 0.15
+            mask[: shape[0] // 2] = True  # a large solid part, so wide radii keep something
+            r = min(radius, 45)  # kornia's full kernel at r = 1000 is the slow case being replaced
+            kernel = torch.ones(2 * r + 1, 2 * r + 1, dtype=torch.float64)
+            want = kornia.morphology.erosion(mask.double()[None, None], kernel)[0, 0] > 0.5
+            assert torch.equal(erode_mask(mask, radius), want), (radius, shape)
+            assert torch.equal(erode_mask(mask.double(), radius), want)
+
 class TestMetallicExtras:
     def test_mae_and_iou_by_hand(self):
         gt = torch.zeros(2, 4, 1, dtype=torch.float64)
