@@ -24,7 +24,7 @@ from eval.cli_entry import hydra_cli
 from eval.config import register_configs, validate_protocol
 from eval.device import resolve_device
 from eval.evaluate import evaluate
-from eval.records.eval_folder import clear_result, format_summary, write_result
+from eval.records.eval_folder import SUMMARY_NAME, clear_result, format_summary, write_result
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ def run(cfg: DictConfig) -> dict:
     write_result(Path(cfg.out), result, OmegaConf.to_container(cfg.eval, resolve=True))
     text = format_summary(result)
     print(text)
-    log.info("wrote %s", Path(cfg.out) / "summary.json")
+    log.info("wrote %s", Path(cfg.out) / SUMMARY_NAME)
     return result.summary
 
 

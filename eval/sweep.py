@@ -290,7 +290,7 @@ def load_sweep(paths: list[str | Path], *, tables: tuple[str, ...] = TABLES) -> 
     rows, protocols, counts = [], {}, {}
     for rec in sorted(complete, key=lambda r: (r.table, r.method, r.ablation, r.seed)):
         if rec.material_eval is not None:
-            meta = _read_json(rec.material_eval / "eval_meta.json", "eval_meta.json of material_eval")
+            meta = _read_json(rec.material_eval / META_NAME, f"{META_NAME} of material_eval")
             protocols[str(rec.run_dir)] = recorded_protocol(meta)
             counts[str(rec.run_dir)] = meta.get("counts") or {}
         values, lacking = record_values(rec)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.records.eval_folder import META_NAME
 from eval.sweep import PREDICTION_DIRS, SweepError, find_records, read_record
 from eval.tables.labels import row_label, row_order
 
@@ -93,10 +94,10 @@ def resolve_data(name: str | None, run_dir: Path, override: str | None) -> Path 
 
 
 def _protocol_config(eval_dir: Path | None) -> dict:
-    if eval_dir is None or not (eval_dir / "eval_meta.json").is_file():
+    if eval_dir is None or not (eval_dir / META_NAME).is_file():
         return {}
     try:
-        meta = json.loads((eval_dir / "eval_meta.json").read_text())
+        meta = json.loads((eval_dir / META_NAME).read_text())
     except json.JSONDecodeError:
         return {}
     return meta.get("protocol_config") or {}

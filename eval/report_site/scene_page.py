@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.records.eval_folder import META_NAME
 from eval.report_site.collect import Job
 from eval.report_site.html_tables import frame_html
 from eval.report_site.images import colorize_error, css_gradient, save_thumbnail
@@ -136,7 +137,7 @@ class SceneWriter:
 
         rows = {}
         for job in self.jobs:
-            meta = None if job.eval_dir is None else job.eval_dir / "eval_meta.json"
+            meta = None if job.eval_dir is None else job.eval_dir / META_NAME
             if meta is None or not meta.is_file():
                 continue
             per_scene = (json.loads(meta.read_text()).get("per_scene") or {}).get(self.scene.name, {})

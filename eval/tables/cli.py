@@ -21,19 +21,19 @@ from __future__ import annotations
 from pathlib import Path
 
 
-
 def is_sweep(paths: list[str | Path]) -> bool:
     """True when the folders hold gspi-run records, or Hydra job folders (even all killed) and
     no complete gspi-eval folder of their own: a killed gspi-eval folder next to complete ones
     does not turn them into a sweep (it is listed as incomplete in the table's footer), and
     the eval/ folder a killed gspi-run job left does not turn the job into a plain folder."""
+    from eval.records.eval_folder import META_NAME, SUMMARY_NAME
     from eval.sweep import find_records
 
     records, unfinished = find_records(paths)
     if records:
         return True
-    evals = [s.parent for p in paths if Path(p).exists() for s in Path(p).rglob("summary.json")
-             if (s.parent / "eval_meta.json").is_file()]
+    evals = [s.parent for p in paths if Path(p).exists() for s in Path(p).rglob(SUMMARY_NAME)
+             if (s.parent / META_NAME).is_file()]
     return bool(unfinished) and not any(set(e.parents).isdisjoint(unfinished) for e in evals)
 
 

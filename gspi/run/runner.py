@@ -35,7 +35,7 @@ import torch
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_meta
 from eval.atomic import write_json_atomic
 from eval.records import run_points
-from eval.records.run_points import write_run_points
+from eval.records.eval_folder import RESULT_FILES
 from gspi.device import resolve_device
 from gspi.recon.reconstruct import reconstruction_seconds
 from gspi.run.assets import check_prediction_covers_scene, scene_asset
@@ -214,7 +214,7 @@ def points_summary(out: Path, names: list[str]) -> Optional[dict]:
 
 # Rebuilt by every job that is not skipped: the files removed first (by name, never a whole
 # folder, so `out=.` cannot delete anything but these).
-DERIVED_FILES = {"eval": ("per_view.csv", "summary.json", "eval_meta.json"),
+DERIVED_FILES = {"eval": RESULT_FILES,
                  run_points.FOLDER: (run_points.NAME, run_points.LEGACY_NAME), "figures": ("*.png",)}
 
 
@@ -308,7 +308,8 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
             tracker.log_table("eval/per_view", pd.DataFrame(result.rows))
             pts = points_summary(out, done)
             if pts is not None:
-                points_eval = write_run_points(out, pts).parent.name
+                run_points.write_run_points(out, pts)
+                points_eval = run_points.FOLDER
                 tracker.summary(flatten("points_eval", pts["mean"]))
             if cfg.get("figures", True):
                 write_figures(cfg, data_dir, out, done, tracker)
