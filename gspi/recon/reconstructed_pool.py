@@ -73,7 +73,7 @@ def display_psnr(gt_rgb: np.ndarray, asset_rgb: np.ndarray) -> float:
     return float(10 * np.log10(1.0 / max(err, 1e-12)))
 
 
-def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], threads: int = 1) -> dict:
+def reconstruct_pool_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], threads: int = 1) -> dict:
     """Stage 0 on ``scene_dir``'s lattice views, then ``dst`` = the scene with the asset's conditions.
 
     ``dst/asset/recon.json`` is gspi-recon's record (``gspi.recon.reconstruct``) plus the pool's
@@ -85,7 +85,7 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     from gspi.gaussians.ply import write_ply
     from gspi.gaussians.lattice_render import render_lattice
     from gspi.recon.data import load_scene_views
-    from gspi.recon.reconstruct import reconstruct_scene as fit_scene
+    from gspi.recon.reconstruct import reconstruct_scene
 
     torch.set_num_threads(threads)
     scene_dir, dst = Path(scene_dir).resolve(), Path(dst)
@@ -94,7 +94,7 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
     cpu0 = time.process_time()
     scene = read_scene(scene_dir)
     views = load_scene_views(scene, LATTICE_SPLIT)
-    gaussians, record = fit_scene(scene, recon_cfg, train_split=LATTICE_SPLIT, views=views)
+    gaussians, record = reconstruct_scene(scene, recon_cfg, train_split=LATTICE_SPLIT, views=views)
     asset_rgb = render_lattice(gaussians, image_size=(scene.height, scene.width)).rgb
     gt_rgb = views.images.numpy()  # the exact lattice renders Stage 0 was fitted to
     write_asset_conditions(scene_dir, asset_rgb, dst)
@@ -109,8 +109,8 @@ def reconstruct_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any], thr
 
 
 def _worker(args: tuple) -> dict:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before reconstruct_scene imports torch
-    return reconstruct_scene(*args)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before reconstruct_pool_scene imports torch
+    return reconstruct_pool_scene(*args)
 
 
 def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", workers: int = 1,
