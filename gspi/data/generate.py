@@ -68,6 +68,7 @@ class BenchmarkConfig:
     training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
     pool_indices: Optional[list] = None       # training pool: only these [start, stop) index ranges
+    material_mix: float = 0.0                 # training pool: share of two-class scenes (issue 24)
     capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
     relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
     renderer: str = "splitsum"                # input views: splitsum | pathtraced
@@ -80,7 +81,8 @@ class BenchmarkConfig:
         "num_train_scenes": (0, None), "num_val_scenes": (0, None), "num_test_scenes": (0, None),
         "image_size": (8, 8192), "supersample": (1, 16), "env_height": (4, 8192),
         "num_test_views": (0, None), "num_val_views": (0, None), "num_relight_envs": (0, 6),
-        "white_radiance": (1e-6, None), "threads": (1, 1024), "workers": (1, 1024)}
+        "white_radiance": (1e-6, None), "threads": (1, 1024), "workers": (1, 1024),
+        "material_mix": (0.0, 1.0)}
 
     @property
     def num_scenes(self) -> int:
@@ -242,7 +244,7 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
         raise ValueError("a training pool has train scenes only: set data.num_val_scenes=0, "
                          "data.num_test_scenes=0 and no data.only_splits")
     recipes = pool_recipes(seed, cfg.num_train_scenes, list(cfg.image_sizes or [cfg.image_size]),
-                           cfg.pool_indices)
+                           cfg.pool_indices, cfg.material_mix)
     if not is_default(cfg.capture_envs):  # e.g. polyhaven: cycle through that capture set
         names = sorted(environment_sets(cfg.capture_envs, cfg.relight_envs)[0])
         recipes = [{**r, "capture_env": names[r["index"] % len(names)]} for r in recipes]

@@ -13,6 +13,11 @@ Colour spaces: recipe colours are sRGB-encoded in [0, 1] except metal F0 colours
 linear reflectances; `evaluate_material` returns LINEAR albedo (the split-sum base colour).
 Metallic is binary per region (0 or 1); supersampling makes it fractional only across region
 boundaries.
+
+Two-class materials (`mix_materials`, the training pool's `data.material_mix` only): a recipe
+with a `mix` entry is split by a noise-warped plane into its own class and a second class
+(metal beside a dielectric whenever either is metal), as real assets are (a metal bottle with a
+painted label, issue 24). Benchmark scenes never carry one.
 """
 from __future__ import annotations
 
@@ -95,6 +100,38 @@ def sample_material(material_class: str, rng: np.random.Generator) -> dict:
     return r
 
 
+METAL_CLASSES = ("metal", "painted_metal")
+
+
+def mix_materials(primary: dict, rng: np.random.Generator) -> dict:
+    """`primary` with a second class over part of the object (see module docstring).
+
+    The second class is a dielectric when `primary` is metallic, else metal half of the
+    time and another dielectric class otherwise; the split is the plane ``q . axis = offset``
+    (offset uniform in [-0.35, 0.35] of the unit-sphere frame) warped by value noise.
+    """
+    dielectrics = [c for c in MATERIAL_CLASSES if c not in METAL_CLASSES]
+    if primary["class"] in METAL_CLASSES:
+        second = dielectrics[int(rng.integers(0, len(dielectrics)))]
+    elif rng.uniform() < 0.5:
+        second = "metal"
+    else:
+        others = [c for c in dielectrics if c != primary["class"]]
+        second = others[int(rng.integers(0, len(others)))]
+    axis = rng.normal(size=3)
+    return {**primary, "mix": {"second": sample_material(second, rng),
+                               "axis": (axis / np.linalg.norm(axis)).tolist(),
+                               "offset": _u(rng, -0.35, 0.35), "warp": _u(rng, 0.1, 0.4),
+                               "seed": _seed(rng)}}
+
+
+def _second_region(mix: dict, q: Tensor) -> Tensor:
+    """[N] bool: the points of `q` that carry the second class of a two-class recipe."""
+    axis = torch.tensor(mix["axis"], dtype=q.dtype, device=q.device)
+    warp = mix["warp"] * (patterns.value_noise(q * 2.5, int(mix["seed"])) - 0.5)
+    return q @ axis + warp > mix["offset"]
+
+
 def _lin(colour_srgb, device: torch.device) -> Tensor:
     return srgb_to_linear(torch.tensor(colour_srgb, dtype=torch.float32, device=device))
 
@@ -114,6 +151,13 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
     Returns:
         MaterialSample with linear albedo, on the device of `q`.
     """
+    if "mix" in recipe:
+        own = evaluate_material({k: v for k, v in recipe.items() if k != "mix"}, q)
+        second = evaluate_material(recipe["mix"]["second"], q)
+        region = _second_region(recipe["mix"], q)
+        return MaterialSample(_pick(region, own.albedo_linear, second.albedo_linear),
+                              _pick(region, own.roughness, second.roughness),
+                              _pick(region, own.metallic, second.metallic))
     n, seed, cls = q.shape[0], int(recipe["seed"]), recipe["class"]
     dev = dict(device=q.device)
     ones, zeros = torch.ones(n, **dev), torch.zeros(n, **dev)

@@ -31,7 +31,7 @@ from typing import Optional
 import numpy as np
 
 from gspi.data.environments import env_names
-from gspi.data.materials import MATERIAL_CLASSES, sample_material
+from gspi.data.materials import MATERIAL_CLASSES, mix_materials, sample_material
 from gspi.data.sdf_shapes import FAMILIES, sample_shape
 
 POOL_NAMESPACE = 2          # benchmark scenes: 0 (scene_rng), dataset-level draws: 1 (dataset_rng)
@@ -47,8 +47,20 @@ def pool_scene_name(index: int, family: str, material_class: str) -> str:
     return f"p{index:04d}_{family}_{material_class}"
 
 
-def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int]) -> dict:
-    """Recipe of pool scene `index` (the benchmark recipe's keys, no held-out views or envs)."""
+def mix_rng(seed: int, index: int) -> np.random.Generator:
+    """Generator of pool scene `index`'s second material: its own stream, so a pool without
+    `data.material_mix` keeps every byte it had before the option existed."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), POOL_NAMESPACE, int(index), 1]))
+
+
+def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int],
+                       material_mix: float = 0.0) -> dict:
+    """Recipe of pool scene `index` (the benchmark recipe's keys, no held-out views or envs).
+
+    `material_mix` (``data.material_mix``, in [0, 1]): the share of scenes that carry a second
+    material class over part of the object (`gspi.data.materials.mix_materials`); the scene's
+    name keeps its first class.
+    """
     family = FAMILIES[index % len(FAMILIES)]
     material_class = MATERIAL_CLASSES[(index // len(FAMILIES)) % len(MATERIAL_CLASSES)]
     rng = pool_rng(seed, index)
@@ -56,17 +68,23 @@ def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int]) -> dict
     return {
         "index": int(index), "name": pool_scene_name(index, family, material_class),
         "family": family, "shape": sample_shape(family, rng),
-        "material": sample_material(material_class, rng),
+        "material": (material := sample_material(material_class, rng)),
         "capture_env": capture[(index // (len(FAMILIES) * len(MATERIAL_CLASSES)) + index) % len(capture)],
         "relight_envs": [], "test_directions": [], "val_directions": [],
         "view_seed": int(rng.integers(0, 2**31 - 1)),
         "image_size": int(image_sizes[index % len(image_sizes)]),
         "pool_namespace": POOL_NAMESPACE,
-    }
+    } | _mixed_material(seed, index, material, material_mix)
+
+
+def _mixed_material(seed: int, index: int, material: dict, share: float) -> dict:
+    """{"material": the two-class recipe} for the `share` of scenes drawn to carry one, else {}."""
+    rng = mix_rng(seed, index)
+    return {"material": mix_materials(material, rng)} if rng.uniform() < share else {}
 
 
 def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int],
-                 indices: Optional[list] = None) -> list[dict]:
+                 indices: Optional[list] = None, material_mix: float = 0.0) -> list[dict]:
     """Recipes of pool scenes ``0 .. num_scenes - 1``, or only those in ``indices``.
 
     ``indices`` (``data.pool_indices``): ``[[start, stop], ...]`` half-open index ranges inside
@@ -77,7 +95,9 @@ def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int],
         raise ValueError(f"data.num_train_scenes must be >= 1 for a training pool, got {num_scenes}")
     if not image_sizes or any(int(s) < 8 for s in image_sizes):
         raise ValueError(f"data.image_sizes must be a non-empty list of sizes >= 8, got {image_sizes}")
-    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes))
+    if not 0.0 <= material_mix <= 1.0:
+        raise ValueError(f"data.material_mix must be in [0, 1], got {material_mix}")
+    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes), material_mix=material_mix)
             for i in selected_indices(num_scenes, indices)]
 
 
