@@ -29,6 +29,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from benchmarks.common import machine, median_seconds
+from gspi.stage2.config import complete_stage2
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.schedule import cosine_alphas_cumprod
 from gspi.stage2.train import TrainState, rcw_config, train_step
@@ -44,7 +45,8 @@ def train_config(overrides: list[str]) -> dict:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose("gspi_train", overrides=[f"stage2={STAGE2['config']}", "data_dir=.", "out=.",
                                                "stage2.train.init_from=null", *overrides])
-    return OmegaConf.to_container(cfg, resolve=True)
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    return {**plain, "stage2": complete_stage2(plain["stage2"])}
 
 
 def synthetic_batch(batch: int, num_points: int, cond_dim: int, seed: int = 0) -> tuple[torch.Tensor, Stage2Inputs]:
@@ -64,10 +66,10 @@ def time_setting(threads: int, batch: int, *, repeats: int, compile_model: bool)
     state = TrainState(cfg, rcw_config(cfg["stage2"], PRIOR_DIM))
     if compile_model:
         state.model = torch.compile(state.model)
-    n = int(cfg["stage2"]["data"]["num_points"])
+    n = int(cfg["stage2"].data.num_points)
     f0, inputs = synthetic_batch(batch, n, state.model.config.local_cond_dim if not compile_model
                                  else state.model._orig_mod.config.local_cond_dim)
-    alphas = cosine_alphas_cumprod(int(cfg["stage2"]["diffusion"]["num_train_timesteps"]))
+    alphas = cosine_alphas_cumprod(int(cfg["stage2"].diffusion.num_train_timesteps))
     t0 = time.perf_counter()
     train_step(state, f0, inputs, cfg, alphas)          # warm-up (and compilation)
     first = time.perf_counter() - t0
@@ -87,9 +89,9 @@ def _ddp_worker(rank: int, world: int, port: int, threads: int, batch: int, repe
     ctx = DistContext(rank=rank, world_size=world)
     cfg = train_config([f"stage2.train.batch_size={batch}"])
     state = TrainState(cfg, rcw_config(cfg["stage2"], PRIOR_DIM))
-    f0, inputs = ctx.shard(*synthetic_batch(batch, int(cfg["stage2"]["data"]["num_points"]),
+    f0, inputs = ctx.shard(*synthetic_batch(batch, int(cfg["stage2"].data.num_points),
                                             state.model.config.local_cond_dim))
-    alphas = cosine_alphas_cumprod(int(cfg["stage2"]["diffusion"]["num_train_timesteps"]))
+    alphas = cosine_alphas_cumprod(int(cfg["stage2"].diffusion.num_train_timesteps))
     train_step(state, f0, inputs, cfg, alphas, ctx)      # warm-up
     sec = median_seconds(lambda: train_step(state, f0, inputs, cfg, alphas, ctx), repeats=repeats, warmup=0)
     if rank == 0:
@@ -108,19 +110,19 @@ def time_ddp(procs: int, threads: int, batch: int, *, repeats: int) -> dict:
     mp.start_processes(_ddp_worker, args=(procs, port, threads, batch, repeats, queue), nprocs=procs,
                        join=True, start_method="fork")
     sec = queue.get()
-    n = int(train_config([])["stage2"]["data"]["num_points"])
+    n = int(train_config([])["stage2"].data.num_points)
     return {"threads": threads, "procs": procs, "batch": batch, "compile": False, "s_per_step": sec,
             "steps_per_s": 1 / sec, "points_per_s": batch * n / sec, "first_step_s": float("nan")}
 
 
 def time_sampling(data_dir: str, batch: int, repeats: int) -> float:
-    from gspi.stage2.data import PointDataConfig, sample_batch
+    from gspi.stage2.data import sample_batch
     from gspi.stage2.encoders import build_encoder
     from gspi.stage2.splits import load_split
 
     cfg = train_config([f"data_dir={data_dir}"])
-    scenes = load_split(cfg, "train", build_encoder(cfg["stage2"]["prior"]))
-    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    scenes = load_split(cfg, "train", build_encoder(cfg["stage2"].prior))
+    data_cfg = cfg["stage2"].data
     rng = np.random.default_rng(0)
     return median_seconds(lambda: sample_batch(scenes, data_cfg, batch, rng), repeats=repeats)
 

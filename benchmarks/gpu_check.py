@@ -89,12 +89,13 @@ def _stage2_model(smoke: bool, device: torch.device):
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    from gspi.stage2.config import complete_stage2
     from gspi.stage2.model import RCWDenoiser
     from gspi.stage2.train import rcw_config
 
     with initialize_config_dir(version_base="1.3", config_dir=str(REPO / "conf")):
         cfg = compose("gspi_train", overrides=["data_dir=.", "out=.", f"stage2={'tiny' if smoke else 'default'}"])
-    stage2 = OmegaConf.to_container(cfg.stage2, resolve=True)
+    stage2 = complete_stage2(OmegaConf.to_container(cfg.stage2, resolve=True))
     torch.manual_seed(0)
     return RCWDenoiser(rcw_config(stage2, 256)).to(device), stage2
 
@@ -185,7 +186,7 @@ def step_stage2_train_throughput(ctx: dict) -> dict:
 
     device, cfg = ctx["device"], ctx["sizes"]
     model, stage2 = _stage2_model(ctx["smoke"], device)
-    n, batch = int(stage2["data"]["num_points"]), int(cfg["train_batch"])
+    n, batch = int(stage2.data.num_points), int(cfg["train_batch"])
     f0, inputs = _synthetic_inputs(model, n, batch, device)
     opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
     gen = torch.Generator().manual_seed(0)

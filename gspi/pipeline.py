@@ -31,7 +31,9 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Stage2Context:
-    """What every scene of a run shares: the Stage II model, its training config, its encoder.
+    """What every scene of a run shares: the Stage II model, its training config (``stage2``
+    a checked ``Stage2Config``), its encoder, and the run's own ``Stage2Config`` (whose
+    ``inference`` section samples the clouds).
 
     Built by the caller (``gspi.run.stage2_model.load_stage2_context`` loads or trains it).
     """
@@ -40,6 +42,7 @@ class Stage2Context:
     model_cfg: Mapping[str, Any]
     encoder: Any
     info: dict
+    run_cfg: Any = None  # gspi.stage2.config.Stage2Config; None = the model's own
 
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:
@@ -62,7 +65,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     """
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud
-    from gspi.stage2.infer import InferenceConfig, predict_generated_points
+    from gspi.stage2.infer import predict_generated_points
     from gspi.stage3.config import Stage3Config
     from gspi.stage3.distill import distill
     from gspi.stage3.export import write_scene_predictions
@@ -80,12 +83,12 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         points.save(work_dir / "points.npz")
     write_json_atomic(work_dir / "stage1.json", s1)
 
-    data_cfg = stage2.model_cfg["stage2"]["data"]
+    data_cfg = stage2.model_cfg["stage2"].data
     with clock.stage("stage2"):
         pbr, s2 = predict_generated_points(
-            stage2.model, points, renders, local_mode=data_cfg["local_condition"], encoder=stage2.encoder,
-            cfg=InferenceConfig.from_mapping(cfg["stage2"]["inference"]),
-            tol_pixels=float(data_cfg["visibility_tol_pixels"]), device=device)
+            stage2.model, points, renders, local_mode=data_cfg.local_condition, encoder=stage2.encoder,
+            cfg=(stage2.run_cfg or stage2.model_cfg["stage2"]).inference,
+            tol_pixels=float(data_cfg.visibility_tol_pixels), device=device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None

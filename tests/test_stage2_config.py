@@ -7,7 +7,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from gspi.stage2.config import DERIVED_MODEL_KEYS, MODEL_KEYS, Stage2Config, complete_stage2
+from dataclasses import asdict
+
+from gspi.stage2.config import DERIVED_MODEL_KEYS, MODEL_KEYS, Stage2Config, complete_stage2, stored_config
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ROOT = Path(__file__).resolve().parents[1]
@@ -19,7 +21,7 @@ def composed(*overrides, name="gspi_train"):
 
 
 def test_default_yaml_equals_the_dataclass_defaults():
-    assert composed() == complete_stage2({})
+    assert composed() == asdict(complete_stage2({}))
 
 
 SHIPPED = sorted([[f"stage2={p.stem}"] for p in (ROOT / "conf" / "stage2").glob("*.yaml")]
@@ -29,15 +31,16 @@ SHIPPED = sorted([[f"stage2={p.stem}"] for p in (ROOT / "conf" / "stage2").glob(
 @pytest.mark.parametrize("overrides", SHIPPED, ids=lambda o: o[0])
 def test_every_shipped_stage2_config_is_complete_and_valid(overrides):
     node = composed(*overrides)
-    assert complete_stage2(node) == node  # nothing missing, nothing unknown
+    assert asdict(complete_stage2(node)) == node  # nothing missing, nothing unknown
 
 
 def test_a_missing_key_gets_its_default_and_a_set_one_is_kept():
     full = complete_stage2({"train": {"lr": 0.5}, "model": {"num_heads": 4, "latent_dim": 96, "point_dim": 64}})
-    assert full["train"]["lr"] == 0.5 and full["train"]["min_lr_ratio"] == 0.1
-    assert full["model"]["num_heads"] == 4 and full["model"]["num_latents"] == 256
-    assert set(full["model"]) == set(MODEL_KEYS)
-    assert full["prior"]["alexnet"] == {"layer": "relu5", "input_size": 224}
+    assert full.train.lr == 0.5 and full.train.min_lr_ratio == 0.1
+    assert full.model["num_heads"] == 4 and full.model["num_latents"] == 256
+    assert set(full.model) == set(MODEL_KEYS)
+    assert asdict(full.prior.alexnet) == {"layer": "relu5", "input_size": 224}
+    assert complete_stage2(full) is full  # a checked config is passed on, not parsed again
 
 
 @pytest.mark.parametrize("node, message", [
@@ -86,9 +89,12 @@ def test_an_older_checkpoint_config_is_completed_on_load(tmp_path):
     del stage2["train"]["min_lr_ratio"], stage2["train"]["log_every"], stage2["eval"]
     torch.save(ckpt, tmp_path / "old.pt")
     _, cfg = load_stage2_checkpoint(tmp_path / "old.pt")
-    assert cfg["stage2"]["train"]["min_lr_ratio"] == 0.1 and cfg["stage2"]["train"]["log_every"] == 100
-    assert cfg["stage2"]["eval"]["num_steps"] == 50
-    assert cfg["stage2"]["diffusion"]["prediction"] == "x0"  # what it was saved with is kept
+    assert isinstance(cfg["stage2"], Stage2Config)
+    assert cfg["stage2"].train.min_lr_ratio == 0.1 and cfg["stage2"].train.log_every == 100
+    assert cfg["stage2"].eval.num_steps == 50
+    assert cfg["stage2"].diffusion.prediction == "x0"  # what it was saved with is kept
+    stored = stored_config(cfg)  # plain data again, as a checkpoint writes it
+    assert stored["stage2"]["eval"]["num_steps"] == 50 and complete_stage2(stored["stage2"]) == cfg["stage2"]
 
 
 def test_a_checkpoint_with_an_invalid_stored_config_names_the_file(tmp_path):
@@ -138,7 +144,7 @@ def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset):
         recipe = compose("gspi_train", overrides=[f"stage2={preset}", "data_dir=d", "out=o"])
     assert recipe.stage2.checkpoint == f"checkpoints/{name}.pt"
     stage2 = cfg["stage2"]
-    assert stage2["diffusion"]["min_snr_floor"] == 1.0 and stage2["diffusion"]["prediction"] == "x0"
-    assert stage2["train"]["steps"] == recipe.stage2.train.steps == 2500
-    assert stage2["model"] == {k: recipe.stage2.model[k] for k in stage2["model"]}
+    assert stage2.diffusion.min_snr_floor == 1.0 and stage2.diffusion.prediction == "x0"
+    assert stage2.train.steps == recipe.stage2.train.steps == 2500
+    assert stage2.model == {k: recipe.stage2.model[k] for k in stage2.model}
     assert not model.training and sum(p.numel() for p in model.parameters()) == card["parameters"] == 349141

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 from gspi.stage2.checkpoint import CheckpointError
-from gspi.stage2.data import PointDataConfig
 from gspi.stage2.encoders import build_encoder
 from gspi.stage2.ladder import (build_rung, ladder_config, load_rung, predict_rung, rung_loss, save_rung,
                                 score_rung)
@@ -22,7 +21,7 @@ RUNGS = ("r1", "r2", "r3", "r4")
 def ladder_data(tmp_path_factory):
     root = make_lattice_dataset(tmp_path_factory.mktemp("ladder"), num_train=2, num_test=1)
     cfg = ladder_config(root, seed=0, overrides=("stage2.data.num_points=128", "stage2.train.batch_size=2"))
-    scenes = load_split(cfg, "train", build_encoder(cfg["stage2"]["prior"]))
+    scenes = load_split(cfg, "train", build_encoder(cfg["stage2"].prior))
     return root, cfg, scenes, int(pooled_prior(scenes[0]).shape[0])
 
 
@@ -32,7 +31,7 @@ def test_rung_loss_is_finite_and_falls_on_a_fixed_batch(ladder_data, rung):
     torch.manual_seed(0)
     model = build_rung(rung, cfg, prior_dim)
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
-    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    data_cfg = cfg["stage2"].data
     losses = []
     for _ in range(15):
         loss = rung_loss(model, rung, scenes, data_cfg, 2, np.random.default_rng(7))  # the same batch
@@ -59,7 +58,7 @@ def test_saved_rung_loads_and_predicts_the_same(ladder_data, rung, tmp_path):
     model = build_rung(rung, cfg, prior_dim).eval()
     path = save_rung(model, rung, cfg, {"prior_dim": prior_dim}, tmp_path / "model.pt")
     loaded, name, _ = load_rung(path)
-    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    data_cfg = cfg["stage2"].data
     a = predict_rung(model, rung, scenes[0], 0, data_cfg)
     b = predict_rung(loaded, name, scenes[0], 0, data_cfg)
     assert name == rung and a.shape == (scenes[0].num_points, 5)

@@ -12,6 +12,7 @@ from omegaconf import OmegaConf
 from eval.config import CONF_DIR
 from gspi.cli.train import rewrite_data_alias, run
 from gspi.stage2.checkpoint import CheckpointError, export_ema_only, load_stage2_checkpoint
+from gspi.stage2.config import complete_stage2
 from gspi.stage2.sampler import predict_point_pbr
 from gspi.stage2.train import LOSS_KEY, TrainState, rcw_config, train
 from gspi.stage2.train_log import JsonlMetrics
@@ -103,7 +104,7 @@ def test_checkpoint_roundtrip_and_ema_export(dataset, tmp_path):
     ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     for name, value in model.state_dict().items():
         assert torch.equal(value, ckpt["ema"][name])  # the EMA weights, not the raw ones
-    assert not model.training and saved["stage2"]["model"] == cfg["stage2"]["model"] and saved["seed"] == 0
+    assert not model.training and saved["stage2"].model == complete_stage2(cfg["stage2"]).model and saved["seed"] == 0
     for half in (False, True):
         dst = export_ema_only(tmp_path / "checkpoint.pt", tmp_path / f"ema_{half}.pt", half=half)
         shipped = torch.load(dst, weights_only=True)
@@ -140,6 +141,7 @@ def test_bad_checkpoints_name_the_file(dataset, tmp_path):
 def test_prediction_range_and_determinism(dataset):
     cfg = tiny_cfg(dataset, Path("unused"))
     torch.manual_seed(0)
+    cfg = {**cfg, "stage2": complete_stage2(cfg["stage2"])}  # TrainState takes the checked config
     state = TrainState(cfg, rcw_config(cfg["stage2"], 256))
     model = state.ema
     g = torch.Generator().manual_seed(0)

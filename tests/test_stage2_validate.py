@@ -44,7 +44,7 @@ def test_scores_are_logged_at_the_due_steps_and_best_is_kept(runs):
     model, cfg = load_stage2_checkpoint(checked / "best.pt")
     saved = torch.load(checked / "best.pt", weights_only=True)
     assert saved["step"] == steps[best] and "optimizer" not in saved and not model.training
-    assert cfg["stage2"]["validate"]["every"] == 4
+    assert cfg["stage2"].validate.every == 4
 
 
 def test_validation_scores_are_reproducible(dataset, runs, tmp_path):  # noqa: F811

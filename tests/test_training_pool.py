@@ -122,3 +122,47 @@ def test_pool_indices_make_the_same_scenes_as_the_whole_pool(pool, tmp_path):
     for bad in ([[3, 2]], [[0, 300]], [[5]]):
         with pytest.raises(ValueError, match="data.pool_indices"):
             pool_recipes(0, 256, [128], bad)
+
+
+def test_material_mix_zero_keeps_every_recipe_and_one_mixes_every_scene():
+    """data.material_mix=0 (the default) draws the recipes of a pool made before the option
+    existed; 1 gives every scene a second class, metal beside a dielectric when either is."""
+    plain = pool_recipes(0, 84, [128])
+    assert pool_recipes(0, 84, [128], material_mix=0.0) == plain
+    assert not any("mix" in r["material"] for r in plain)
+    mixed = pool_recipes(0, 84, [128], material_mix=1.0)
+    for before, after in zip(plain, mixed):
+        mix = after["material"]["mix"]
+        assert {k: v for k, v in after["material"].items() if k != "mix"} == before["material"]
+        assert {k: v for k, v in after.items() if k != "material"} == \
+            {k: v for k, v in before.items() if k != "material"}
+        metallic = {before["material"]["class"], mix["second"]["class"]} & {"metal", "painted_metal"}
+        assert len(metallic) <= 1 and mix["second"]["class"] != before["material"]["class"]
+    seconds = [r["material"]["mix"]["second"]["class"] for r in mixed]
+    assert "metal" in seconds and len(set(seconds)) >= 4
+    half = pool_recipes(0, 84, [128], material_mix=0.5)
+    assert 0.3 < np.mean(["mix" in r["material"] for r in half]) < 0.7
+    with pytest.raises(ValueError, match="data.material_mix"):
+        pool_recipes(0, 4, [128], material_mix=1.5)
+
+
+def test_two_class_material_splits_the_object_between_its_classes():
+    """A mixed recipe equals its first class on one side of the warped plane and its second
+    class on the other; both sides hold a real share of the object's points."""
+    import torch
+
+    from gspi.data.materials import _second_region, evaluate_material
+
+    recipe = next(r for r in pool_recipes(0, 84, [128], material_mix=1.0)
+                  if r["material"]["mix"]["second"]["class"] == "metal")["material"]
+    q = torch.nn.functional.normalize(torch.randn(4000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    both = evaluate_material(recipe, q)
+    own = evaluate_material({k: v for k, v in recipe.items() if k != "mix"}, q)
+    second = evaluate_material(recipe["mix"]["second"], q)
+    region = _second_region(recipe["mix"], q)
+    assert 0.05 < region.float().mean() < 0.95
+    assert torch.equal(both.albedo_linear[region], second.albedo_linear[region])
+    assert torch.equal(both.albedo_linear[~region], own.albedo_linear[~region])
+    assert torch.equal(both.metallic[~region], own.metallic[~region])
+    assert (both.metallic[region] > 0.5).float().mean() > 0.5  # the metal side
+    assert (both.metallic[~region] > 0.5).float().mean() == 0  # a dielectric first class

@@ -61,20 +61,18 @@ def run(cfg: DictConfig) -> dict:
     # stats.json is the run's record, written last: an earlier one must not outlive a killed rerun
     if dist.is_main:
         (out / "stats.json").unlink(missing_ok=True)
-    stats = train(plain, out, stop_at=plain["stage2"]["train"]["stop_at"],
-                  stop_after_minutes=plain["stage2"]["train"]["stop_after_minutes"],
-                  stop_after_cpu_minutes=plain["stage2"]["train"]["stop_after_cpu_minutes"], dist=dist)
+    stats = train(plain, out, dist=dist)  # budgets: stage2.train.stop_at / stop_after_(cpu_)minutes
     if not dist.is_main:  # rank 0 evaluates and writes the record
         shutdown(dist)
         return stats
     shutdown(dist)
-    ev = plain["stage2"]["eval"]
-    if ev["enabled"]:
+    ev = plain["stage2"].eval
+    if ev.enabled:
         model, saved_cfg = load_stage2_checkpoint(out / "checkpoint.pt")
-        result = evaluate_checkpoint(model, saved_cfg, plain["data_dir"], out / "eval_points", split=ev["split"],
-                                     num_steps=int(ev["num_steps"]), seed=int(ev["seed"]),
-                                     write_chunk=ev["write_chunk"], source=checkpoint_source(out / "checkpoint.pt"))
-        stats["eval_points"] = {"split": ev["split"], "mean": result["mean"]}
+        result = evaluate_checkpoint(model, saved_cfg, plain["data_dir"], out / "eval_points", split=ev.split,
+                                     num_steps=ev.num_steps, seed=ev.seed, write_chunk=ev.write_chunk,
+                                     source=checkpoint_source(out / "checkpoint.pt"))
+        stats["eval_points"] = {"split": ev.split, "mean": result["mean"]}
     write_json_atomic(out / "stats.json", stats, allow_nan=True)
     log.info("wrote %s", out / "stats.json")
     return stats

@@ -42,9 +42,11 @@ def training_hash(cfg: Mapping[str, Any]) -> str:
 
 def check_compatible(saved: Mapping[str, Any], wanted: Mapping[str, Any], path: Path) -> None:
     """The run's ablation switches must be those the checkpoint was trained with."""
-    pairs = {"stage2.data.local_condition": (saved["stage2"]["data"]["local_condition"],
-                                             wanted["stage2"]["data"]["local_condition"]),
-             "stage2.prior.encoder": (saved["stage2"]["prior"]["encoder"], wanted["stage2"]["prior"]["encoder"])}
+    from gspi.stage2.config import complete_stage2
+
+    have, want = complete_stage2(saved["stage2"]), complete_stage2(wanted["stage2"])
+    pairs = {"stage2.data.local_condition": (have.data.local_condition, want.data.local_condition),
+             "stage2.prior.encoder": (have.prior.encoder, want.prior.encoder)}
     bad = {k: v for k, v in pairs.items() if v[0] != v[1]}
     if bad:
         desc = "; ".join(f"{k}: checkpoint {a!r}, run {b!r}" for k, (a, b) in bad.items())
@@ -54,11 +56,12 @@ def check_compatible(saved: Mapping[str, Any], wanted: Mapping[str, Any], path: 
 
 def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Context:
     """The run's :class:`~gspi.pipeline.Stage2Context`: :func:`load_or_train` plus the prior's encoder."""
+    from gspi.stage2.config import complete_stage2
     from gspi.stage2.encoders import build_encoder
 
     model, model_cfg, info = load_or_train(cfg, cache_root)
-    return Stage2Context(model=model, model_cfg=model_cfg, encoder=build_encoder(model_cfg["stage2"]["prior"]),
-                         info=info)
+    return Stage2Context(model=model, model_cfg=model_cfg, encoder=build_encoder(model_cfg["stage2"].prior),
+                         info=info, run_cfg=complete_stage2(cfg["stage2"]))
 
 
 def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
@@ -69,23 +72,24 @@ def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
     from gspi.stage2.distributed import DistContext
     from gspi.stage2.train import train
 
+    from dataclasses import replace
+
     stage2 = complete_stage2(cfg["stage2"])
-    ckpt = stage2["checkpoint"]
+    ckpt = stage2.checkpoint
     if ckpt:
         path = resolve_path(ckpt)
         model, saved = load_stage2_checkpoint(path)
         check_compatible(saved, cfg, path)
         return model, saved, {"checkpoint": str(path), "trained": False}
     folder = Path(cache_root) / "stage2" / training_hash(cfg)
-    train_cfg = {"stage2": {k: v for k, v in stage2.items() if k != "checkpoint"},
-                 "data_dir": str(cfg["data_dir"]), "seed": int(cfg["seed"])}
+    train_cfg = {"stage2": replace(stage2, checkpoint=None), "data_dir": str(cfg["data_dir"]),
+                 "seed": int(cfg["seed"])}
     with file_lock(folder):
         done = folder / "checkpoint.pt"
         stats = None
         if not (done.is_file() and _finished(done, train_cfg)):
             log.info("training Stage II into %s", folder)
-            stats = train(train_cfg, folder, stop_at=stage2["train"]["stop_at"],
-                          dist=DistContext(device=resolve_device(cfg.get("device", "cpu"))))
+            stats = train(train_cfg, folder, dist=DistContext(device=resolve_device(cfg.get("device", "cpu"))))
         model, saved = load_stage2_checkpoint(done)
     return model, saved, {"checkpoint": str(done), "trained": stats is not None, "train_stats": stats}
 
@@ -93,6 +97,6 @@ def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
 def _finished(path: Path, train_cfg: Mapping[str, Any]) -> bool:
     from gspi.stage2.checkpoint import read_checkpoint
 
-    train = train_cfg["stage2"]["train"]
-    last = min(int(train["steps"]), int(train["stop_at"] or train["steps"]))
+    train = train_cfg["stage2"].train
+    last = min(int(train.steps), int(train.stop_at or train.steps))
     return int(read_checkpoint(path)["step"]) >= last

@@ -89,8 +89,8 @@ def load_stage2_checkpoint(path: str | Path) -> tuple[RCWDenoiser, dict]:
     Args:
         path: a training checkpoint (``<out>/checkpoint.pt``) or a shipped EMA-only file.
     Returns:
-        (model, cfg): cfg = {"stage2": ..., "seed": ..., ...} as saved (plain dict), ``stage2``
-        completed with the defaults of keys added since (``gspi.stage2.config``).
+        (model, cfg): cfg = {"stage2": ..., "seed": ..., ...} as saved, ``stage2`` the checked
+        ``Stage2Config`` (keys added since the file was written take their defaults).
     Raises:
         FileNotFoundError / CheckpointError naming ``path``.
     """

@@ -3,9 +3,12 @@ node of gspi-train and gspi-run (``conf/stage2/*.yaml``) as one checked dataclas
 
 ``Stage2Config.from_dict`` builds it from a resolved ``stage2`` node and rejects unknown keys,
 wrong types and out-of-range values (``gspi.strict_config``), naming the dotted key, at
-start-up. ``complete_stage2(node)`` returns the same node as a plain dict with every key
-present: the one place where a key missing from a YAML or from an older checkpoint's stored
-config gets its default, so the stage code reads ``cfg[key]`` and never ``cfg.get(key, x)``.
+start-up. ``complete_stage2(node)`` returns it checked, every key present: the one place
+where a key missing from a YAML or from an older checkpoint's stored config gets its default.
+From there on the stage passes the ``Stage2Config`` itself (``cfg["stage2"]`` of the training
+config) and its code reads fields (``stage2.train.steps``, ``stage2.data``): nothing parses the
+node a second time. ``stored_config(cfg)`` turns it back into plain data where it is written
+(checkpoints, the ladder's model files).
 
 The denoiser sizes (``stage2.model``) are :class:`~gspi.stage2.model.RCWConfig`'s fields and
 defaults; its condition widths, head and schedule length are derived (from ``stage2.data``,
@@ -131,6 +134,13 @@ def model_sizes(model: Mapping[str, Any]) -> dict:
     return {k: getattr(sizes, k) for k in MODEL_KEYS}
 
 
-def complete_stage2(node: Mapping[str, Any]) -> dict:
-    """The ``stage2`` node as a plain dict with every key (defaults filled in), checked."""
-    return asdict(Stage2Config.from_dict(node))
+def complete_stage2(node: "Mapping[str, Any] | Stage2Config") -> Stage2Config:
+    """The ``stage2`` node checked, with every key (defaults filled in); a Stage2Config is
+    returned as it is."""
+    return node if isinstance(node, Stage2Config) else Stage2Config.from_dict(node)
+
+
+def stored_config(cfg: Mapping[str, Any]) -> dict:
+    """``cfg`` as plain data (``stage2`` a dict) for a file: a checkpoint's ``config``."""
+    stage2 = cfg.get("stage2")
+    return {**cfg, "stage2": asdict(stage2)} if isinstance(stage2, Stage2Config) else dict(cfg)

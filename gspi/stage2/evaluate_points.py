@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping
 import torch
 
 from eval.records.points_scores import write_points_scores
-from gspi.stage2.data import PointDataConfig, ScenePoints
+from gspi.stage2.data import ScenePoints
 from gspi.stage2.points_measure import (CHANNELS, PSNR_CAP_DB, PointSampling, baseline_prediction,
                                         evaluate_scenes, subset_prediction, training_constants)
 from gspi.stage2.splits import load_split
@@ -53,7 +53,7 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
     from gspi.stage2.encoders import build_encoder
 
     stage2 = cfg["stage2"]
-    encoder = build_encoder(stage2["prior"])
+    encoder = build_encoder(stage2.prior)
     scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder)
     try:
         train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder)
@@ -66,7 +66,7 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
     result.update(train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
                   split=split, scenes=[s.name for s in scenes], baseline_constants={"roughness": rough, "metallic": metal},
                   baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
-                  lpips="AlexNet LPIPS v0.1 (eval.lpips.net), masked_mean", encoder=stage2["prior"]["encoder"],
+                  lpips="AlexNet LPIPS v0.1 (eval.lpips.net), masked_mean", encoder=stage2.prior.encoder,
                   **dict(record))
     write_points_scores(out_dir, result)  # eval.records.points_scores: the format's one writer
     return result
@@ -89,7 +89,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
-    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    data_cfg = cfg["stage2"].data
     sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed)
 
     def predict(scene: ScenePoints, index: int):

@@ -21,6 +21,7 @@ import copy
 import json
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -28,6 +29,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from gspi.stage2.config import complete_stage2, stored_config
 from gspi.stage2.data import (PointDataConfig, ScenePoints, local_condition, local_subset,
                               perturb_along_rays, sample_batch)
 from gspi.stage2.inputs import Stage2Inputs
@@ -46,15 +48,13 @@ def ladder_config(data_dir: str | Path, seed: int, overrides: tuple[str, ...] = 
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from gspi.stage2.config import complete_stage2
-
     from eval.config import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("gspi_train", overrides=[f"stage2={LADDER_RECIPE}", f"data_dir={data_dir}", "out=unused",
                                                f"seed={seed}", *overrides])
     plain = OmegaConf.to_container(cfg, resolve=True)
-    plain["stage2"] = complete_stage2(plain["stage2"])
+    plain["stage2"] = complete_stage2(plain["stage2"])  # the checked Stage2Config
     return plain
 
 
@@ -62,8 +62,6 @@ def build_rung(rung: str, cfg: Mapping[str, Any], prior_dim: int) -> nn.Module:
     if rung in MLP_RUNGS:
         return PointMLP(rung_features(rung).width(prior_dim))
     if rung == "r4":
-        from dataclasses import replace
-
         from gspi.stage2.train import rcw_config
 
         return RCWRegressor(replace(rcw_config(cfg["stage2"], prior_dim), self_condition=False,
@@ -102,15 +100,15 @@ def train_rung(rung: str, cfg: Mapping[str, Any], scenes: list[ScenePoints], pri
     """Trains a rung; returns (EMA model in eval mode, stats). Seeds follow gspi-train's."""
     from gspi.stage2.train import learning_rate, update_ema
 
-    train = {**cfg["stage2"]["train"], "steps": int(steps)}
+    train = replace(cfg["stage2"].train, steps=int(steps))
     seed = int(cfg["seed"])
     torch.manual_seed(seed)
     model = build_rung(rung, cfg, prior_dim)
     ema = copy.deepcopy(model).requires_grad_(False).eval()
-    opt = torch.optim.AdamW(model.parameters(), lr=float(train["lr"]), betas=tuple(train["betas"]),
-                            weight_decay=float(train["weight_decay"]))
+    opt = torch.optim.AdamW(model.parameters(), lr=float(train.lr), betas=tuple(train.betas),
+                            weight_decay=float(train.weight_decay))
     rng = np.random.default_rng([seed, 1])
-    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    data_cfg = cfg["stage2"].data
     cpu_end = time.process_time() + 60.0 * float(cpu_minutes)
     cpu0, wall0, losses = time.process_time(), time.perf_counter(), []
     log_file = None if metrics_path is None else open(metrics_path, "w")
@@ -147,7 +145,7 @@ def save_rung(model: nn.Module, rung: str, cfg: Mapping[str, Any], stats: Mappin
 
     prior_dim = int(stats.get("prior_dim", 0))
     return save_atomic({"format": RUNG_FORMAT, "rung": rung, "prior_dim": prior_dim, "state_dict": model.state_dict(),
-                        "config": dict(cfg), "stats": dict(stats)}, path)
+                        "config": stored_config(cfg), "stats": dict(stats)}, path)
 
 
 def load_rung(path: str | Path) -> tuple[nn.Module, str, dict]:
@@ -160,12 +158,13 @@ def load_rung(path: str | Path) -> tuple[nn.Module, str, dict]:
     saved = torch.load(path, map_location="cpu", weights_only=False)
     if not isinstance(saved, dict) or saved.get("format") != RUNG_FORMAT:
         raise CheckpointError(f"{path}: not a ladder model (format {RUNG_FORMAT!r})")
-    model = build_rung(saved["rung"], saved["config"], int(saved["prior_dim"]))
+    cfg = {**saved["config"], "stage2": complete_stage2(saved["config"]["stage2"])}
+    model = build_rung(saved["rung"], cfg, int(saved["prior_dim"]))
     try:
         model.load_state_dict(saved["state_dict"])
     except RuntimeError as exc:
         raise CheckpointError(f"{path}: weights do not fit rung {saved['rung']}: {exc}") from exc
-    return model.requires_grad_(False).eval(), saved["rung"], saved["config"]
+    return model.requires_grad_(False).eval(), saved["rung"], cfg
 
 
 def eval_features(scene: ScenePoints, index: int, data_cfg: PointDataConfig, seed: int = 0) -> np.ndarray:
@@ -198,7 +197,7 @@ def score_rung(model: nn.Module, rung: str, cfg: Mapping[str, Any], data_dir: st
     """Table 2's measure of a trained rung on ``split`` of ``data_dir``; writes scores.json."""
     from gspi.stage2.evaluate_points import score_split
 
-    data_cfg = PointDataConfig.from_mapping(cfg["stage2"]["data"])
+    data_cfg = cfg["stage2"].data
     return score_split(lambda scene, index: predict_rung(model, rung, scene, index, data_cfg), cfg, data_dir,
                        split, out_dir, baseline_train=baseline_train,
                        record={"ablation": rung, "checkpoint": f"ladder:{rung}:seed{cfg['seed']}", "num_steps": None,
@@ -224,10 +223,10 @@ def run_train(args: argparse.Namespace) -> None:
     cfg = ladder_config(args.data, args.seed, tuple(args.override))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    encoder = build_encoder(cfg["stage2"]["prior"])
+    encoder = build_encoder(cfg["stage2"].prior)
     scenes = load_split(cfg, "train", encoder)
     prior_dim = 0 if scenes[0].global_tokens is None else int(pooled_prior(scenes[0]).shape[0])
-    steps = args.steps or (MLP_STEPS if args.rung in MLP_RUNGS else int(cfg["stage2"]["train"]["steps"]))
+    steps = args.steps or (MLP_STEPS if args.rung in MLP_RUNGS else int(cfg["stage2"].train.steps))
     model, stats = train_rung(args.rung, cfg, scenes, prior_dim, steps=steps, cpu_minutes=args.cpu_minutes,
                               metrics_path=out / "metrics.jsonl")
     stats["prior_dim"] = prior_dim

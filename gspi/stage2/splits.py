@@ -12,7 +12,7 @@ from gspi.stage2.feature_cache import scene_prior_features
 
 def cache_dir(cfg: Mapping[str, Any]) -> Path:
     """``stage2.prior.cache_dir``, default ``<data>/.cache/stage2_prior``."""
-    return Path(cfg["stage2"]["prior"]["cache_dir"] or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
+    return Path(cfg["stage2"].prior.cache_dir or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
 
 
 def load_split(cfg: Mapping[str, Any], split: str, encoder) -> list[ScenePoints]:

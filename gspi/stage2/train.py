@@ -4,9 +4,9 @@ cosine schedule and Min-SNR-gamma weighting (``gspi.stage2.loss.denoising_loss``
 warm-up and cosine decay, gradient clipping, an EMA of the weights, periodic checkpoints
 that a rerun resumes from exactly (whole-cloud inference: ``gspi.stage2.sampler.predict_point_pbr``).
 
-``cfg`` is the resolved ``gspi-train`` config as a plain dict (``conf/gspi_train.yaml``):
-``data_dir`` (dataset dir), ``out``, ``seed`` and ``stage2`` (``gspi.stage2.config``; ``train``
-completes and checks it first, so every key below is present).
+``cfg`` is the resolved ``gspi-train`` config as a dict (``conf/gspi_train.yaml``): ``data_dir``
+(dataset dir), ``out``, ``seed`` and ``stage2``, which ``train`` turns into the checked
+``gspi.stage2.config.Stage2Config`` first; everything below reads its fields.
 """
 from __future__ import annotations
 
@@ -23,9 +23,9 @@ from torch import Tensor
 
 from gspi.stage2.checkpoint import (CheckpointError, ema_only, load_weights, rcw_config_dict,
                                     read_checkpoint, save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
-from gspi.stage2.config import complete_stage2
+from gspi.stage2.config import TrainConfig, complete_stage2, stored_config
 from gspi.stage2.distributed import DistContext
-from gspi.stage2.data import PointDataConfig, local_condition_dim, sample_batch
+from gspi.stage2.data import local_condition_dim, sample_batch
 from gspi.stage2.encoders import build_encoder
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.loss import denoising_loss
@@ -38,22 +38,23 @@ log = logging.getLogger(__name__)
 LOSS_KEY = "stage2/train/loss"
 
 
-def rcw_config(stage2: Mapping[str, Any], global_token_dim: int) -> RCWConfig:
-    """RCWConfig from ``stage2.model``; the condition widths follow ``stage2.data`` and the encoder."""
+def rcw_config(stage2, global_token_dim: int) -> RCWConfig:
+    """RCWConfig from ``stage2.model`` (a Stage2Config or its node); the condition widths follow
+    ``stage2.data`` and the encoder."""
     stage2 = complete_stage2(stage2)
-    local, diffusion = stage2["data"]["local_condition"], stage2["diffusion"]
-    return RCWConfig(**stage2["model"], local_cond_dim=local_condition_dim(local),
+    local, diffusion = stage2.data.local_condition, stage2.diffusion
+    return RCWConfig(**stage2.model, local_cond_dim=local_condition_dim(local),
                      use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim,
-                     prediction=diffusion["prediction"], num_train_timesteps=diffusion["num_train_timesteps"])
+                     prediction=diffusion.prediction, num_train_timesteps=diffusion.num_train_timesteps)
 
 
-def learning_rate(step: int, train: Mapping[str, Any]) -> float:
+def learning_rate(step: int, train: TrainConfig) -> float:
     """Linear warm-up over ``warmup_steps``, then cosine decay to ``min_lr_ratio * lr``."""
-    lr, warmup, total = float(train["lr"]), int(train["warmup_steps"]), int(train["steps"])
+    lr, warmup, total = float(train.lr), int(train.warmup_steps), int(train.steps)
     if step < warmup:
         return lr * (step + 1) / warmup
     progress = min(1.0, (step - warmup) / max(1, total - warmup))
-    ratio = float(train["min_lr_ratio"])
+    ratio = float(train.min_lr_ratio)
     return lr * (ratio + (1.0 - ratio) * 0.5 * (1.0 + math.cos(math.pi * progress)))
 
 
@@ -71,12 +72,12 @@ class TrainState:
     """Model, EMA copy, optimizer, step and the RNGs that make a resumed run continue exactly."""
 
     def __init__(self, cfg: Mapping[str, Any], model_config: RCWConfig):
-        train = cfg["stage2"]["train"]
+        train = cfg["stage2"].train
         torch.manual_seed(int(cfg["seed"]))
         self.model = RCWDenoiser(model_config)
         self.ema = copy.deepcopy(self.model).requires_grad_(False).eval()
-        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=float(train["lr"]),
-                                           betas=tuple(train["betas"]), weight_decay=float(train["weight_decay"]))
+        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=float(train.lr),
+                                           betas=tuple(train.betas), weight_decay=float(train.weight_decay))
         self.step = 0
         self.elapsed_s = 0.0
         self.best: dict = {}  # {"step", "score"} of the best validation so far (best.pt)
@@ -85,7 +86,7 @@ class TrainState:
 
     def state_dict(self, cfg: Mapping[str, Any]) -> dict:
         return {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": self.step,
-                "rcw_config": rcw_config_dict(self.model.config), "config": dict(cfg),
+                "rcw_config": rcw_config_dict(self.model.config), "config": stored_config(cfg),
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
                 "optimizer": self.optimizer.state_dict(), "elapsed_s": self.elapsed_s, "best": self.best,
                 "rng": {"numpy": self.data_rng.bit_generator.state, "loss": self.loss_generator.get_state(),
@@ -114,23 +115,23 @@ def train_step(state: TrainState, f0: Tensor, inputs: Stage2Inputs, cfg: Mapping
                alphas_cumprod: Tensor, dist: DistContext = DistContext()) -> dict[str, float]:
     """One AdamW step on one batch (this rank's slice under ``dist``); updates the EMA.
     Returns the logged scalars (the loss averaged over ranks)."""
-    train, diffusion = cfg["stage2"]["train"], cfg["stage2"]["diffusion"]
+    train, diffusion = cfg["stage2"].train, cfg["stage2"].diffusion
     lr = learning_rate(state.step, train)
     for group in state.optimizer.param_groups:
         group["lr"] = lr
     state.model.train()
     loss = denoising_loss(state.model, f0, inputs, generator=state.loss_generator, alphas_cumprod=alphas_cumprod,
-                          min_snr_gamma=float(diffusion["min_snr_gamma"]),
-                          min_snr_floor=float(diffusion["min_snr_floor"]),
-                          self_condition_prob=float(diffusion["self_condition_prob"]), shard=dist.loss_shard)
+                          min_snr_gamma=float(diffusion.min_snr_gamma),
+                          min_snr_floor=float(diffusion.min_snr_floor),
+                          self_condition_prob=float(diffusion.self_condition_prob), shard=dist.loss_shard)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"non-finite Stage II loss {float(loss)} at step {state.step}")
     state.optimizer.zero_grad(set_to_none=True)
     loss.backward()
     dist.average_gradients(state.model)
-    grad_norm = torch.nn.utils.clip_grad_norm_(state.model.parameters(), float(train["grad_clip"]))
+    grad_norm = torch.nn.utils.clip_grad_norm_(state.model.parameters(), float(train.grad_clip))
     state.optimizer.step()
-    update_ema(state.ema, state.model, decay=float(train["ema_decay"]), step=state.step)
+    update_ema(state.ema, state.model, decay=float(train.ema_decay), step=state.step)
     state.step += 1
     return {LOSS_KEY: dist.mean(float(loss.detach())), "stage2/train/grad_norm": float(grad_norm), "stage2/train/lr": lr}
 
@@ -166,15 +167,15 @@ class Budget:
             (self.cpu_end is not None and time.process_time() >= self.cpu_end)
 
 
-def make_validator(cfg: Mapping[str, Any], encoder, data_cfg: PointDataConfig):
+def make_validator(cfg: Mapping[str, Any], encoder):
     """The run's Validator, or None when ``stage2.validate.every`` is null."""
-    from gspi.stage2.validate import Validator, validation_config
+    from gspi.stage2.validate import Validator
 
-    vcfg = validation_config(cfg["stage2"])
+    vcfg = cfg["stage2"].validate
     if vcfg.every is None:
         return None
     source = {**cfg, "data_dir": vcfg.data} if vcfg.data else cfg
-    return Validator(vcfg, load_split(source, vcfg.split, encoder), data_cfg)
+    return Validator(vcfg, load_split(source, vcfg.split, encoder), cfg["stage2"].data)
 
 
 def validate(state: TrainState, validator, cfg: Mapping[str, Any], out_dir: Path, metrics) -> dict:
@@ -196,7 +197,9 @@ def validate(state: TrainState, validator, cfg: Mapping[str, Any], out_dir: Path
 def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int] = None,
           stop_after_minutes: Optional[float] = None, stop_after_cpu_minutes: Optional[float] = None,
           dist: DistContext = DistContext()) -> dict:
-    """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``.
+    """Trains (or resumes from ``<out>/checkpoint.pt``) up to ``stage2.train.steps``; the
+    three budgets default to ``stage2.train``'s (``stop_at``, ``stop_after_minutes``,
+    ``stop_after_cpu_minutes``), a value passed here takes their place.
 
     Writes ``checkpoint.pt`` (every ``checkpoint_every`` steps and at the end),
     ``metrics.jsonl`` and ``loss_curve.png``. Returns the run statistics.
@@ -214,15 +217,19 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     """
     out_dir = Path(out_dir)
     cfg = {**cfg, "stage2": complete_stage2(cfg["stage2"])}  # checked; every key present
-    stage2, train_cfg = cfg["stage2"], cfg["stage2"]["train"]
-    encoder = build_encoder(stage2["prior"])
+    stage2 = cfg["stage2"]
+    train_cfg, data_cfg = stage2.train, stage2.data
+    encoder = build_encoder(stage2.prior)
     scenes = load_split(cfg, "train", encoder)
-    data_cfg = PointDataConfig.from_mapping(stage2["data"])
-    validator = make_validator(cfg, encoder, data_cfg) if dist.is_main else None
+    validator = make_validator(cfg, encoder) if dist.is_main else None
+    stop_at = train_cfg.stop_at if stop_at is None else stop_at
+    stop_after_minutes = train_cfg.stop_after_minutes if stop_after_minutes is None else stop_after_minutes
+    stop_after_cpu_minutes = (train_cfg.stop_after_cpu_minutes if stop_after_cpu_minutes is None
+                              else stop_after_cpu_minutes)
     state = TrainState(cfg, rcw_config(stage2, encoder.feature_dim))
     if dist.device.type != "cpu":
         state.model.to(dist.device), state.ema.to(dist.device)
-    dist.local_batch(int(train_cfg["batch_size"]))  # divisible by the ranks, checked before any step
+    dist.local_batch(int(train_cfg.batch_size))  # divisible by the ranks, checked before any step
     metrics = JsonlMetrics(out_dir / "metrics.jsonl") if dist.is_main else _NoMetrics()
     ckpt_path = out_dir / "checkpoint.pt"
     if ckpt_path.is_file():
@@ -231,7 +238,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         log.info("resumed from %s at step %d", ckpt_path, state.step)
     else:
         metrics.truncate_after(-1)
-        init_from = train_cfg["init_from"]
+        init_from = train_cfg.init_from
         if init_from:  # fine-tuning: weights (not optimizer or step) of another Stage II model
             from gspi.stage2.checkpoint import read_checkpoint, load_weights
 
@@ -243,14 +250,14 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             load_weights(state.model, weights, init_from, "init_from")
             load_weights(state.ema, weights, init_from, "init_from")
             log.info("initialised the weights from %s", init_from)
-    alphas_cumprod = cosine_alphas_cumprod(int(stage2["diffusion"]["num_train_timesteps"])).to(dist.device)
-    total, every = int(train_cfg["steps"]), int(train_cfg["checkpoint_every"])
-    log_every = int(train_cfg["log_every"])
+    alphas_cumprod = cosine_alphas_cumprod(int(stage2.diffusion.num_train_timesteps)).to(dist.device)
+    total, every = int(train_cfg.steps), int(train_cfg.checkpoint_every)
+    log_every = int(train_cfg.log_every)
     start_step, t0, validated_at = state.step, time.perf_counter(), None
     end = total if stop_at is None else min(total, int(stop_at))
     budget = Budget(stop_after_minutes, stop_after_cpu_minutes)
     while state.step < end and not dist.any(budget.spent()):
-        f0, inputs = dist.shard(*sample_batch(scenes, data_cfg, int(train_cfg["batch_size"]), state.data_rng))
+        f0, inputs = dist.shard(*sample_batch(scenes, data_cfg, int(train_cfg.batch_size), state.data_rng))
         values = train_step(state, f0, inputs, cfg, alphas_cumprod, dist)
         metrics.log(state.step, values)
         if state.step % log_every == 0:

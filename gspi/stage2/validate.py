@@ -17,7 +17,7 @@ OUT --split val --num-steps 10 --max-points 20000`` (the one CLI of the measure)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Optional
+from typing import ClassVar, Optional
 
 from gspi.stage2.data import PointDataConfig, ScenePoints
 from gspi.stage2.points_measure import average_scores, scatter_to_views, score_maps, subset_prediction
@@ -66,9 +66,3 @@ class Validator:
             scores.append(score_maps(maps, read_gt_view_maps(scene.root)[0], mask, self.lpips))
         mean = average_scores(scores)
         return {f"stage2/val/{c}_{m}": v for c, metrics in mean.items() for m, v in metrics.items()}
-
-
-def validation_config(stage2: Mapping[str, Any]) -> ValidationConfig:
-    from gspi.strict_config import dataclass_from_dict
-
-    return dataclass_from_dict(ValidationConfig, stage2["validate"], "stage2.validate")
