@@ -19,6 +19,7 @@ from tests.fixtures import surfel_sphere
 
 RADIUS = 0.7
 # Small sizes keep each export to a few seconds on the 2-core VM.
+FAST_LEVELS = [0.0, 0.125, 0.25, 0.375, 0.5]  # the default export.mesh.levels
 FAST = {"mesh": {"image_size": 96, "resolution": 40}, "texture": {"size": 128}, "preview": False}
 
 
@@ -114,8 +115,12 @@ def test_glb_is_gltf2_with_a_pbr_material(exported):
     (mesh,) = scene.geometry.values()
     assert isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial)
     assert len(mesh.faces) == record["mesh"]["faces"]
-    # Y-up on file: the sphere's extent is the same on every axis, its centre at the origin
-    assert np.allclose(mesh.bounds.mean(0), 0.0, atol=0.05)
+    # Y-up on file: the sphere is centred on x and z; its top is +y, and its underside (no
+    # lattice view sees it, so it is not meshed) is cut off on -y
+    lo, hi = mesh.bounds
+    assert np.allclose((lo + hi)[[0, 2]] / 2, 0.0, atol=0.02)
+    assert abs(hi[1] - RADIUS) < 0.05 and lo[1] > -RADIUS + 0.05
+    assert record["mesh"]["level"] in FAST_LEVELS and record["mesh"]["silhouette_iou"]
     assert record["bytes"] == (root / "asset.glb").stat().st_size
 
 
@@ -200,3 +205,35 @@ def test_cli_dispatch_and_one_line_error(tmp_path, monkeypatch, capsys):
     assert exc.value.code == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and "none.ply: asset file not found" in err[0], err
+
+
+def test_the_kept_level_fits_the_silhouette_of_a_surface_rendered_too_deep():
+    """A reconstructed asset's median depth lies behind its surface while its alpha covers the
+    silhouette (docs/EXPORT.md): fused depths of a sphere pushed 0.04 back along every ray, with
+    the true sphere's mask, give a zero set inside the sphere; the level the silhouette fit keeps
+    is outside it and its mesh lies closer to the true radius."""
+    from gspi.export.config import MeshConfig
+    from gspi.export.surface import LatticeViews, asset_surface, mask_iou, mesh_masks
+
+    depth, valid, K, w2c = sphere_depths(96, 0.8)
+    views = LatticeViews(depth=np.where(valid, depth + 0.04, 0.0), valid=valid,
+                         materials=np.zeros(valid.shape + (5,), np.float32), K=np.asarray(K), w2c=np.asarray(w2c))
+    centres = np.array([[-0.8, -0.8, -0.8], [0.8, 0.8, 0.8]])
+    fitted = asset_surface(views, centres, MeshConfig(resolution=48, margin=0.1))
+    plain = asset_surface(views, centres, MeshConfig(resolution=48, margin=0.1, levels=[0.0]))
+    assert fitted.info["level"] > 0 and plain.info["level"] == 0
+    upper = lambda m: np.linalg.norm(m.vertices[m.vertices[:, 2] > 0], axis=1).mean()  # noqa: E731
+    assert upper(plain) < 0.8 - 0.01 and abs(upper(fitted) - 0.8) < abs(upper(plain) - 0.8) / 2
+    ious = fitted.info["silhouette_iou"]
+    assert max(ious.values()) == ious[str(fitted.info["level"])] > ious["0.0"]
+    masks = mesh_masks(fitted.vertices, fitted.faces, views.K, views.w2c, 96, 96, stride=2)
+    assert mask_iou(masks, valid[:, ::2, ::2]) == pytest.approx(ious[str(fitted.info["level"])], abs=1e-5)
+    full = mesh_masks(fitted.vertices, fitted.faces, views.K, views.w2c, 96, 96)
+    assert np.array_equal(full[:, ::2, ::2], masks) and mask_iou(full, valid) > 0.97
+
+
+def test_bad_levels_are_refused_naming_the_key():
+    with pytest.raises(ValueError, match=r"export\.mesh\.levels"):
+        ExportConfig.from_dict({"mesh": {"levels": []}})
+    with pytest.raises(ValueError, match=r"export\.mesh\.levels"):
+        ExportConfig.from_dict({"mesh": {"levels": [0.0, 1.5]}})

@@ -19,9 +19,16 @@ class MeshConfig:
     margin: float = 0.05           # grid padding, fraction of that side
     truncation_voxels: float = 4.0  # TSDF truncation in voxels
     min_fragment: float = 0.01     # components with fewer faces than this fraction are dropped
+    # TSDF levels tried (truncation units, 0 = the median-depth surface); the one whose mesh
+    # silhouette best matches the asset's alpha at the lattice views is kept (docs/EXPORT.md)
+    levels: list = field(default_factory=lambda: [0.0, 0.125, 0.25, 0.375, 0.5])
 
     RANGES: ClassVar[dict] = {"image_size": (16, 4096), "alpha_threshold": (0.0, 1.0), "resolution": (8, 512),
                               "margin": (0.0, 1.0), "truncation_voxels": (0.5, 64.0), "min_fragment": (0.0, 1.0)}
+
+    def __post_init__(self) -> None:
+        if not self.levels or not all(isinstance(v, (int, float)) and 0.0 <= v < 1.0 for v in self.levels):
+            raise ValueError(f"export.mesh.levels={self.levels!r}: must be a non-empty list of numbers in [0, 1)")
 
 
 @dataclass

@@ -6,7 +6,15 @@ the cameras every GS-PI asset is reconstructed and distilled at); each view's me
 edges (``tsdf.away_from_edges``), is fused into a TSDF
 (``gspi.export.tsdf``) on a grid around the surfel centres, and its zero level set is the mesh.
 Fragments below ``min_fragment`` of the faces (floaters: a few stray surfels' depths) are
-dropped. The lattice is a hemisphere: what no lattice view sees (an object's underside) is not
+dropped.
+
+The median depth of a reconstructed asset lies about a pixel *behind* the object's surface (its
+surfels form a shell a few layers thick, and the median is where their alpha reaches 0.5), while
+its alpha covers the object's silhouette: so the zero level set alone is a mesh about a pixel
+too small all round (docs/EXPORT.md measures it). Each of ``levels`` (TSDF levels outside the
+zero set) is therefore extracted, ray-cast at the lattice cameras, and the one whose mask best
+matches the asset's alpha mask there (mean IoU) is kept: the silhouette is fitted to the asset's
+own renders, never to a ground truth. The lattice is a hemisphere: what no lattice view sees (an object's underside) is not
 meshed, and the mesh is open there.
 """
 from __future__ import annotations
@@ -76,6 +84,40 @@ def drop_fragments(vertices: np.ndarray, faces: np.ndarray, min_fraction: float)
     return compact(vertices, faces[keep_labels[labels]])
 
 
+SILHOUETTE_STRIDE = 2  # the silhouette fit casts every 2nd pixel's ray (a quarter of the pixels)
+
+
+def mesh_masks(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndarray,
+               height: int, width: int, stride: int = 1) -> np.ndarray:
+    """[V, ceil(H / stride), ceil(W / stride)] bool: pixels (every ``stride``-th row and column)
+    whose centre ray meets the mesh (OpenCV cameras ``K``, ``w2c``). trimesh's ray caster
+    (Embree when installed, as the texture bake uses)."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    try:
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+        caster = RayMeshIntersector(mesh)
+    except ImportError:  # pragma: no cover - embreex is a dependency
+        caster = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+    jj, ii = np.meshgrid(np.arange(0, width, stride) + 0.5, np.arange(0, height, stride) + 0.5)
+    pixels = np.stack([jj.ravel(), ii.ravel(), np.ones(jj.size)], axis=-1)
+    out = np.zeros((len(K),) + jj.shape, dtype=bool)
+    for v, (k, m) in enumerate(zip(K, w2c)):
+        rot, t = m[:3, :3], m[:3, 3]
+        dirs = (pixels @ np.linalg.inv(k).T) @ rot  # camera -> world: R^T d, as row vectors
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+        origin = np.broadcast_to(-rot.T @ t, dirs.shape)
+        out[v] = caster.intersects_any(np.ascontiguousarray(origin), dirs).reshape(jj.shape)
+    return out
+
+
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean over views of |a & b| / |a | b| ([V, H, W] bool; a view where both are empty counts 1)."""
+    inter, union = (a & b).sum(axis=(1, 2)), (a | b).sum(axis=(1, 2))
+    return float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
+
+
 def asset_surface(views: LatticeViews, centres: np.ndarray, cfg: MeshConfig) -> SurfaceMesh:
     """The mesh (module docstring) of the asset seen in ``views``, on a grid around its surfel
     ``centres`` [N, 3].
@@ -93,10 +135,20 @@ def asset_surface(views: LatticeViews, centres: np.ndarray, cfg: MeshConfig) -> 
     truncation = cfg.truncation_voxels * grid.voxel_size
     valid = away_from_edges(views.depth, views.valid, truncation)
     tsdf, weight = fuse_depths(grid, views.depth, valid, views.K, views.w2c, truncation=truncation)
-    vertices, faces = zero_surface(tsdf, weight, grid)
-    n_raw = len(faces)
-    vertices, faces = drop_fragments(vertices, faces, cfg.min_fragment)
+    height, width = views.valid.shape[1:]
+    candidates, ious = [], []
+    for level in cfg.levels:
+        vertices, faces = zero_surface(tsdf, weight, grid, level=level)
+        n_raw = len(faces)
+        vertices, faces = drop_fragments(vertices, faces, cfg.min_fragment)
+        candidates.append((vertices, faces, n_raw))
+        s = SILHOUETTE_STRIDE
+        ious.append(mask_iou(mesh_masks(vertices, faces, views.K, views.w2c, height, width, s),
+                             views.valid[:, ::s, ::s]) if len(cfg.levels) > 1 else float("nan"))
+    best = int(np.nanargmax(ious)) if len(cfg.levels) > 1 else 0
+    vertices, faces, n_raw = candidates[best]
     info = {"method": "tsdf_lattice_median_depth", "views": len(views.depth), "image_size": cfg.image_size,
             "valid_pixels": seen, "grid_shape": list(grid.shape), "voxel_size": grid.voxel_size,
+            "level": float(cfg.levels[best]), "silhouette_iou": {str(lv): round(x, 5) for lv, x in zip(cfg.levels, ious)},
             "faces_marching_cubes": n_raw, "faces": int(len(faces)), "vertices": int(len(vertices))}
     return SurfaceMesh(vertices=vertices, faces=faces, info=info)

@@ -133,9 +133,11 @@ def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def zero_surface(tsdf: np.ndarray, weight: np.ndarray, grid: VoxelGrid, *,
-                 min_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                 min_weight: float = 1.0, level: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(vertices [P, 3] world, faces [F, 3]) of the tsdf's zero level set where voxels were
     seen (``weight >= min_weight``), faces counter-clockwise seen from outside (positive side).
+    ``level`` > 0 takes the level set that far outside instead, in truncation units (the
+    surface moves out by about ``level * truncation``).
 
     Marching cubes runs on the whole grid (unseen voxels hold 1); a face is kept when the cube
     holding its centroid has all 8 corners seen. (skimage's own ``mask=`` argument did not keep
@@ -148,9 +150,9 @@ def zero_surface(tsdf: np.ndarray, weight: np.ndarray, grid: VoxelGrid, *,
     from skimage.measure import marching_cubes
 
     seen = weight >= min_weight
-    if not seen.any() or tsdf[seen].min() > 0 or tsdf[seen].max() < 0:
+    if not seen.any() or tsdf[seen].min() > level or tsdf[seen].max() < level:
         raise ValueError("the fused depth has no surface (no sign change of the TSDF among the seen voxels)")
-    verts, faces, _, _ = marching_cubes(tsdf.astype(np.float32), level=0.0, allow_degenerate=False)
+    verts, faces, _, _ = marching_cubes(tsdf.astype(np.float32), level=float(level), allow_degenerate=False)
     faces = faces.astype(np.int64)
     cube = np.floor(verts[faces].mean(axis=1)).astype(np.int64)  # voxel units, before spacing
     cube = np.clip(cube, 0, np.array(grid.shape) - 1)
