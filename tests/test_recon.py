@@ -342,3 +342,25 @@ def test_render_lattice_views_shapes_and_cameras(scene_dir):
     vm, Ks = out.meta["viewmats"], out.meta["Ks"] * (SIZE / 24.0)
     Ks[:, 2, 2] = 1.0
     assert torch.allclose(views.viewmats, vm, atol=1e-5) and torch.allclose(views.Ks, Ks, atol=1e-4)
+
+
+def test_held_out_views_that_show_nothing_are_listed_not_scored(scene_dir, tmp_path):
+    """A held-out view whose mask is empty (a single-sided card seen from behind: several of the
+    real objects' views) is listed in the record's empty_views and left out of the means; with
+    no view left the means are None. Before, Stage 0's held-out evaluation raised "mask is
+    empty" and the whole scene failed in gspi-run."""
+    import imageio.v3 as iio
+
+    from gspi.cli.recon import run
+
+    scene = tmp_path / "scene"
+    shutil.copytree(scene_dir, scene)
+    test_dirs = sorted(p for p in (scene / "test").iterdir() if p.is_dir())
+    for i, view in enumerate(test_dirs):
+        mask = iio.imread(view / "mask.png")
+        iio.imwrite(view / "mask.png", np.zeros_like(mask))
+        one = run(recon_config(scene, tmp_path / f"out{i}", ["recon.iterations=10"]))["test"]
+        blanked = [p.name for p in test_dirs[:i + 1]]
+        assert one["empty_views"] == blanked and one["num_views"] == len(test_dirs) - i - 1
+        assert [v["view"] for v in one["per_view"]] == [p.name for p in test_dirs[i + 1:]]
+    assert one["psnr_masked"] is None and one["alpha_iou"] is None

@@ -58,7 +58,7 @@ def run(cfg: DictConfig) -> dict:
     summary = {**record, "ply": str(ply), "wall_seconds": time.perf_counter() - t0}
     write_json_atomic(out / "recon.json", summary)
     final = summary["test"]
-    test_txt = ("no test views" if final is None else
+    test_txt = ("no test views" if final is None else "no test view shows the object" if not final["num_views"] else
                 f"test PSNR {final['psnr_masked']:.2f} dB masked / {final['psnr_full']:.2f} dB full, "
                 f"SSIM {final['ssim_masked']:.4f} masked")
     log.info("%s: %d Gaussians, %d iterations, %.0f s; %s -> %s", scene.name, summary["num_gaussians"],

@@ -137,11 +137,16 @@ def evaluate_views(gaussians: Gaussians2D, views: SceneViews, display_cfg: Displ
 
     Returns the means over views of masked PSNR / SSIM (inside the ground-truth mask,
     ``eval.metrics``) and full-image PSNR / SSIM (all pixels; the object on black), plus
-    per-view values.
+    per-view values. Views whose mask is empty (a single-sided card seen from behind, a view
+    that misses the object) have nothing to score: they are listed in ``empty_views`` and left
+    out of the means, which are None when no view is left.
     """
-    per_view = []
+    per_view, empty = [], []
     dcfg = _display_cfg(display_cfg)
     for i in range(views.num_views):
+        if not bool(views.masks[i].any()):
+            empty.append(views.ids[i])
+            continue
         # the training renderer's backend (recon.render), not gsplat: held-out views score what was fit
         out = render_gaussians(gaussians, views.viewmats[i:i + 1], views.Ks[i:i + 1], views.width,
                                views.height, backend=tile_backend("auto", gaussians.means.device))
@@ -156,8 +161,8 @@ def evaluate_views(gaussians: Gaussians2D, views: SceneViews, display_cfg: Displ
             "alpha_iou": float(((out.alpha[0, ..., 0] > 0.5) & mask).sum() / ((out.alpha[0, ..., 0] > 0.5) | mask).sum()),
         })
     keys = ("psnr_masked", "psnr_full", "ssim_masked", "ssim_full", "alpha_iou")
-    mean = {k: float(sum(v[k] for v in per_view) / len(per_view)) for k in keys}
-    return {**mean, "num_views": len(per_view), "per_view": per_view}
+    mean = {k: float(sum(v[k] for v in per_view) / len(per_view)) if per_view else None for k in keys}
+    return {**mean, "num_views": len(per_view), "empty_views": empty, "per_view": per_view}
 
 
 @dataclass
