@@ -470,3 +470,16 @@ def test_held_out_views_that_see_nothing_of_a_single_sided_asset_are_not_scored(
     assert {v.id for v in scene.views["test"] if v.gt_channels == ()} == empty
     scored, _ = scene_scored_views(scene, scene.root, OmegaConf.structured(ProtocolConfig), EnvironmentCache())
     assert {sv.view for sv in scored} == {v.id for v in scene.views["test"]} - empty
+    # the run's figure of a scene whose chosen view shows nothing takes the next scored view
+    # (it raised "not enough values to unpack" on SimpleSparseAccessor and TextureTransformTest)
+    from eval.report_site.run_figure import scene_figure
+
+    ids = [v.id for v in scene.views["test"]]
+    first_empty = min(ids.index(e) for e in empty)
+    assert any(i not in empty for i in ids[first_empty:])  # the seeded views: t00-t03 empty, t04- seen
+    fig = scene_figure(scene, scene.root, tmp_path / "fig.png", OmegaConf.structured(ProtocolConfig),
+                       view_index=first_empty)
+    assert fig.is_file() and fig.stat().st_size > 1000
+    with pytest.raises(ValueError, match="no scored test view"):  # nothing from there on
+        scene_figure(scene, scene.root, tmp_path / "none.png", OmegaConf.structured(ProtocolConfig),
+                     view_index=len(ids))

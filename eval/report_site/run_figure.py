@@ -36,14 +36,22 @@ def figure_panels(sv: ScoredView, protocol) -> list[tuple[str, np.ndarray, np.nd
 
 def scene_figure(scene: Scene, pred_scene_dir: Path, out_path: Path, protocol, *, split: str = "test",
                  view_index: int = 0) -> Path:
-    """Writes the figure of one scored view (``view_index`` of ``split``) of ``scene``."""
+    """Writes the figure of one scored view of ``scene``: view ``view_index`` of ``split``, or the
+    first one after it that is scored (a view that shows nothing of the object, ``gt_channels:
+    []``, is not: several of the real objects' held-out views)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    view = scene.split_views(split)[view_index]
-    (sv,), _ = scene_scored_views(scene, Path(pred_scene_dir), protocol, EnvironmentCache(), views=[view])
+    sv, cache = None, EnvironmentCache()
+    for view in scene.split_views(split)[view_index:]:
+        scored, _ = scene_scored_views(scene, Path(pred_scene_dir), protocol, cache, views=[view])
+        if scored:
+            (sv,) = scored
+            break
+    if sv is None:
+        raise ValueError(f"{scene.root}: no scored {split} view from index {view_index} on: no figure")
     panels = figure_panels(sv, protocol)
     mask = sv.mask.cpu().numpy()
     fig, axes = plt.subplots(2, len(panels), figsize=(2.0 * len(panels), 4.4), squeeze=False)
