@@ -290,3 +290,23 @@ def test_auto_reaches_the_numba_compositor_in_the_pipelines(monkeypatch):
         calls.clear()
         call()
         assert calls, f"{name} did not use the numba compositor"
+
+
+def test_tile_order_deals_long_and_short_tiles_to_every_thread():
+    """Each thread's contiguous share of the order (what numba's workqueue hands it) holds
+    every tile once overall and a balanced mix of list lengths."""
+    import numpy as np
+
+    from gspi.gaussians.numba_composite import _tile_order
+
+    counts = np.random.default_rng(0).geometric(0.05, size=256)  # 16 x 16 tiles, skewed lengths
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    plain = _tile_order(offsets)
+    assert plain.tolist() == np.argsort(-counts, kind="stable").tolist()
+    for workers in (2, 4):  # 256 tiles: equal shares
+        order = _tile_order(offsets, workers)
+        assert sorted(order.tolist()) == list(range(len(counts)))
+        shares = [counts[part].sum() for part in np.array_split(order, workers)]
+        assert max(shares) / min(shares) < 1.05, shares
+    halves = [counts[part].sum() for part in np.array_split(plain, 2)]
+    assert max(halves) / min(halves) > 2  # what the longest-first order gave the two threads
