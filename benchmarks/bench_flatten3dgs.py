@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from benchmarks.common import machine
+from eval.metrics import psnr_from_mse
 from gspi.gaussians.cameras import camera_centers
 from gspi.gaussians.lattice_render import lattice_camera_tensors, render_lattice_views
 from gspi.gaussians.ply import read_ply
@@ -28,7 +29,7 @@ ASSETS = Path(__file__).resolve().parents[1] / "checkpoints" / "demo_assets"
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float(-10 * np.log10(max(float(((a - b) ** 2).mean()), 1e-20)))
+    return psnr_from_mse(float(((a - b) ** 2).mean()), mse_floor=1e-20)
 
 
 def main() -> None:

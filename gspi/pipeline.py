@@ -42,7 +42,7 @@ class Stage2Context:
     model_cfg: Mapping[str, Any]
     encoder: Any
     info: dict
-    run_cfg: Any = None  # gspi.stage2.config.Stage2Config; None = the model's own
+    run_cfg: Any  # gspi.stage2.config.Stage2Config of the run
 
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:
@@ -87,7 +87,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     with clock.stage("stage2"):
         pbr, s2 = predict_generated_points(
             stage2.model, points, renders, local_mode=data_cfg.local_condition, encoder=stage2.encoder,
-            cfg=(stage2.run_cfg or stage2.model_cfg["stage2"]).inference,
+            cfg=stage2.run_cfg.inference,
             tol_pixels=float(data_cfg.visibility_tol_pixels), device=device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 

@@ -197,19 +197,25 @@ def shading_normals(mesh: PBRMesh, tri: np.ndarray, bary: np.ndarray,
     return np.where(flip, -n, n)
 
 
+def ray_intersector(tm):
+    """trimesh's ray caster for the trimesh ``tm``: Embree (embreex) when it imports, else the
+    pure-numpy one (slower, same answers up to float rounding). Every ray cast of gspi's
+    meshes (this renderer, the export's texture bake and silhouette fit) takes it from here."""
+    import trimesh
+
+    try:
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+        return RayMeshIntersector(tm)
+    except ImportError:
+        return trimesh.ray.ray_triangle.RayMeshIntersector(tm)
+
+
 class MeshTracer:
     """Closest hits of rays on a PBRMesh: (hit [N], t [N], triangle [N], barycentrics [N, 3])."""
 
     def __init__(self, mesh: PBRMesh):
-        import trimesh
-
         self.mesh = mesh
-        tm = mesh.trimesh()
-        try:
-            from trimesh.ray.ray_pyembree import RayMeshIntersector
-            self.intersector = RayMeshIntersector(tm)
-        except ImportError:  # embreex missing: slower, same answers up to float rounding
-            self.intersector = trimesh.ray.ray_triangle.RayMeshIntersector(tm)
+        self.intersector = ray_intersector(mesh.trimesh())
 
     def trace(self, origins: np.ndarray, dirs: np.ndarray):
         """Closest *drawn* hits (`drawn`): a culled or cut-out hit lets its ray go on from just

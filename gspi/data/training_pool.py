@@ -65,22 +65,24 @@ def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int],
     material_class = MATERIAL_CLASSES[(index // len(FAMILIES)) % len(MATERIAL_CLASSES)]
     rng = pool_rng(seed, index)
     capture = env_names("capture")
+    shape = sample_shape(family, rng)  # the draws in this order: shape, material, view seed
+    material = sample_material(material_class, rng)
     return {
         "index": int(index), "name": pool_scene_name(index, family, material_class),
-        "family": family, "shape": sample_shape(family, rng),
-        "material": (material := sample_material(material_class, rng)),
+        "family": family, "shape": shape,
+        "material": _maybe_mixed(seed, index, material, material_mix),
         "capture_env": capture[(index // (len(FAMILIES) * len(MATERIAL_CLASSES)) + index) % len(capture)],
         "relight_envs": [], "test_directions": [], "val_directions": [],
         "view_seed": int(rng.integers(0, 2**31 - 1)),
         "image_size": int(image_sizes[index % len(image_sizes)]),
         "pool_namespace": POOL_NAMESPACE,
-    } | _mixed_material(seed, index, material, material_mix)
+    }
 
 
-def _mixed_material(seed: int, index: int, material: dict, share: float) -> dict:
-    """{"material": the two-class recipe} for the `share` of scenes drawn to carry one, else {}."""
+def _maybe_mixed(seed: int, index: int, material: dict, share: float) -> dict:
+    """`material` with a second class for the `share` of scenes drawn to carry one, else itself."""
     rng = mix_rng(seed, index)
-    return {"material": mix_materials(material, rng)} if rng.uniform() < share else {}
+    return mix_materials(material, rng) if rng.uniform() < share else material
 
 
 def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int],

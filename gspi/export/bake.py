@@ -57,12 +57,10 @@ def texel_samples(uv: np.ndarray, faces: np.ndarray, vertices: np.ndarray, size:
     """Which UV triangle holds each texel centre (module docstring), and its 3D point."""
     import trimesh
 
+    from gspi.data.mesh_render import ray_intersector
+
     flat = trimesh.Trimesh(np.column_stack([uv * size, np.zeros(len(uv))]), faces, process=False, validate=False)
-    try:
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
-        caster = RayMeshIntersector(flat)
-    except ImportError:  # embreex missing: the pure-numpy caster, same answers
-        caster = trimesh.ray.ray_triangle.RayMeshIntersector(flat)
+    caster = ray_intersector(flat)
     rows, cols = np.mgrid[0:size, 0:size]
     origins = np.column_stack([cols.ravel() + 0.5, rows.ravel() + 0.5, np.ones(size * size)])
     dirs = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)

@@ -90,25 +90,21 @@ SILHOUETTE_STRIDE = 2  # the silhouette fit casts every 2nd pixel's ray (a quart
 def mesh_masks(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndarray,
                height: int, width: int, stride: int = 1) -> np.ndarray:
     """[V, ceil(H / stride), ceil(W / stride)] bool: pixels (every ``stride``-th row and column)
-    whose centre ray meets the mesh (OpenCV cameras ``K``, ``w2c``). trimesh's ray caster
-    (Embree when installed, as the texture bake uses)."""
+    whose centre ray (``gspi.gaussians.cameras.pixel_rays``, OpenCV cameras ``K``, ``w2c``)
+    meets the mesh."""
     import trimesh
 
-    mesh = trimesh.Trimesh(vertices, faces, process=False)
-    try:
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
-        caster = RayMeshIntersector(mesh)
-    except ImportError:  # pragma: no cover - embreex is a dependency
-        caster = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
-    jj, ii = np.meshgrid(np.arange(0, width, stride) + 0.5, np.arange(0, height, stride) + 0.5)
-    pixels = np.stack([jj.ravel(), ii.ravel(), np.ones(jj.size)], axis=-1)
-    out = np.zeros((len(K),) + jj.shape, dtype=bool)
-    for v, (k, m) in enumerate(zip(K, w2c)):
-        rot, t = m[:3, :3], m[:3, 3]
-        dirs = (pixels @ np.linalg.inv(k).T) @ rot  # camera -> world: R^T d, as row vectors
-        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-        origin = np.broadcast_to(-rot.T @ t, dirs.shape)
-        out[v] = caster.intersects_any(np.ascontiguousarray(origin), dirs).reshape(jj.shape)
+    from gspi.data.mesh_render import ray_intersector
+    from gspi.gaussians.cameras import camera_centers, pixel_rays
+
+    caster = ray_intersector(trimesh.Trimesh(vertices, faces, process=False))
+    K, w2c = torch.as_tensor(K, dtype=torch.float64), torch.as_tensor(w2c, dtype=torch.float64)
+    dirs = pixel_rays(K, w2c, height, width)[:, ::stride, ::stride].numpy()
+    centres = camera_centers(w2c).numpy()
+    out = np.zeros(dirs.shape[:3], dtype=bool)
+    for v in range(len(dirs)):
+        d = np.ascontiguousarray(dirs[v].reshape(-1, 3))
+        out[v] = caster.intersects_any(np.broadcast_to(centres[v], d.shape).copy(), d).reshape(out.shape[1:])
     return out
 
 
@@ -136,13 +132,13 @@ def asset_surface(views: LatticeViews, centres: np.ndarray, cfg: MeshConfig) -> 
     valid = away_from_edges(views.depth, views.valid, truncation)
     tsdf, weight = fuse_depths(grid, views.depth, valid, views.K, views.w2c, truncation=truncation)
     height, width = views.valid.shape[1:]
+    s = SILHOUETTE_STRIDE
     candidates, ious = [], []
     for level in cfg.levels:
         vertices, faces = zero_surface(tsdf, weight, grid, level=level)
         n_raw = len(faces)
         vertices, faces = drop_fragments(vertices, faces, cfg.min_fragment)
         candidates.append((vertices, faces, n_raw))
-        s = SILHOUETTE_STRIDE
         ious.append(mask_iou(mesh_masks(vertices, faces, views.K, views.w2c, height, width, s),
                              views.valid[:, ::s, ::s]) if len(cfg.levels) > 1 else float("nan"))
     best = int(np.nanargmax(ious)) if len(cfg.levels) > 1 else 0

@@ -341,9 +341,10 @@ class NumbaComposite(torch.autograd.Function):
         last = np.zeros((height, width), np.int64)
         median = np.full((height, width), -1, np.int64)
         eps_c2 = float(torch.finfo(table.dtype).tiny) ** 0.5
-        numba.set_num_threads(threads())
+        workers = threads()
+        numba.set_num_threads(workers)
         with numba.parallel_chunksize(1):  # tiles differ widely in cost: hand them out one by one
-            _forward(_tile_order(off_np, threads()), tab, ids_np, off_np, lo_np, hi_np, grid, intersection, eps_c2,
+            _forward(_tile_order(off_np, workers), tab, ids_np, off_np, lo_np, hi_np, grid, intersection, eps_c2,
                      out, t_final, last, median)
         ctx.options = (grid, intersection, eps_c2)
         ctx.save_for_backward(table, ids, offsets, lo, hi, *map(torch.from_numpy, (t_final, last, median)))
@@ -358,9 +359,10 @@ class NumbaComposite(torch.autograd.Function):
         (g_np,) = _arrays(g_out.to(table.dtype))
         grad_pairs = np.zeros((len(ids_np), tab.shape[1]), tab.dtype)  # rows a tile's loop never reaches stay 0
         grad_table = np.zeros_like(tab)
-        numba.set_num_threads(threads())
+        workers = threads()
+        numba.set_num_threads(workers)
         with numba.parallel_chunksize(1):
-            _backward(_tile_order(off_np, threads()), tab, ids_np, off_np, lo_np, hi_np, grid, intersection, eps_c2,
+            _backward(_tile_order(off_np, workers), tab, ids_np, off_np, lo_np, hi_np, grid, intersection, eps_c2,
                       g_np, t_final, last, median, grad_pairs)
         _sum_pairs(ids_np, grad_pairs, grad_table)
         return torch.from_numpy(grad_table), None, None, None, None, None, None

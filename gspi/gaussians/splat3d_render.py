@@ -54,6 +54,9 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         opacities: [N] activated. colors: [N, D] or [C, N, D] (e.g. SH evaluated per view).
         viewmats, Ks: [C, 4, 4] world-to-camera (OpenCV), [C, 3, 3].
     """
+    jj, ii = torch.meshgrid(torch.arange(width, dtype=torch.float64) + 0.5,
+                            torch.arange(height, dtype=torch.float64) + 0.5, indexing="xy")
+    pixels = torch.stack([jj.reshape(-1), ii.reshape(-1)], -1)  # pixel centres, row-major
     out_rgb, out_alpha = [], []
     for c in range(len(viewmats)):
         col = colors[c] if colors.dim() == 3 else colors
@@ -63,9 +66,6 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         order = torch.argsort(z[keep], stable=True)
         centre, conic = centre[keep][order], torch.linalg.inv(cov2d[keep][order])
         opacity, col = opacities.double()[keep][order], col.double()[keep][order]
-        jj, ii = torch.meshgrid(torch.arange(width, dtype=torch.float64) + 0.5,
-                                torch.arange(height, dtype=torch.float64) + 0.5, indexing="xy")
-        pixels = torch.stack([jj.reshape(-1), ii.reshape(-1)], -1)
         rgb, alpha = [], []
         for start in range(0, len(pixels), pixel_chunk):
             d = pixels[start:start + pixel_chunk, None, :] - centre[None]          # [P, N, 2]

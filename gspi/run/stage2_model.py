@@ -10,6 +10,7 @@ a sweep that share a model (Table 3: A6-A9 and Full) train it once.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -40,11 +41,9 @@ def training_hash(cfg: Mapping[str, Any]) -> str:
                         "data": str(Path(cfg["data_dir"]).resolve())}, volatile=())
 
 
-def check_compatible(saved: Mapping[str, Any], wanted: Mapping[str, Any], path: Path) -> None:
-    """The run's ablation switches must be those the checkpoint was trained with."""
-    from gspi.stage2.config import complete_stage2
-
-    have, want = complete_stage2(saved["stage2"]), complete_stage2(wanted["stage2"])
+def check_compatible(have, want, path: Path) -> None:
+    """The run's ablation switches (``want``, its Stage2Config) must be those the checkpoint
+    was trained with (``have``)."""
     pairs = {"stage2.data.local_condition": (have.data.local_condition, want.data.local_condition),
              "stage2.prior.encoder": (have.prior.encoder, want.prior.encoder)}
     bad = {k: v for k, v in pairs.items() if v[0] != v[1]}
@@ -59,27 +58,25 @@ def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Conte
     from gspi.stage2.config import complete_stage2
     from gspi.stage2.encoders import build_encoder
 
-    model, model_cfg, info = load_or_train(cfg, cache_root)
+    stage2 = complete_stage2(cfg["stage2"])  # the run's Stage II config, checked once
+    model, model_cfg, info = load_or_train(cfg, stage2, cache_root)
     return Stage2Context(model=model, model_cfg=model_cfg, encoder=build_encoder(model_cfg["stage2"].prior),
-                         info=info, run_cfg=complete_stage2(cfg["stage2"]))
+                         info=info, run_cfg=stage2)
 
 
-def load_or_train(cfg: Mapping[str, Any], cache_root: Path):
-    """(model in eval mode with EMA weights, the checkpoint's config, info)."""
+def load_or_train(cfg: Mapping[str, Any], stage2, cache_root: Path):
+    """(model in eval mode with EMA weights, the checkpoint's config, info) for the run config
+    ``cfg`` whose ``stage2`` node is the checked ``stage2`` (a Stage2Config)."""
     from gspi.stage2.checkpoint import load_stage2_checkpoint
-    from gspi.stage2.config import complete_stage2
     from gspi.device import resolve_device
     from gspi.stage2.distributed import DistContext
     from gspi.stage2.train import train
 
-    from dataclasses import replace
-
-    stage2 = complete_stage2(cfg["stage2"])
     ckpt = stage2.checkpoint
     if ckpt:
         path = resolve_path(ckpt)
         model, saved = load_stage2_checkpoint(path)
-        check_compatible(saved, cfg, path)
+        check_compatible(saved["stage2"], stage2, path)
         return model, saved, {"checkpoint": str(path), "trained": False}
     folder = Path(cache_root) / "stage2" / training_hash(cfg)
     train_cfg = {"stage2": replace(stage2, checkpoint=None), "data_dir": str(cfg["data_dir"]),
