@@ -109,12 +109,18 @@ def view_colors(
         if colors.dim() == 3 and colors.shape[:2] == (n_cams, n):
             return colors
         raise ValueError(f"colors must be [N, D] or [C, N, D] without sh_degree, got {tuple(colors.shape)}")
-    if colors.dim() == 3:
-        colors = colors[None].expand(n_cams, -1, -1, -1)
-    if colors.dim() != 4 or colors.shape[-1] != 3 or colors.shape[:2] != (n_cams, n):
-        raise ValueError(f"SH colors must be [N, K, 3] or [C, N, K, 3], got {tuple(colors.shape)}")
+    colors = _sh_per_view(colors, n_cams, n)
     centers = torch.linalg.inv(viewmats)[:, :3, 3]
     return torch.stack([sh_colors(sh_degree, colors[c], means, centers[c]) for c in range(n_cams)])
+
+
+def _sh_per_view(sh: Tensor, n_cams: int, n: int) -> Tensor:
+    """SH coefficients [C, N, K, 3] (a view of [N, K, 3] shared by the cameras)."""
+    if sh.dim() == 3:
+        sh = sh[None].expand(n_cams, -1, -1, -1)
+    if sh.dim() != 4 or sh.shape[-1] != 3 or sh.shape[:2] != (n_cams, n):
+        raise ValueError(f"SH colors must be [N, K, 3] or [C, N, K, 3], got {tuple(sh.shape)}")
+    return sh
 
 
 def _check_inputs(means, quats, scales, opacities, viewmats, Ks, features, backgrounds, depth_point) -> None:
@@ -199,10 +205,18 @@ def rasterize_2dgs(
     """
     _check_inputs(means, quats, scales, opacities, viewmats, Ks, features, backgrounds, depth_point)
     backend = _resolve_backend(backend, means.device)
-    rgb_in = view_colors(colors, means, viewmats, sh_degree)
     feats_in = features
     if features is not None and features.dim() == 2:
         feats_in = features[None].expand(len(viewmats), -1, -1)
+    if backend == "numba" and not (viewmats.requires_grad or Ks.requires_grad):
+        out = _rasterize_numba(
+            means, quats, scales, opacities, colors, sh_degree, feats_in, viewmats, Ks, width, height,
+            near_plane=near_plane, far_plane=far_plane, depth_point=depth_point, tile_size=tile_size,
+        )
+        if backgrounds is not None and out.rgb is not None:
+            out.rgb = out.rgb + (1.0 - out.alpha) * backgrounds[:, None, None, :]
+        return out
+    rgb_in = view_colors(colors, means, viewmats, sh_degree)
     if backend == "gsplat":
         from gspi.gaussians.gsplat_backend import rasterize_gsplat
 
@@ -241,19 +255,59 @@ def _rasterize_torch(
                 intersection_depth=depth_point == "intersection", max_elems=max_elems, composite=composite,
             )
         )
-    img = torch.stack(images)  # [C, H, W, d_rgb + d_feat + 3 + 3]
+    meta = {"radii": proj.radii, "means2d": proj.means2d, "depths": proj.depths}
+    return _render_output(torch.stack(images), d_rgb if rgb is not None else None,
+                          d_feat if feats is not None else None, depth_point, meta)
+
+
+def _rasterize_numba(
+    means, quats, scales, opacities, colors, sh_degree, feats, viewmats, Ks, width, height, *,
+    near_plane, far_plane, depth_point, tile_size,
+) -> RenderOutput:
+    """The numba backend: per view, the compiled projection + SH colour
+    (``numba_projection.project_view``) and the compiled compositing; equal to the torch
+    path's outputs and gradients (camera gradients excepted: see the caller)."""
+    from gspi.gaussians.numba_projection import project_view
+    from gspi.gaussians.torch_backend import padded_table, rasterize_table
+
+    n_cams, n = len(viewmats), means.shape[0]
+    sh = None
+    plain = view_colors(colors, means, viewmats, None) if colors is not None and sh_degree is None else None
+    if colors is not None and sh_degree is not None:
+        sh = _sh_per_view(colors, n_cams, n)
+    images, views = [], []
+    for c in range(n_cams):
+        view = project_view(means, quats, scales, opacities, viewmats[c], Ks[c], width, height,
+                            sh=None if sh is None else sh[c], sh_degree=sh_degree if sh is not None else None,
+                            near_plane=near_plane, far_plane=far_plane)
+        chans = [t for t in (view.rgb, None if plain is None else plain[c], None if feats is None else feats[c])
+                 if t is not None] + [view.normals]
+        table = padded_table(torch.cat([view.geometry] + chans, -1))
+        images.append(rasterize_table(table, view.ray_transforms, opacities, view.in_range, width, height,
+                                      tile_size=tile_size, intersection_depth=depth_point == "intersection",
+                                      composite="numba"))
+        views.append(view)
+    d_rgb = None if colors is None else (3 if sh is not None else plain.shape[-1])
+    meta = {"radii": torch.stack([v.radii for v in views]), "means2d": torch.stack([v.means2d for v in views]),
+            "depths": torch.stack([v.depths for v in views])}
+    return _render_output(torch.stack(images), d_rgb, None if feats is None else feats.shape[-1], depth_point, meta)
+
+
+def _render_output(img: Tensor, d_rgb: Optional[int], d_feat: Optional[int], depth_point: str,
+                   meta: dict) -> RenderOutput:
+    """Splits the composited [C, H, W, rgb + features + normals + (alpha, w z, median)] image."""
     alpha = img[..., -3:-2]
-    o = d_rgb + d_feat
+    o = (d_rgb or 0) + (d_feat or 0)
     depth_expected = torch.where(alpha > 0, img[..., -2:-1] / torch.where(alpha > 0, alpha, 1.0), 0.0)
     return RenderOutput(
-        rgb=img[..., :d_rgb] if rgb is not None else None,
-        features=img[..., d_rgb:o] if feats is not None else None,
+        rgb=img[..., :d_rgb] if d_rgb is not None else None,
+        features=img[..., (d_rgb or 0):o] if d_feat is not None else None,
         alpha=alpha,
         depth_expected=depth_expected,
         depth_median=img[..., -1:],
         normals=img[..., o : o + 3],
         depth_point=depth_point,
-        meta={"radii": proj.radii, "means2d": proj.means2d, "depths": proj.depths},
+        meta=meta,
     )
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from gspi.gaussians.composite import COL_CHAN, COL_LOGOP, TileComposite, pixel_basis
+from gspi.gaussians.composite import COL_CHAN, COL_LOGOP, COL_MEAN2D, COL_ZC, TileComposite, pixel_basis
 from gspi.gaussians.tiles import TileBins, bin_splats, pixel_bounds, plan_chunks
 
 _DUMMY_LOG_OPACITY = -1e4  # padding entries: alpha = 0, never composited
@@ -48,7 +48,11 @@ def surfel_table(
     c = torch.linalg.cross(m0, m1, dim=-1)
     det = (m0 * a).sum(-1, keepdim=True)
     log_op = torch.log(torch.clamp_min(opacities, 1e-30))[:, None]
-    rows = torch.cat([a, b, c, det, means2d, log_op, depths[:, None], channels], dim=-1)
+    return padded_table(torch.cat([a, b, c, det, means2d, log_op, depths[:, None], channels], dim=-1))
+
+
+def padded_table(rows: Tensor) -> Tensor:
+    """[N, 14 + F] surfel rows plus the invisible padding row the tile lists point at."""
     pad = torch.zeros_like(rows[:1])
     pad[:, COL_LOGOP] = _DUMMY_LOG_OPACITY
     return torch.cat([rows, pad], dim=0)
@@ -128,10 +132,31 @@ def rasterize_view(
     Returns:
         [H, W, F + 3]: composited channels (over zero), alpha, sum of w z, median depth.
     """
+    table = surfel_table(ray_transforms, means2d, depths, opacities, channels)
+    return rasterize_table(table, ray_transforms, opacities, in_range, width, height, tile_size=tile_size,
+                           intersection_depth=intersection_depth, max_elems=max_elems, composite=composite)
+
+
+def rasterize_table(
+    table: Tensor,  # [N + 1, 14 + F]
+    ray_transforms: Tensor,  # [N, 3, 3]
+    opacities: Tensor,  # [N]
+    in_range: Tensor,  # [N] bool
+    width: int,
+    height: int,
+    *,
+    tile_size: int = 8,
+    intersection_depth: bool = True,
+    max_elems: int = 1 << 20,
+    composite: str = "torch",
+) -> Tensor:
+    """:func:`rasterize_view` of a view whose surfel table is built (:func:`surfel_table`, or
+    ``numba_projection.project_view``'s geometry columns + channels through :func:`padded_table`):
+    bins the surfels by their support boxes and composites. Returns [H, W, F + 3]."""
     with torch.no_grad():
+        means2d, depths = table[:-1, COL_MEAN2D:COL_MEAN2D + 2], table[:-1, COL_ZC]
         lo, hi, valid = pixel_bounds(ray_transforms, means2d, opacities, width, height)
         bins = bin_splats(lo, hi, valid & in_range, depths, width, height, tile_size)
-    table = surfel_table(ray_transforms, means2d, depths, opacities, channels)
     if composite == "numba":
         from gspi.gaussians.numba_composite import composite_view
 

@@ -55,6 +55,10 @@ def render_views(
     ``gaussian_ids`` (None: not packed).
     """
     composite = tile_backend(backend, means.device)
+    if composite == "numba" and not (viewmats.requires_grad or Ks.requires_grad):
+        return _render_views_numba(means, quats, scales, opacities, sh, sh_degree, viewmats, Ks, width, height,
+                                   backgrounds=backgrounds, densify_grad=densify_grad, near_plane=near_plane,
+                                   far_plane=far_plane, tile_size=tile_size)
     proj = project_surfels(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane)
     rt = proj.ray_transforms  # [C, N, 3, 3], column 2 = K @ mean_cam
     delta = None
@@ -71,14 +75,44 @@ def render_views(
         images.append(rasterize_view(rt[c], proj.means2d[c], proj.depths[c], opacities, chans, in_range,
                                      width, height, tile_size=tile_size, intersection_depth=True,
                                      composite=composite))
-    img = torch.stack(images)  # [C, H, W, 3 + 3 + 3]
+    meta = {"radii": proj.radii, "means2d": proj.means2d, "depths": proj.depths}
+    return _render_output(torch.stack(images), backgrounds, meta, delta, width, height)
+
+
+def _render_views_numba(means, quats, scales, opacities, sh, sh_degree, viewmats, Ks, width, height, *,
+                        backgrounds, densify_grad, near_plane, far_plane, tile_size) -> RenderOutput:
+    """:func:`render_views` through the compiled projection (``numba_projection.project_view``,
+    whose ``delta`` input receives gradient_2dgs directly) and the compiled compositing."""
+    from gspi.gaussians.numba_projection import project_view
+    from gspi.gaussians.torch_backend import padded_table, rasterize_table
+
+    delta = None
+    if densify_grad:
+        delta = torch.zeros(len(viewmats), means.shape[0], 2, dtype=means.dtype, device=means.device,
+                            requires_grad=True)
+    images, views = [], []
+    for c in range(len(viewmats)):
+        view = project_view(means, quats, scales, opacities, viewmats[c], Ks[c], width, height, sh=sh,
+                            sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane,
+                            delta=None if delta is None else delta[c])
+        table = padded_table(torch.cat([view.geometry, view.rgb, view.normals], dim=-1))
+        images.append(rasterize_table(table, view.ray_transforms, opacities, view.in_range, width, height,
+                                      tile_size=tile_size, intersection_depth=True, composite="numba"))
+        views.append(view)
+    meta = {"radii": torch.stack([v.radii for v in views]), "means2d": torch.stack([v.means2d for v in views]),
+            "depths": torch.stack([v.depths for v in views])}
+    return _render_output(torch.stack(images), backgrounds, meta, delta, width, height)
+
+
+def _render_output(img: Tensor, backgrounds: Optional[Tensor], meta: dict, delta: Optional[Tensor],
+                   width: int, height: int) -> RenderOutput:
+    """Splits the composited [C, H, W, 3 + 3 + 3] image (colour, normals, alpha / w z / median)."""
     alpha = img[..., 6:7]
     depth_expected = torch.where(alpha > 0, img[..., 7:8] / torch.where(alpha > 0, alpha, 1.0), 0.0)
     color = img[..., :3]
     if backgrounds is not None:
         color = color + (1.0 - alpha) * backgrounds[:, None, None, :]
-    meta = {"radii": proj.radii, "means2d": proj.means2d, "depths": proj.depths}
     if delta is not None:
-        meta.update(gradient_2dgs=delta, width=width, height=height, n_cameras=len(viewmats), gaussian_ids=None)
+        meta.update(gradient_2dgs=delta, width=width, height=height, n_cameras=img.shape[0], gaussian_ids=None)
     return RenderOutput(rgb=color, features=None, alpha=alpha, depth_expected=depth_expected,
                         depth_median=img[..., 8:9], normals=img[..., 3:6], depth_point="intersection", meta=meta)
