@@ -207,3 +207,38 @@ def test_cpu_time_budget_counts_process_cpu_not_wall_time(monkeypatch):
 def test_a_spent_cpu_budget_stops_before_the_first_step(dataset, tmp_path):
     stats = train(tiny_cfg(dataset, tmp_path), tmp_path, stop_after_cpu_minutes=0.0)
     assert stats["steps"] == 0 and (tmp_path / "checkpoint.pt").is_file()
+
+
+def test_checkpoint_clock_and_run_log(dataset, tmp_path, monkeypatch):
+    """stage2.train.checkpoint_minutes saves between the step-based checkpoints (0: every step),
+    a run resumed from such a checkpoint equals an uninterrupted one, and every finished run
+    appends one line to stage2.train.run_log."""
+    import gspi.stage2.train as train_mod
+
+    saved_steps = []
+    real_save = train_mod.save_checkpoint
+
+    def counting_save(state, cfg, out_dir):
+        saved_steps.append(state.step)
+        return real_save(state, cfg, out_dir)
+
+    monkeypatch.setattr(train_mod, "save_checkpoint", counting_save)
+    log_file = tmp_path / "runs.jsonl"
+    common = ("stage2.train.checkpoint_every=1000", f"stage2.train.run_log={log_file}")
+    straight, cut = tmp_path / "straight", tmp_path / "cut"
+    train(tiny_cfg(dataset, straight, *common, "stage2.train.checkpoint_minutes=null"), straight)
+    assert saved_steps == [10]  # only the final one
+    saved_steps.clear()
+    cfg = tiny_cfg(dataset, cut, *common, "stage2.train.checkpoint_minutes=0")
+    train(cfg, cut, stop_at=6)
+    assert saved_steps == [1, 2, 3, 4, 5, 6]
+    stats = train(cfg, cut)
+    assert stats["resumed_from"] == 6 and stats["steps"] == 10 and stats["total_steps"] == 10
+    a = torch.load(straight / "checkpoint.pt", weights_only=True)
+    b = torch.load(cut / "checkpoint.pt", weights_only=True)
+    for name, value in a["ema"].items():
+        assert torch.equal(value, b["ema"][name]), name
+    lines = [json.loads(x) for x in log_file.read_text().splitlines()]
+    assert [(x["steps"], x["of"], x["done"]) for x in lines] == [([0, 10], 10, True), ([0, 6], 10, False),
+                                                              ([6, 10], 10, True)]
+    assert lines[-1]["out"] == str(cut.resolve()) and lines[-1]["seed"] == 0

@@ -166,3 +166,116 @@ def test_two_class_material_splits_the_object_between_its_classes():
     assert torch.equal(both.metallic[~region], own.metallic[~region])
     assert (both.metallic[region] > 0.5).float().mean() > 0.5  # the metal side
     assert (both.metallic[~region] > 0.5).float().mean() == 0  # a dielectric first class
+
+
+# sha256 of json.dumps(pool_recipes(0, 256, [128, 64], material_mix=m), sort_keys=True), recorded at
+# ca29e96 before data.parts existed: the defaults must keep every recipe (hence every byte).
+POOL_RECIPES_SHA256 = {0.0: "d21f59f518e856effd0dff0006d0b2555596a16228ea6b1eada23ecff327678b",
+                       0.5: "85d6b0faf304acff7b94da5d4965019c3361b2aeff9ddcddb2b0d9297e60d014"}
+
+
+def _recipes_sha(recipes) -> str:
+    import json
+
+    return hashlib.sha256(json.dumps(recipes, sort_keys=True).encode()).hexdigest()
+
+
+@pytest.mark.parametrize("mix", sorted(POOL_RECIPES_SHA256))
+def test_parts_defaults_keep_every_recipe(mix):
+    from gspi.data.material_parts import PartsConfig
+
+    recipes = pool_recipes(0, 256, [128, 64], material_mix=mix, parts=PartsConfig.from_mapping({}))
+    assert _recipes_sha(recipes) == POOL_RECIPES_SHA256[mix]
+    cfg = make_config(Path("/tmp/unused"))
+    assert PartsConfig.from_mapping(cfg.data.parts).is_default  # the preset's values are the defaults
+
+
+def _parts_pool(share=1.0, **kw):
+    from gspi.data.material_parts import PartsConfig
+
+    return pool_recipes(0, 84, [128], parts=PartsConfig(share=share, **kw))
+
+
+def test_parts_recipes_hold_two_to_four_parts_mixed_like_real_objects():
+    from gspi.data.materials import METAL_CLASSES
+
+    plain = pool_recipes(0, 84, [128])
+    recipes = _parts_pool(count=(2, 4))
+    counts, with_metal = [], 0
+    for before, after in zip(plain, recipes):
+        parts = after["material"]["parts"]
+        classes = [m["class"] for m in parts["materials"]]
+        counts.append(len(classes))
+        assert parts["materials"][0] == before["material"]  # the first part is the scene's own draw
+        assert after["name"] == before["name"] and after["shape"] == before["shape"]
+        assert not all(c in METAL_CLASSES for c in classes)  # never only metal
+        with_metal += any(c in METAL_CLASSES for c in classes)
+        assert parts["layout"] in ("bands", "cells")
+    assert set(counts) == {2, 3, 4}
+    assert 0.4 < with_metal / len(recipes) < 0.95
+    assert {r["material"]["parts"]["layout"] for r in recipes} == {"bands", "cells"}
+    share = np.mean(["parts" in r["material"] for r in _parts_pool(share=0.6)])
+    assert 0.45 < share < 0.75
+
+
+def test_each_part_evaluates_its_own_material():
+    """A multi-part recipe equals, point by point, the recipe of the part the point falls in, and
+    every part holds a real share of the object's points."""
+    import torch
+
+    from gspi.data.material_parts import part_index
+    from gspi.data.materials import evaluate_material
+
+    q = torch.nn.functional.normalize(torch.randn(6000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    q = q * torch.rand(6000, 1, generator=torch.Generator().manual_seed(1)) ** 0.3
+    checked = set()
+    for recipe in _parts_pool(count=(3, 3), roughness_spread=0.2, texture=0.5)[:14]:
+        parts = recipe["material"]["parts"]
+        whole = evaluate_material(recipe["material"], q)
+        index = part_index(parts, q)
+        shares = torch.bincount(index, minlength=3).float() / len(q)
+        if shares.min() < 0.02:  # a cut outside the object: allowed, but not every time
+            continue
+        checked.add(parts["layout"])
+        for k, part in enumerate(parts["materials"]):
+            own = evaluate_material(part, q)
+            sel = index == k
+            assert torch.equal(whole.albedo_linear[sel], own.albedo_linear[sel])
+            assert torch.equal(whole.roughness[sel], own.roughness[sel])
+            assert torch.equal(whole.metallic[sel], own.metallic[sel])
+    assert checked == {"bands", "cells"}
+
+
+def test_part_variations_widen_metal_colour_and_roughness():
+    """metal_f0=wide draws metal base colours far below the F0 table's darkest (0.45; Suzanne's is
+    0.10); roughness_spread shifts each part; texture varies albedo inside a part."""
+    import torch
+
+    from gspi.data.materials import METAL_F0, evaluate_material
+
+    recipes = _parts_pool(share=0.0, metal_f0="wide", roughness_spread=0.2, texture=0.5)
+    metals = [r["material"] for r in recipes if r["material"]["class"] == "metal"]
+    values = [max(m["f0"]) for m in metals]
+    assert min(values) < 0.3 and max(values) > 0.6
+    assert min(values) < min(min(v) for v in METAL_F0.values())
+    shifts = [r["material"]["roughness_shift"] for r in recipes]
+    assert min(shifts) < -0.1 and max(shifts) > 0.1
+    q = torch.nn.functional.normalize(torch.randn(3000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    m = metals[0]
+    flat = evaluate_material({k: v for k, v in m.items() if k not in ("texture", "roughness_shift")}, q)
+    varied = evaluate_material(m, q)
+    assert not torch.equal(flat.albedo_linear, varied.albedo_linear)
+    lo, hi = 0.02, 1.0  # the clamp every roughness goes through
+    expected_mean = (flat.roughness + m["roughness_shift"]).clamp(lo, hi).mean()
+    assert abs(float(varied.roughness.mean() - expected_mean)) < 0.05
+
+
+@pytest.mark.parametrize("bad, match", [({"share": 1.5}, "data.parts.share"), ({"count": [1, 3]}, "data.parts.count"),
+                                        ({"layouts": ["rings"]}, "data.parts.layouts"),
+                                        ({"metal_f0": "gold"}, "data.parts.metal_f0"),
+                                        ({"sharee": 0.5}, "unknown key")])
+def test_parts_config_names_the_bad_key(bad, match):
+    from gspi.data.material_parts import PartsConfig
+
+    with pytest.raises(ValueError, match=match):
+        PartsConfig.from_mapping(bad)

@@ -69,6 +69,7 @@ class BenchmarkConfig:
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
     pool_indices: Optional[list] = None       # training pool: only these [start, stop) index ranges
     material_mix: float = 0.0                 # training pool: share of two-class scenes (issue 24)
+    parts: dict = field(default_factory=dict) # training pool: multi-part objects (gspi.data.material_parts)
     capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
     relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
     renderer: str = "splitsum"                # input views: splitsum | pathtraced
@@ -237,6 +238,7 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
                            device: torch.device | str = "cpu") -> dict:
     """The Stage II training pool (gspi.data.training_pool): resumes, skips complete scenes."""
     from gspi.data.env_sets import environment_sets, is_default
+    from gspi.data.material_parts import PartsConfig
     from gspi.data.training_pool import pending_recipes, pool_recipes, read_pool_done
 
     start = time.perf_counter()
@@ -244,7 +246,7 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
         raise ValueError("a training pool has train scenes only: set data.num_val_scenes=0, "
                          "data.num_test_scenes=0 and no data.only_splits")
     recipes = pool_recipes(seed, cfg.num_train_scenes, list(cfg.image_sizes or [cfg.image_size]),
-                           cfg.pool_indices, cfg.material_mix)
+                           cfg.pool_indices, cfg.material_mix, PartsConfig.from_mapping(cfg.parts))
     if not is_default(cfg.capture_envs):  # e.g. polyhaven: cycle through that capture set
         names = sorted(environment_sets(cfg.capture_envs, cfg.relight_envs)[0])
         recipes = [{**r, "capture_env": names[r["index"] % len(names)]} for r in recipes]

@@ -17,7 +17,8 @@ boundaries.
 Two-class materials (`mix_materials`, the training pool's `data.material_mix` only): a recipe
 with a `mix` entry is split by a noise-warped plane into its own class and a second class
 (metal beside a dielectric whenever either is metal), as real assets are (a metal bottle with a
-painted label, issue 24). Benchmark scenes never carry one.
+painted label, issue 24). Benchmark scenes never carry one. Objects of 2-4 parts with per-part
+variations (the pool's `data.parts`, issue 42): `gspi.data.material_parts`.
 """
 from __future__ import annotations
 
@@ -151,6 +152,16 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
     Returns:
         MaterialSample with linear albedo, on the device of `q`.
     """
+    if "parts" in recipe:
+        from gspi.data.material_parts import part_index
+
+        index = part_index(recipe["parts"], q)
+        samples = [evaluate_material(r, q) for r in recipe["parts"]["materials"]]
+        pick = index[:, None, None].expand(-1, 1, 3)
+        albedo = torch.stack([s.albedo_linear for s in samples], 1).gather(1, pick)[:, 0]
+        rough = torch.stack([s.roughness for s in samples], 1).gather(1, index[:, None])[:, 0]
+        metal = torch.stack([s.metallic for s in samples], 1).gather(1, index[:, None])[:, 0]
+        return MaterialSample(albedo, rough, metal)
     if "mix" in recipe:
         own = evaluate_material({k: v for k, v in recipe.items() if k != "mix"}, q)
         second = evaluate_material(recipe["mix"]["second"], q)
@@ -186,7 +197,7 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         rough = recipe["roughness"] + 0.05 * (patterns.value_noise(q * 8.0, seed) - 0.5)
         metal = zeros
     elif cls == "metal":
-        f0 = vec(METAL_F0[recipe["metal"]]).expand(n, 3)
+        f0 = vec(recipe["f0"] if "f0" in recipe else METAL_F0[recipe["metal"]]).expand(n, 3)
         if recipe["finish"] == "brushed":
             streak = patterns.brushed(q, seed)
             rough = recipe["brushed_roughness"] + 0.15 * (streak - 0.5)
@@ -231,5 +242,11 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         metal = _pick(rim, zeros, ones)
     else:
         raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")
+    if "roughness_shift" in recipe:  # data.parts variations (gspi.data.material_parts)
+        rough = rough + recipe["roughness_shift"]
+    if "texture" in recipe:
+        from gspi.data.material_parts import textured
+
+        albedo, rough = textured(albedo, rough, recipe["texture"], q)
     return MaterialSample(albedo.clamp(0.0, 1.0).float(), rough.clamp(0.02, 1.0).float(),
                           metal.float())

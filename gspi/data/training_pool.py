@@ -31,6 +31,7 @@ from typing import Optional
 import numpy as np
 
 from gspi.data.environments import env_names
+from gspi.data.material_parts import PartsConfig, sample_parts, vary_part
 from gspi.data.materials import MATERIAL_CLASSES, mix_materials, sample_material
 from gspi.data.sdf_shapes import FAMILIES, sample_shape
 
@@ -53,13 +54,20 @@ def mix_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), POOL_NAMESPACE, int(index), 1]))
 
 
+def parts_rng(seed: int, index: int) -> np.random.Generator:
+    """Generator of pool scene `index`'s parts and variations (`data.parts`): a stream of its
+    own, so a pool without the option keeps every byte."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), POOL_NAMESPACE, int(index), 2]))
+
+
 def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int],
-                       material_mix: float = 0.0) -> dict:
+                       material_mix: float = 0.0, parts: Optional[PartsConfig] = None) -> dict:
     """Recipe of pool scene `index` (the benchmark recipe's keys, no held-out views or envs).
 
     `material_mix` (``data.material_mix``, in [0, 1]): the share of scenes that carry a second
     material class over part of the object (`gspi.data.materials.mix_materials`); the scene's
-    name keeps its first class.
+    name keeps its first class. `parts` (``data.parts``, `gspi.data.material_parts`): objects of
+    2-4 parts and per-part variations; a scene drawn multi-part is not also mixed.
     """
     family = FAMILIES[index % len(FAMILIES)]
     material_class = MATERIAL_CLASSES[(index // len(FAMILIES)) % len(MATERIAL_CLASSES)]
@@ -70,13 +78,23 @@ def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int],
     return {
         "index": int(index), "name": pool_scene_name(index, family, material_class),
         "family": family, "shape": shape,
-        "material": _maybe_mixed(seed, index, material, material_mix),
+        "material": _pool_material(seed, index, material, material_mix, parts or PartsConfig()),
         "capture_env": capture[(index // (len(FAMILIES) * len(MATERIAL_CLASSES)) + index) % len(capture)],
         "relight_envs": [], "test_directions": [], "val_directions": [],
         "view_seed": int(rng.integers(0, 2**31 - 1)),
         "image_size": int(image_sizes[index % len(image_sizes)]),
         "pool_namespace": POOL_NAMESPACE,
     }
+
+
+def _pool_material(seed: int, index: int, material: dict, mix_share: float, parts: PartsConfig) -> dict:
+    """The scene's material: multi-part, two-class or one class (with variations when asked)."""
+    if not parts.is_default:
+        rng = parts_rng(seed, index)
+        if rng.uniform() < parts.share:
+            return sample_parts(material, parts, rng)
+        material = vary_part(material, parts, rng) if parts.varies_parts else material
+    return _maybe_mixed(seed, index, material, mix_share)
 
 
 def _maybe_mixed(seed: int, index: int, material: dict, share: float) -> dict:
@@ -86,7 +104,8 @@ def _maybe_mixed(seed: int, index: int, material: dict, share: float) -> dict:
 
 
 def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int],
-                 indices: Optional[list] = None, material_mix: float = 0.0) -> list[dict]:
+                 indices: Optional[list] = None, material_mix: float = 0.0,
+                 parts: Optional[PartsConfig] = None) -> list[dict]:
     """Recipes of pool scenes ``0 .. num_scenes - 1``, or only those in ``indices``.
 
     ``indices`` (``data.pool_indices``): ``[[start, stop], ...]`` half-open index ranges inside
@@ -99,8 +118,8 @@ def pool_recipes(seed: int, num_scenes: int, image_sizes: list[int],
         raise ValueError(f"data.image_sizes must be a non-empty list of sizes >= 8, got {image_sizes}")
     if not 0.0 <= material_mix <= 1.0:
         raise ValueError(f"data.material_mix must be in [0, 1], got {material_mix}")
-    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes), material_mix=material_mix)
-            for i in selected_indices(num_scenes, indices)]
+    return [sample_pool_recipe(seed, i, image_sizes=list(image_sizes), material_mix=material_mix,
+                               parts=parts) for i in selected_indices(num_scenes, indices)]
 
 
 def selected_indices(num_scenes: int, indices: Optional[list]) -> list[int]:

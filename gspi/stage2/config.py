@@ -70,6 +70,8 @@ class TrainConfig:
     stop_after_cpu_minutes: Optional[float] = None  # ... or this many minutes of process CPU time
     init_from: Optional[str] = None   # fine-tune from another Stage II checkpoint's EMA weights
     checkpoint_every: int = 5000
+    checkpoint_minutes: Optional[float] = 10.0  # ... and after this many wall-clock minutes since the last one
+    run_log: Optional[str] = None     # append one JSON line per finished run (chunk) to this file
     log_every: int = 100
 
     RANGES: ClassVar[dict] = {"steps": (1, None), "batch_size": (1, None), "lr": (0.0, None),
@@ -77,7 +79,7 @@ class TrainConfig:
                               "weight_decay": (0.0, None), "grad_clip": (0.0, None),
                               "ema_decay": (0.0, 1.0), "stop_at": (0, None),
                               "stop_after_minutes": (0.0, None), "stop_after_cpu_minutes": (0.0, None),
-                              "checkpoint_every": (1, None),
+                              "checkpoint_every": (1, None), "checkpoint_minutes": (0.0, None),
                               "log_every": (1, None)}
 
     def __post_init__(self) -> None:

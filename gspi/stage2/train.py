@@ -150,6 +150,28 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
     return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
 
 
+def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, total_steps: int, cpu_s: float) -> Path:
+    """One JSON line per finished run (or chunk of a long recipe) in ``stage2.train.run_log``
+    (relative paths: the repository's), so what a cut-off session finished is on record."""
+    import datetime
+    import json
+
+    from eval.records.eval_folder import environment_info
+
+    path = Path(path)
+    if not path.is_absolute():
+        path = Path(__file__).resolve().parents[2] / path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    line = {"finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "out": str(Path(out_dir).resolve()), "commit": environment_info()["git_commit"], "seed": stats["seed"],
+            "steps": [stats["resumed_from"], stats["steps"]], "of": int(total_steps),
+            "done": stats["steps"] >= total_steps, "wall_s_total": stats["wall_time_s"],
+            "cpu_s_this_run": round(cpu_s, 1), "final_loss": stats["final_loss"]}
+    with open(path, "a") as f:
+        f.write(json.dumps(line) + "\n")
+    return path
+
+
 class Budget:
     """Wall-clock and process-CPU-time limits of one run (None = no limit)."""
 
@@ -165,6 +187,21 @@ class Budget:
     def spent(self) -> bool:
         return (self.wall_end is not None and time.perf_counter() >= self.wall_end) or \
             (self.cpu_end is not None and time.process_time() >= self.cpu_end)
+
+
+class CheckpointClock:
+    """Due when ``minutes`` of wall-clock time passed since the last checkpoint (None: never), so a
+    session cut off without warning loses at most that much training."""
+
+    def __init__(self, minutes: Optional[float]):
+        self.seconds = None if minutes is None else 60.0 * float(minutes)
+        self.restart()
+
+    def restart(self) -> None:
+        self.last = time.perf_counter()
+
+    def due(self) -> bool:
+        return self.seconds is not None and time.perf_counter() - self.last >= self.seconds
 
 
 def make_validator(cfg: Mapping[str, Any], encoder):
@@ -256,6 +293,8 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     start_step, t0, validated_at = state.step, time.perf_counter(), None
     end = total if stop_at is None else min(total, int(stop_at))
     budget = Budget(stop_after_minutes, stop_after_cpu_minutes)
+    checkpoint_clock = CheckpointClock(train_cfg.checkpoint_minutes)
+    cpu0 = time.process_time()
     while state.step < end and not dist.any(budget.spent()):
         f0, inputs = dist.shard(*sample_batch(scenes, data_cfg, int(train_cfg.batch_size), state.data_rng))
         values = train_step(state, f0, inputs, cfg, alphas_cumprod, dist)
@@ -267,9 +306,10 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
             validate(state, validator, cfg, out_dir, metrics)
             budget.exclude(time.process_time() - c0, time.perf_counter() - w0)
             validated_at = state.step
-        if state.step % every == 0 and state.step < end:
+        if (state.step % every == 0 or checkpoint_clock.due()) and state.step < end:
             state.elapsed_s += time.perf_counter() - t0
             t0 = time.perf_counter()
+            checkpoint_clock.restart()
             if dist.is_main:
                 save_checkpoint(state, cfg, out_dir)
     if validator is not None and state.step > start_step and validated_at != state.step:
@@ -282,8 +322,12 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         return {"steps": state.step, "rank": dist.rank}
     plot_loss_curve(metrics, out_dir / "loss_curve.png")
     _, losses = metrics.series(LOSS_KEY)
-    return {"steps": state.step, "resumed_from": start_step, "wall_time_s": round(state.elapsed_s, 2),
-            "final_loss": float(losses[-100:].mean()) if len(losses) else None,
-            "parameters": count_parameters(state.model), "seed": int(cfg["seed"]),
-            "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim,
-            "best_validation": state.best or None}
+    stats = {"steps": state.step, "total_steps": total, "resumed_from": start_step, "wall_time_s": round(state.elapsed_s, 2),
+             "final_loss": float(losses[-100:].mean()) if len(losses) else None,
+             "parameters": count_parameters(state.model), "seed": int(cfg["seed"]),
+             "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim,
+             "best_validation": state.best or None}
+    if train_cfg.run_log:
+        append_run_log(train_cfg.run_log, out_dir, stats, total_steps=total,
+                       cpu_s=time.process_time() - cpu0)
+    return stats

@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Issue 42: the multi-part training pool, its Stage 0 reconstructions, the cpu_parts_pool
+# trainings (2 seeds) and Table 2's measure on the held-out pool scenes. Every step is resumable:
+# rerun this script after a cut-off session and it continues where it stopped (complete.json,
+# reconstructed.json, the training's checkpoint.pt, scores.json mark what is done).
+#
+#   WORK=/work/data/parts_pool SEEDS="0 1" CHUNK_MIN=40 nohup setsid experiments/parts_pool/run.sh &
+#
+# Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed).
+# Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
+# one thread each.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+WORK=${WORK:-/work/data/parts_pool}
+SEEDS=${SEEDS:-"0 1"}
+CHUNK_MIN=${CHUNK_MIN:-40}            # one gspi-train invocation (a chunk); checkpoints every 10 min inside
+RECIPE=${RECIPE:-cpu_parts_pool}
+BIN=.venv/bin
+export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
+PARTS=(data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3)
+mkdir -p "$WORK"
+log() { echo "$(date -u +%FT%TZ) $*" | tee -a "$WORK/run.log"; }
+
+log "pool: generate (indices 0:64 train, 224:256 held out)"
+$BIN/gspi-data preset=stage2_pool out="$WORK/pool" seed=0 'data.pool_indices=[[0,64],[224,256]]' \
+  data.workers=2 "${PARTS[@]}" >> "$WORK/run.log" 2>&1
+$BIN/python -m gspi.data.pool_split "$WORK/pool" "$WORK/pool64" --train 0:64 --test 224:256 >> "$WORK/run.log" 2>&1
+log "pool: Stage 0 reconstructions"
+$BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --workers 2 >> "$WORK/run.log" 2>&1
+$BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --summary > "$WORK/recon_summary.md" 2>&1
+log "train: $RECIPE seeds $SEEDS (chunks of $CHUNK_MIN min)"
+train_seed() {
+  local seed=$1 out="$WORK/runs/${RECIPE}_s$1"
+  until [ -f "$out/stats.json" ] && $BIN/python -c "import json,sys; s=json.load(open('$out/stats.json')); sys.exit(0 if s.get('steps',0)>=s.get('total_steps', 2500) else 1)"; do
+    $BIN/gspi-train data="$WORK/rpool64" out="$out" stage2=$RECIPE ablation=full seed=$seed \
+      stage2.train.stop_after_minutes=$CHUNK_MIN >> "$WORK/train_s$seed.log" 2>&1 \
+      || { log "train: seed $seed failed (see $WORK/train_s$seed.log)"; return 1; }
+    log "train: seed $seed chunk ended at step $($BIN/python -c "import json; print(json.load(open('$out/stats.json'))['steps'])")"
+  done
+}
+pids=()
+for s in $SEEDS; do train_seed "$s" & pids+=($!); done
+for p in "${pids[@]}"; do wait "$p"; done
+log "measure: Table 2's measure on the 32 held-out scenes (reconstructed conditions)"
+for s in $SEEDS; do
+  out="$WORK/runs/${RECIPE}_s$s"
+  [ -f "$out/eval/scores.json" ] || $BIN/python -m gspi.stage2.evaluate_points "$out/checkpoint.pt" "$WORK/rpool64" \
+    "$out/eval" --num-steps 10 --max-points 20000 --baseline-train "$WORK/pool64" >> "$WORK/run.log" 2>&1
+done
+log "done"

@@ -1,0 +1,168 @@
+"""Objects of several parts, each with its own material (the training pool's `data.parts`, issue 42).
+
+Real assets are several parts with their own materials: a metal bottle with a painted label and
+a plastic cap, a lamp with a brass stem and a fabric shade. A pool scene drawn to be multi-part
+(`data.parts.share`) is split into 2-4 parts (`data.parts.count`), each a full recipe of its own
+class (`gspi.data.materials.sample_material`), by one of two layouts:
+
+- ``bands``: cuts across a random axis (cap / label / body), each cut warped by value noise;
+- ``cells``: the nearest of k random centres (a handle, a lid), the distance warped by noise.
+
+Whatever the layout, a multi-part object holds a metal part beside a dielectric one half of
+the time (real objects are mostly mixed), and never only metal.
+
+Per part (and, when set, for the single-class scenes too), three variations widen what the pool
+holds beyond the benchmark's classes:
+
+- ``metal_f0: wide``: a metal part's base colour is drawn anywhere an artist may put it (linear
+  value in [0.03, 1], any hue at low saturation; Suzanne's is 0.10), instead of the table of
+  physical F0 (titanium's 0.45 is the darkest there);
+- ``roughness_spread: s``: the part's roughness shifted by U(-s, s) (clamped as every roughness);
+- ``texture: a``: a fBm texture of amplitude a over the part's albedo and roughness (print,
+  grime, wear), at a drawn frequency.
+
+The recipes stay JSON (`scene.json`'s `generator.material`); `evaluate_material` reads the
+``parts`` entry and the per-part keys ``f0``, ``roughness_shift`` and ``texture``. With the
+defaults (share 0, physical F0, no spread, no texture) nothing is drawn and no key is added, so a
+pool made without `data.parts` keeps every byte (tested).
+"""
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from gspi.data import patterns
+
+LAYOUTS = ("bands", "cells")
+METAL_F0_MODES = ("physical", "wide")
+
+
+@dataclass(frozen=True)
+class PartsConfig:
+    """``data.parts`` (conf/data/stage2_pool.yaml); the defaults draw nothing."""
+
+    share: float = 0.0                      # share of pool scenes made of several parts
+    count: tuple = (2, 4)                   # [min, max] parts of such a scene
+    layouts: tuple = LAYOUTS                # drawn uniformly per multi-part scene
+    metal_f0: str = "physical"              # physical | wide (see module docstring)
+    roughness_spread: float = 0.0           # per-part roughness shift U(-s, s)
+    texture: float = 0.0                    # per-part fBm amplitude over albedo and roughness
+
+    def __post_init__(self):
+        if not 0.0 <= float(self.share) <= 1.0:
+            raise ValueError(f"data.parts.share must be in [0, 1], got {self.share}")
+        count = tuple(int(c) for c in self.count)
+        if len(count) != 2 or not 2 <= count[0] <= count[1] <= 8:
+            raise ValueError(f"data.parts.count must be [min, max] with 2 <= min <= max <= 8, got {list(self.count)}")
+        object.__setattr__(self, "count", count)
+        bad = [x for x in self.layouts if x not in LAYOUTS]
+        if bad or not self.layouts:
+            raise ValueError(f"data.parts.layouts: {list(self.layouts)}; allowed: {', '.join(LAYOUTS)}")
+        object.__setattr__(self, "layouts", tuple(self.layouts))
+        if self.metal_f0 not in METAL_F0_MODES:
+            raise ValueError(f"data.parts.metal_f0: {self.metal_f0!r}; allowed: {', '.join(METAL_F0_MODES)}")
+        if not 0.0 <= float(self.roughness_spread) <= 0.5:
+            raise ValueError(f"data.parts.roughness_spread must be in [0, 0.5], got {self.roughness_spread}")
+        if not 0.0 <= float(self.texture) <= 1.0:
+            raise ValueError(f"data.parts.texture must be in [0, 1], got {self.texture}")
+
+    @classmethod
+    def from_mapping(cls, node) -> "PartsConfig":
+        node = dict(node or {})
+        unknown = sorted(set(node) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"data.parts: unknown key(s) {unknown}; allowed: {sorted(cls.__dataclass_fields__)}")
+        return cls(**node)
+
+    @property
+    def varies_parts(self) -> bool:
+        """True when a part's recipe gets variations (wide F0, roughness spread, texture)."""
+        return self.metal_f0 != "physical" or self.roughness_spread > 0 or self.texture > 0
+
+    @property
+    def is_default(self) -> bool:
+        return self.share == 0 and not self.varies_parts
+
+
+def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(rng.uniform(lo, hi))
+
+
+def part_classes(primary_class: str, n: int, rng: np.random.Generator) -> list[str]:
+    """The classes of an n-part object whose first part is `primary_class`: the others drawn
+    from the other classes; then, half of the time, one metal part beside dielectric ones, and
+    never all metal."""
+    from gspi.data.materials import MATERIAL_CLASSES, METAL_CLASSES
+
+    others = [c for c in MATERIAL_CLASSES if c != primary_class]
+    classes = [primary_class] + [others[int(rng.integers(0, len(others)))] for _ in range(n - 1)]
+    wants_metal = rng.uniform() < 0.5
+    dielectrics = [c for c in MATERIAL_CLASSES if c not in METAL_CLASSES]
+    if wants_metal and not any(c == "metal" for c in classes):
+        classes[1 + int(rng.integers(0, n - 1))] = "metal"
+    if all(c in METAL_CLASSES for c in classes):
+        classes[1 + int(rng.integers(0, n - 1))] = dielectrics[int(rng.integers(0, len(dielectrics)))]
+    return classes
+
+
+def vary_part(recipe: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
+    """`recipe` with the configured variations (a new dict; the class's own keys untouched)."""
+    out = dict(recipe)
+    if cfg.metal_f0 == "wide" and recipe["class"] == "metal":
+        rgb = colorsys.hsv_to_rgb(rng.uniform(), _u(rng, 0.0, 0.5), _u(rng, 0.03, 1.0))
+        out["f0"] = [float(c) for c in rgb]  # linear
+    if cfg.roughness_spread > 0:
+        out["roughness_shift"] = _u(rng, -cfg.roughness_spread, cfg.roughness_spread)
+    if cfg.texture > 0:
+        out["texture"] = {"amplitude": _u(rng, 0.3, 1.0) * cfg.texture,
+                          "frequency": _u(rng, 2.0, 10.0), "seed": int(rng.integers(0, 2**20))}
+    return out
+
+
+def sample_parts(primary: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
+    """A multi-part recipe whose first part is `primary` (see module docstring)."""
+    from gspi.data.materials import sample_material
+
+    n = int(rng.integers(cfg.count[0], cfg.count[1] + 1))
+    classes = part_classes(primary["class"], n, rng)
+    recipes = [primary] + [sample_material(c, rng) for c in classes[1:]]
+    recipes = [vary_part(r, cfg, rng) for r in recipes]
+    layout = cfg.layouts[int(rng.integers(0, len(cfg.layouts)))]
+    if layout == "bands":
+        axis = rng.normal(size=3)
+        geometry = {"axis": (axis / np.linalg.norm(axis)).tolist(),
+                    "cuts": sorted(_u(rng, -0.6, 0.6) for _ in range(n - 1))}
+    else:
+        centres = rng.normal(size=(n, 3))
+        centres = 0.6 * centres / np.linalg.norm(centres, axis=1, keepdims=True)
+        geometry = {"centres": centres.tolist()}
+    return {"class": primary["class"], "seed": primary["seed"],
+            "parts": {"layout": layout, **geometry, "warp": _u(rng, 0.05, 0.3),
+                      "noise_seed": int(rng.integers(0, 2**20)), "materials": recipes}}
+
+
+def part_index(parts: dict, q: Tensor) -> Tensor:
+    """[N] long: the part of each object-space point."""
+    warp = parts["warp"] * (patterns.value_noise(q * 2.5, int(parts["noise_seed"])) - 0.5)
+    if parts["layout"] == "bands":
+        axis = torch.tensor(parts["axis"], dtype=q.dtype, device=q.device)
+        t = q @ axis + warp
+        cuts = torch.tensor(parts["cuts"], dtype=q.dtype, device=q.device)
+        return (t[:, None] > cuts[None, :]).sum(dim=1)
+    centres = torch.tensor(parts["centres"], dtype=q.dtype, device=q.device)
+    dist = torch.cdist(q, centres) + warp[:, None]
+    return dist.argmin(dim=1)
+
+
+def textured(albedo: Tensor, rough: Tensor, texture: dict, q: Tensor) -> tuple[Tensor, Tensor]:
+    """Albedo scaled by 1 + a (n - 1/2) and roughness shifted by a/2 (n - 1/2), n a fBm in [0, 1]."""
+    n = patterns.fbm(q * texture["frequency"], int(texture["seed"])) - 0.5
+    a = texture["amplitude"]
+    return albedo * (1.0 + a * n)[:, None], rough + 0.5 * a * n
+
+
+__all__ = ["LAYOUTS", "PartsConfig", "part_classes", "part_index", "sample_parts", "textured", "vary_part"]
