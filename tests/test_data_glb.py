@@ -483,3 +483,41 @@ def test_held_out_views_that_see_nothing_of_a_single_sided_asset_are_not_scored(
     with pytest.raises(ValueError, match="no scored test view"):  # nothing from there on
         scene_figure(scene, scene.root, tmp_path / "none.png", OmegaConf.structured(ProtocolConfig),
                      view_index=len(ids))
+
+
+def _wrapped_in_scaled_node(src: Path, dst: Path, scale: list[float]) -> Path:
+    """`src` GLB with its scene's roots under one new node of the given scale (an asset authored
+    in small units and scaled to metres, as product models are)."""
+    from gspi.data.gltf import _split_glb
+
+    doc, binary = _split_glb(src, src.read_bytes())
+    roots = doc["scenes"][doc.get("scene", 0)]["nodes"]
+    doc["nodes"].append({"scale": scale, "children": roots})
+    doc["scenes"][doc.get("scene", 0)]["nodes"] = [len(doc["nodes"]) - 1]
+    dst.write_bytes(_glb(doc, binary or b""))
+    return dst
+
+
+@pytest.mark.parametrize("scale", [1e-5, 1e-4, 1e4])
+def test_an_asset_in_small_or_large_units_imports_with_the_unscaled_gt(tmp_path, scale):
+    """The degenerate-node test is relative to the transform's own scale (issue 41): a uniform
+    1e-4 (det 1e-12) is not 'scaled to 0', and after the unit frame the GT maps equal the
+    unscaled asset's."""
+    src = quad_glb(tmp_path / "quad.glb")
+    ref = front_view(unit_frame_mesh(read_gltf(src)))
+    asset = read_gltf(_wrapped_in_scaled_node(src, tmp_path / "scaled.glb", [scale] * 3))
+    assert not any("degenerate" in s for s in asset.ignored)
+    got = front_view(unit_frame_mesh(asset))
+    assert (got.mask == ref.mask).all()
+    for name in ("albedo_srgb", "roughness", "metallic", "normal", "depth"):
+        np.testing.assert_allclose(getattr(got, name), getattr(ref, name), atol=1e-5, err_msg=name)
+
+
+def test_a_node_flattened_on_one_axis_is_still_named(tmp_path):
+    from gspi.data.gltf import is_degenerate
+
+    src = quad_glb(tmp_path / "quad.glb")
+    with pytest.raises(GLTFError, match="flat.glb.*no triangle primitives"):
+        read_gltf(_wrapped_in_scaled_node(src, tmp_path / "flat.glb", [1e-4, 0.0, 1e-4]))
+    assert is_degenerate(np.diag([1e-4, 1e-4, 0.0])) and not is_degenerate(np.diag([1e-4] * 3))
+    assert is_degenerate(np.diag([1.0, 1.0, 1e-12])) and is_degenerate(np.zeros((3, 3)))

@@ -296,6 +296,14 @@ def image_rgba(pil) -> np.ndarray:
     return np.asarray(pil.convert("RGBA"), dtype=np.float64) / 255.0
 
 
+def is_degenerate(linear: np.ndarray, rtol: float = 1e-9) -> bool:
+    """A node's 3x3 world transform flattens space (a scale of 0 on some axis): its smallest
+    singular value is 0 relative to its largest. Relative, not an absolute determinant: a product
+    model authored in 0.1 mm and scaled by 1e-4 to metres has det 1e-12 and is not degenerate."""
+    sv = np.linalg.svd(np.asarray(linear, np.float64), compute_uv=False)
+    return not np.isfinite(sv).all() or sv[0] == 0 or sv[-1] <= rtol * sv[0]
+
+
 def _node_matrix(node: dict) -> np.ndarray:
     if "matrix" in node:
         return np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major
@@ -425,7 +433,7 @@ def read_gltf(path: str | Path) -> Asset:
                 if len(faces) == 0 or faces.max() >= len(pos):
                     raise r.fail("primitive indices out of range or empty")
                 lin = Y_UP_TO_Z_UP @ world[:3, :3]
-                if abs(np.linalg.det(lin)) < 1e-12:  # e.g. a node scaled to 0: no visible surface
+                if is_degenerate(lin):  # e.g. a node scaled to 0: no visible surface
                     ignored.append(f"nodes[{idx}]: degenerate transform (scale 0), its mesh is not drawn")
                     continue
                 v = pos @ lin.T + Y_UP_TO_Z_UP @ world[:3, 3]

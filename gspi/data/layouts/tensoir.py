@@ -9,12 +9,16 @@ Layout, as TensoIR's loaders read it: a scene folder of view folders `train_NNN/
 
 * `metadata.json`: `imw`, `imh`, `cam_angle_x` (horizontal FoV, radians), `cam_transform_mat`
   (Blender c2w, 16 comma-separated numbers, row-major), `envmap` (the light of `rgba.png`);
-* `rgba.png`: the input image (sRGB, straight alpha; the `transforms_*.json` that GS-IR and
-  IRGS read point at it as `./test_000/rgba`), `rgba_<light>.png`: the same view under
-  `<light>` (relighting ground truth; `<light>_<rot>` = a rotated light, only imported when
+* `rgba_<light>_000.png`: the input image TensoIR trains on (tensoIR_rotation_setting.py with
+  configs/single_light: `light_name = sunset`, `light_rotation = [000]`; sRGB, straight alpha),
+  `<light>` = metadata.json's `envmap`; read first, then `rgba_<light>.png`, then `rgba.png`
+  (which no TensoIR loader reads; the `transforms_*.json` of GS-IR and IRGS point at it as
+  `./test_000/rgba`); `rgba_<light>.png`: the view under `<light>` (relighting ground truth,
+  tensoIR_relighting_test.py; `<light>_<rot>` = a rotated light, only imported when
   `<light>_<rot>.hdr` exists);
-* `albedo.png` (RGBA; TensoIR, GS-IR and IRGS use its RGB values as stored), `normal.png`
-  (RGBA, world normal n = 2 rgb / 255 - 1).
+* `albedo.png` (RGBA; TensoIR blends it on white with its alpha and uses the values as LINEAR
+  reflectance: no decoding), `normal.png` (RGBA, world normal n = 2 rgb / 255 - 1, blended to
+  (0, 0, 1) by alpha, normalised).
 
 Environment maps: `<light>.hdr` (Radiance, lat-long, TensoIR's Environment_Light convention,
 which is the layout's: no rotation) in `import.envmaps`, else the first of
@@ -23,13 +27,15 @@ which is the layout's: no rotation) in `import.envmaps`, else the first of
 stored as they are (not rescaled: the relit images were rendered with them).
 
 Conversions: cameras as NeRF-synthetic (gspi.data.nerf_synthetic); rgb.exr and relit_<light>.exr
-= sRGB-decoded RGB x alpha (LDR: the renders are clipped at 1), mask = alpha > 0.5; albedo.png
-= the stored RGB (16-bit holds every 8-bit value exactly), 0 outside the mask; normal.exr =
-the decoded normal normalised inside the mask. TensoIR has no roughness, metallic or depth
+= sRGB-decoded RGB x alpha (LDR: the renders are clipped at 1), mask = alpha != 0 (TensoIR's
+`~(alpha == 0)`); albedo.png = the sRGB encoding of TensoIR's linear albedo (its values blended
+on white by alpha), 0 outside the mask; normal.exr = TensoIR's decoded normal inside the mask.
+docs/DATA.md "TensoIR's conventions" lists each with the authors' line. TensoIR has no roughness, metallic or depth
 ground truth: scene.json `gt_channels` = [albedo, relight] (relight only with environment
 maps), `relit_gt` = images; train views carry albedo (their relit images are not imported).
 
-Export writes the same files (8-bit PNGs, `transforms_{split}.json` for GS-IR/IRGS too) under
+Export writes the same files (8-bit PNGs; albedo.png as linear values, the input image as
+`rgba_<capture>_000.png` and `rgba.png`; `transforms_{split}.json` for GS-IR/IRGS too) under
 `<out>/<scene name>/` and the scene's environments as `<out>/Environment_Maps/
 high_res_envmaps_1k/<env>.hdr`, so that `import.src=<out>/<scene name>` finds them. A round
 trip keeps cameras to float rounding, masks exactly, albedo, normals and images within 8-bit
@@ -42,8 +48,10 @@ import re
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from eval.atomic import write_json_atomic
+from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.imageio import read_exr, write_exr
 from eval.layout import SPLITS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_material, write_scene_json, write_view_file
@@ -101,19 +109,50 @@ def relight_names(folders: list[Path], capture: str, envdir: Path | None) -> lis
     return sorted(n for n in common if (envdir / f"{n}.hdr").is_file())
 
 
+def input_image(folder: Path, light: str) -> Path:
+    """The view's input image as TensoIR's single-light training reads it: ``rgba_<light>_000.png``
+    (tensoIR_rotation_setting.py with configs/single_light: light_name = sunset, light_rotation =
+    [000]); else ``rgba_<light>.png`` (the relighting loader's name for the same light); else
+    ``rgba.png``, which none of TensoIR's loaders reads (logged)."""
+    for name in (f"rgba_{light}_000.png", f"rgba_{light}.png"):
+        if (folder / name).is_file():
+            return folder / name
+    if (folder / "rgba.png").is_file():
+        log.info("%s: no rgba_%s_000.png: reading rgba.png, which TensoIR's loaders do not read", folder, light)
+        return folder / "rgba.png"
+    raise LayoutError(f"{folder}: no rgba_{light}_000.png, rgba_{light}.png or rgba.png: the view's input "
+                      f"image (light {light!r} from metadata.json's envmap)")
+
+
+def albedo_srgb(rgba: np.ndarray) -> np.ndarray:
+    """gspi's sRGB-encoded albedo of a TensoIR ``albedo.png``: TensoIR blends it on white with its
+    alpha and uses the values as LINEAR reflectance (tensoIR_rotation_setting.py and
+    tensoIR_relighting_test.py: ``albedo[:, :3] * a + (1 - a)``, no decoding), so they are
+    encoded here, as gspi's albedo.png holds sRGB (docs/FORMAT.md)."""
+    linear = rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])
+    return linear_to_srgb(torch.from_numpy(np.ascontiguousarray(linear, dtype=np.float32))).numpy()
+
+
+def albedo_linear_rgba(srgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The inverse for the exporter: gspi's sRGB albedo as TensoIR's linear ``albedo.png`` values."""
+    linear = srgb_to_linear(torch.from_numpy(np.ascontiguousarray(srgb, dtype=np.float32))).numpy()
+    return np.concatenate([linear, mask], -1)
+
+
+def tensoir_mask(rgba: np.ndarray) -> np.ndarray:
+    """[H, W, 1] bool: TensoIR's foreground, alpha != 0 (``~(img[:, -1:] == 0)``)."""
+    return rgba[..., 3:] != 0
+
+
 def _import_view(folder: Path, vdir: Path, meta: dict, relight: list[str]) -> tuple[int, int]:
-    capture = folder / "rgba.png"
-    if not capture.is_file():
-        capture = folder / f"rgba_{meta.get('envmap', '')}.png"
-    if not capture.is_file():
-        raise LayoutError(f"{folder}: no rgba.png (nor rgba_<metadata envmap>.png): the view's input image")
-    rgba = read_rgba(capture)
-    mask = rgba[..., 3:] > 0.5
+    rgba = read_rgba(input_image(folder, str(meta.get("envmap", "sunset"))))
+    mask = tensoir_mask(rgba)
     write_input_view(vdir, linear_from_rgba(rgba), mask)
-    albedo = read_rgba(folder / "albedo.png")
-    write_material(vdir, "albedo", albedo[..., :3] * mask)
-    if (folder / "normal.png").is_file():
-        n = read_rgba(folder / "normal.png")[..., :3] * 2.0 - 1.0
+    write_material(vdir, "albedo", albedo_srgb(read_rgba(folder / "albedo.png")) * mask)
+    if (folder / "normal.png").is_file():  # TensoIR: 2 v - 1, blended to (0, 0, 1) by alpha, normalised
+        normal = read_rgba(folder / "normal.png")
+        a = normal[..., 3:]
+        n = (normal[..., :3] * 2.0 - 1.0) * a + np.array([0.0, 0.0, 1.0]) * (1.0 - a)
         n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
         write_view_file(vdir, "normal.exr", (n * mask).astype(np.float32))
     for light in relight:
@@ -167,9 +206,11 @@ def import_tensoir(src: str | Path, out_dir: str | Path, *, name: str | None = N
 def _export_view(scene: Scene, v: View, folder: Path, angle: float, bits: int) -> dict:
     vdir = scene.view_dir(v.split, v.id)
     mask = read_view_file(vdir, "mask.png")
-    write_rgba(folder / "rgba.png", rgba_from_linear(read_view_file(vdir, "rgb.exr"), mask), bits=bits)
+    image = rgba_from_linear(read_view_file(vdir, "rgb.exr"), mask)
+    write_rgba(folder / f"rgba_{scene.capture_env}_000.png", image, bits=bits)  # what TensoIR trains on
+    write_rgba(folder / "rgba.png", image, bits=bits)  # GS-IR's / IRGS's transforms_*.json point at it
     if (vdir / "albedo.png").is_file():
-        write_rgba(folder / "albedo.png", np.concatenate([read_view_file(vdir, "albedo.png"), mask], -1), bits=bits)
+        write_rgba(folder / "albedo.png", albedo_linear_rgba(read_view_file(vdir, "albedo.png"), mask), bits=bits)
     if (vdir / "normal.exr").is_file():
         n = read_view_file(vdir, "normal.exr")
         write_rgba(folder / "normal.png", np.concatenate([(n + 1.0) / 2.0, mask], -1), bits=bits)
