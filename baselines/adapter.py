@@ -27,11 +27,12 @@ import torch
 from baselines.runtime import command_stages, given_runtime, read_runtime, split_seconds
 from eval.atomic import write_json_atomic
 from eval.colorspace import linear_to_srgb
+from eval.config import CONF_DIR
 from eval.imageio import ImageFormatError, read_png
 from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta, write_view_file
 
 RUNTIME_FILE = "gspi_runtime.json"  # written into the model dir by `Adapter.run`
-METHOD_CONF_DIR = Path(__file__).resolve().parents[1] / "conf" / "method"
+METHOD_CONF_DIR = Path(CONF_DIR) / "method"
 
 
 class AdapterError(ValueError):

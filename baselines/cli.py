@@ -35,7 +35,6 @@ import shlex
 import sys
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from baselines.adapter import as_dict, get_adapter
@@ -44,7 +43,6 @@ from eval.cli_entry import hydra_cli
 log = logging.getLogger(__name__)
 # Absolute, as gspi/cli/*.py: a relative path would resolve as a Python package when the module
 # is imported by a console script.
-CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 SYSTEM_ALIAS = ("system=", "method=")
 
 
@@ -92,14 +90,10 @@ def run_import(cfg: DictConfig) -> dict:
     return {"system": method["name"], "prediction": str(scene_out)}
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_export")
-def _export(cfg: DictConfig) -> None:
-    run_export(cfg)
-
-
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_import")
-def _import(cfg: DictConfig) -> None:
-    print(OmegaConf.to_yaml(run_import(cfg)), end="")
+def _run_import_and_print(cfg: DictConfig) -> dict:
+    record = run_import(cfg)
+    print(OmegaConf.to_yaml(record), end="")
+    return record
 
 
 def alias_system(argv: list[str]) -> list[str]:
@@ -135,21 +129,13 @@ def is_asset_export(argv: list[str]) -> bool:
     return any(a.startswith(ASSET_KEY) for a in argv) and not any(a.startswith(SYSTEM_ALIAS) for a in argv)
 
 
+_export = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS, rewrite=alias_system)
+import_main = hydra_cli(_run_import_and_print, "gspi_import", path_keys=PATH_KEYS, rewrite=alias_system)
+
+
 def export_main() -> None:
-    from eval.argv import quote_path_overrides
-
-    if is_asset_export(sys.argv[1:]):
-        _export_asset()
-        return
-    sys.argv = [sys.argv[0], *quote_path_overrides(alias_system(sys.argv[1:]), PATH_KEYS)]
-    _export()
-
-
-def import_main() -> None:
-    from eval.argv import quote_path_overrides
-
-    sys.argv = [sys.argv[0], *quote_path_overrides(alias_system(sys.argv[1:]), PATH_KEYS)]
-    _import()
+    """`gspi-export`: the GLB export with `asset=`, else a system's input folder with `system=`."""
+    (_export_asset if is_asset_export(sys.argv[1:]) else _export)()
 
 
 if __name__ == "__main__":  # python -m baselines.cli {export|import} system=... ...

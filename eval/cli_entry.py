@@ -1,6 +1,7 @@
 """The one way a gspi CLI starts: one config directory (``eval.config.CONF_DIR``), its argv
-aliases rewritten, its path keys quoted for Hydra's grammar (``eval.argv``), its task run under
-``@hydra.main`` with stated errors as one line (``eval.errors``).
+aliases rewritten, its path keys quoted for Hydra's grammar (``eval.argv``), the command line checked
+against the config before Hydra starts (``eval.cli_precheck``: missing required keys, bad
+overrides), its task run under ``@hydra.main`` with stated errors as one line (``eval.errors``).
 
     main = hydra_cli(run_task, "gspi_extract", path_keys=("asset", "out", "scene"))
 """
@@ -11,7 +12,7 @@ from typing import Callable, Optional
 
 from eval.argv import quote_path_overrides
 from eval.config import CONF_DIR
-from eval.errors import exit_on_stated_error
+from eval.errors import exit_on_stated_error, print_stated_error
 
 
 def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = (),
@@ -24,8 +25,20 @@ def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = 
 
     def main() -> None:
         argv = sys.argv[1:] if rewrite is None else rewrite(sys.argv[1:])
-        sys.argv = [sys.argv[0], *quote_path_overrides(argv, path_keys)]
+        argv = quote_path_overrides(argv, path_keys)
+        precheck_or_exit(config_name, argv)
+        sys.argv = [sys.argv[0], *argv]
         hydra_main()
 
     main.__doc__ = f"{config_name.replace('_', '-')}: see conf/{config_name}.yaml"
     return main
+
+
+def precheck_or_exit(config_name: str, argv: list[str]) -> None:
+    """:func:`eval.cli_precheck.precheck`: a missing required key or a bad override -> one line, exit 2."""
+    from eval.cli_precheck import CommandLineError, precheck
+
+    try:
+        precheck(CONF_DIR, config_name, argv)
+    except CommandLineError as exc:
+        print_stated_error(exc)

@@ -30,6 +30,12 @@ def one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
+def print_stated_error(exc: BaseException) -> None:
+    """``<program>: error: <message>`` on stderr, exit 2 (the one-line form of a stated error)."""
+    print(f"{Path(sys.argv[0]).name}: error: {one_line(exc)}", file=sys.stderr)
+    sys.exit(EXIT_STATED)
+
+
 def exit_on_stated_error(task: F) -> F:
     """Wraps a CLI task function (under ``@hydra.main``): stated errors -> one line, exit 2."""
 
@@ -38,7 +44,6 @@ def exit_on_stated_error(task: F) -> F:
         try:
             return task(*args, **kwargs)
         except StatedError as exc:
-            print(f"{Path(sys.argv[0]).name}: error: {one_line(exc)}", file=sys.stderr)
-            sys.exit(EXIT_STATED)
+            print_stated_error(exc)
 
     return wrapped  # type: ignore[return-value]

@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from eval.colorspace import tonemap
+from eval.errors import StatedError
 from eval.relight import PrefilteredEnvironment, prefilter_environment, split_sum
 from eval.views import view_directions
 from gspi.gaussians.cameras import intrinsics_from_fov, look_at
@@ -29,6 +30,14 @@ from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.rasterize import rasterize_2dgs
 
 MIN_ALPHA = 1e-4  # as gspi.stage3.render: below this a pixel shows no surfel
+
+
+class EnvironmentSpecError(StatedError, ValueError):
+    """``env=`` names neither an environment file nor a known environment."""
+
+
+class NotPBRAssetError(StatedError, ValueError):
+    """The asset has no PBR attributes (a plain 2DGS/3DGS file, not GS-PI's pbr_gs.ply)."""
 
 
 def load_environment(spec: str | Path, *, height: int = 128) -> Tensor:
@@ -47,7 +56,7 @@ def load_environment(spec: str | Path, *, height: int = 128) -> Tensor:
     known = env_names("capture") + env_names("heldout")
     if str(spec) in known:
         return make_environment(str(spec), height)
-    raise ValueError(f"env={spec!r} is neither an environment file nor a known environment; "
+    raise EnvironmentSpecError(f"env={spec!r} is neither an environment file nor a known environment; "
                      f"known names: {', '.join(known)}")
 
 
@@ -109,8 +118,8 @@ def shade_asset(asset: Gaussians2D, env: Tensor | PrefilteredEnvironment, w2c: T
         ValueError: the asset has no PBR attributes (a plain 2DGS asset, not GS-PI's output).
     """
     if not asset.has_pbr:
-        raise ValueError("the asset has no PBR attributes (albedo/roughness/metallic logits): "
-                         "relight GS-PI's pbr_gs.ply, not a plain 2DGS asset")
+        raise NotPBRAssetError("the asset has no PBR attributes (albedo/roughness/metallic logits): "
+                               "relight GS-PI's pbr_gs.ply, not a plain 2DGS asset")
     pre = env if isinstance(env, PrefilteredEnvironment) else prefilter_environment(env.float())
     out = rasterize_2dgs(asset.means, asset.quats, asset.scales, asset.opacities, None,
                          w2c.to(asset.means), K.to(asset.means), width, height,

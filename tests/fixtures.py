@@ -124,6 +124,20 @@ def generated_scene(out: Path, image_size: int) -> Scene:
     return read_scene(out / read_splits(out)["train"][0])
 
 
+def preset(name: str, *overrides: str):
+    """The protocol of preset conf/eval/<name>.yaml with Hydra overrides, validated as at start-up."""
+    from hydra import compose, initialize_config_dir
+
+    from eval.config import CONF_DIR, register_configs, validate_protocol
+
+    register_configs()
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="gspi_eval", overrides=[f"eval={name}", "gt=g", "pred=p",
+                                                            "out=o", *overrides])
+    validate_protocol(cfg.eval)
+    return cfg.eval
+
+
 def protocol(**overrides):
     """The default evaluation protocol with dotted-key overrides, validated as at start-up."""
     from omegaconf import OmegaConf

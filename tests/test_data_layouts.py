@@ -160,7 +160,7 @@ def test_tensoir_exact_linear_albedo_scores_at_the_cap(tmp_path, lpips_net, pres
     linear values into gspi's sRGB file)."""
     from eval.colorspace import linear_to_srgb
     from eval.layout import write_material
-    from tests.test_protocol_presets import preset
+    from tests.fixtures import preset
 
     src, truth = write_tensoir_fixture(tmp_path, size=32)  # LPIPS needs 32 px
     scene = import_tensoir(src, tmp_path / "gt")

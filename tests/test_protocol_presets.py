@@ -7,26 +7,17 @@ import math
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.config import CONF_DIR, register_configs, validate_protocol
+from eval.config import CONF_DIR
 from eval.metrics import MSE_FLOOR_16BIT, erode_mask
 from eval.protocol import display_relit, fit_albedo_scale
 from eval.protocol_id import protocol_diff, protocol_dict, protocol_hash
 from eval.scoring import score_pair, score_relit
+from tests.fixtures import preset
 
 PRESETS = ("default", "aligned_clamp", "stanford_orb", "tensoir", "gs_ir", "paper")
 CAP = 10 * math.log10(1 / MSE_FLOOR_16BIT)
-
-
-def preset(name: str, *overrides: str):
-    register_configs()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose(config_name="gspi_eval", overrides=[f"eval={name}", "gt=g", "pred=p",
-                                                            "out=o", *overrides])
-    validate_protocol(cfg.eval)
-    return cfg.eval
 
 
 def square(size=32, lo=8, hi=24) -> torch.Tensor:

@@ -86,9 +86,14 @@ def run(cfg: DictConfig) -> dict:
     asset_path, out = Path(cfg.asset), Path(cfg.out)
     if not asset_path.is_file():
         raise MissingInputError(f"{asset_path}: asset file not found (asset= takes GS-PI's pbr_gs.ply)")
-    asset = read_ply(asset_path)
     env_map = rotate_environment(load_environment(cfg.env, height=int(cfg.env_height)),
-                                 float(cfg.env_rotation_deg))
+                                 float(cfg.env_rotation_deg))  # a bad env= fails before the asset is read
+    asset = read_ply(asset_path)
+    if not asset.has_pbr:
+        from gspi.relight import NotPBRAssetError
+
+        raise NotPBRAssetError(f"{asset_path}: has no PBR attributes (albedo_0..2, roughness, metallic): "
+                               "relight GS-PI's pbr_gs.ply, not a plain 2DGS/3DGS asset")
     centre, distance = framing(asset, float(cfg.fov_deg))
     written = {"frames": [], "views": [], "animation": None}
     if int(cfg.frames) > 0:

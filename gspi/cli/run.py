@@ -45,8 +45,10 @@ def is_multirun() -> bool:
 
 def run_task(cfg: DictConfig) -> None:
     """One gspi-run job (of a multirun: its own sub-folder of `out`)."""
+    from gspi.run.assets import check_user_assets
     from gspi.run.runner import run_job
 
+    check_user_assets(cfg.get("assets"))  # a bad asset file: one line before the job starts
     job_cfg = resolved_config(cfg)
     if is_multirun():  # each job writes into its own sub-folder of the sweep folder `out`
         from hydra.core.hydra_config import HydraConfig

@@ -32,10 +32,10 @@ import colorsys
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 from torch import Tensor
 
 from gspi.data import patterns
+from gspi.data.materials import MATERIAL_CLASSES, METAL_CLASSES, sample_material
 
 LAYOUTS = ("bands", "cells")
 METAL_F0_MODES = ("physical", "wide")
@@ -96,8 +96,6 @@ def part_classes(primary_class: str, n: int, rng: np.random.Generator) -> list[s
     """The classes of an n-part object whose first part is `primary_class`: the others drawn
     from the other classes; then, half of the time, one metal part beside dielectric ones, and
     never all metal."""
-    from gspi.data.materials import MATERIAL_CLASSES, METAL_CLASSES
-
     others = [c for c in MATERIAL_CLASSES if c != primary_class]
     classes = [primary_class] + [others[int(rng.integers(0, len(others)))] for _ in range(n - 1)]
     wants_metal = rng.uniform() < 0.5
@@ -125,8 +123,6 @@ def vary_part(recipe: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
 
 def sample_parts(primary: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
     """A multi-part recipe whose first part is `primary` (see module docstring)."""
-    from gspi.data.materials import sample_material
-
     n = int(rng.integers(cfg.count[0], cfg.count[1] + 1))
     classes = part_classes(primary["class"], n, rng)
     recipes = [primary] + [sample_material(c, rng) for c in classes[1:]]
@@ -146,23 +142,8 @@ def sample_parts(primary: dict, cfg: PartsConfig, rng: np.random.Generator) -> d
 
 
 def part_index(parts: dict, q: Tensor) -> Tensor:
-    """[N] long: the part of each object-space point."""
-    warp = parts["warp"] * (patterns.value_noise(q * 2.5, int(parts["noise_seed"])) - 0.5)
-    if parts["layout"] == "bands":
-        axis = torch.tensor(parts["axis"], dtype=q.dtype, device=q.device)
-        t = q @ axis + warp
-        cuts = torch.tensor(parts["cuts"], dtype=q.dtype, device=q.device)
-        return (t[:, None] > cuts[None, :]).sum(dim=1)
-    centres = torch.tensor(parts["centres"], dtype=q.dtype, device=q.device)
-    dist = torch.cdist(q, centres) + warp[:, None]
-    return dist.argmin(dim=1)
+    """[N] long: the part of each object-space point (``patterns.part_regions``)."""
+    return patterns.part_regions(q, parts)
 
 
-def textured(albedo: Tensor, rough: Tensor, texture: dict, q: Tensor) -> tuple[Tensor, Tensor]:
-    """Albedo scaled by 1 + a (n - 1/2) and roughness shifted by a/2 (n - 1/2), n a fBm in [0, 1]."""
-    n = patterns.fbm(q * texture["frequency"], int(texture["seed"])) - 0.5
-    a = texture["amplitude"]
-    return albedo * (1.0 + a * n)[:, None], rough + 0.5 * a * n
-
-
-__all__ = ["LAYOUTS", "PartsConfig", "part_classes", "part_index", "sample_parts", "textured", "vary_part"]
+__all__ = ["LAYOUTS", "PartsConfig", "part_classes", "part_index", "sample_parts", "vary_part"]

@@ -152,10 +152,8 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
     Returns:
         MaterialSample with linear albedo, on the device of `q`.
     """
-    if "parts" in recipe:
-        from gspi.data.material_parts import part_index
-
-        index = part_index(recipe["parts"], q)
+    if "parts" in recipe:  # gspi.data.material_parts
+        index = patterns.part_regions(q, recipe["parts"])
         samples = [evaluate_material(r, q) for r in recipe["parts"]["materials"]]
         pick = index[:, None, None].expand(-1, 1, 3)
         albedo = torch.stack([s.albedo_linear for s in samples], 1).gather(1, pick)[:, 0]
@@ -244,9 +242,10 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")
     if "roughness_shift" in recipe:  # data.parts variations (gspi.data.material_parts)
         rough = rough + recipe["roughness_shift"]
-    if "texture" in recipe:
-        from gspi.data.material_parts import textured
-
-        albedo, rough = textured(albedo, rough, recipe["texture"], q)
+    if "texture" in recipe:  # albedo x (1 + a (n - 1/2)), roughness + a/2 (n - 1/2), n a fBm in [0, 1]
+        tex = recipe["texture"]
+        noise = patterns.fbm(q * tex["frequency"], int(tex["seed"])) - 0.5
+        albedo = albedo * (1.0 + tex["amplitude"] * noise)[:, None]
+        rough = rough + 0.5 * tex["amplitude"] * noise
     return MaterialSample(albedo.clamp(0.0, 1.0).float(), rough.clamp(0.02, 1.0).float(),
                           metal.float())

@@ -137,3 +137,16 @@ def brushed(q: Tensor, seed: int, axis: int = 2) -> Tensor:
     scale = torch.full((3,), 90.0, device=q.device)
     scale[axis] = 2.0
     return value_noise(q * scale, seed)
+
+
+def part_regions(q: Tensor, parts: dict) -> Tensor:
+    """[N] long: which part of a multi-part object (``gspi.data.material_parts``) each point is in:
+    ``bands`` = how many of the sorted ``cuts`` the warped coordinate along ``axis`` passes,
+    ``cells`` = the nearest of ``centres`` by warped distance."""
+    warp = parts["warp"] * (value_noise(q * 2.5, int(parts["noise_seed"])) - 0.5)
+    if parts["layout"] == "bands":
+        axis = torch.tensor(parts["axis"], dtype=q.dtype, device=q.device)
+        cuts = torch.tensor(parts["cuts"], dtype=q.dtype, device=q.device)
+        return ((q @ axis + warp)[:, None] > cuts[None, :]).sum(dim=1)
+    centres = torch.tensor(parts["centres"], dtype=q.dtype, device=q.device)
+    return (torch.cdist(q, centres) + warp[:, None]).argmin(dim=1)

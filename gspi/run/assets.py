@@ -102,6 +102,31 @@ def check_prediction_covers_scene(scene: Scene, pred_scene: Path, split: str) ->
     return fraction
 
 
+def read_user_asset(path: Path) -> tuple[Gaussians2D, dict]:
+    """``read_asset_ply`` (2DGS, or 3DGS flattened to surfels) with every failure an
+    :class:`AssetError` naming ``path``."""
+    try:
+        return read_asset_ply(path)
+    except StatedError as exc:  # already names the file
+        raise AssetError(str(exc)) from exc
+    except Exception as exc:
+        raise AssetError(f"{path}: cannot read the Gaussian asset ({type(exc).__name__}: {exc})") from exc
+
+
+def check_user_assets(assets: Optional[str]) -> None:
+    """Before a run starts (gspi-run): ``assets=`` exists, and when it is one PLY, it reads.
+    Raises :class:`AssetError` naming the path, so a bad file is one line, not a failed job."""
+    from gspi.run.stage2_model import resolve_path
+
+    if not assets:
+        return
+    root = resolve_path(assets)
+    if not root.exists():
+        raise AssetError(f"{root}: assets= not found (a 2DGS/3DGS .ply, or a folder of <scene>/point_cloud.ply)")
+    if root.is_file():
+        read_user_asset(root)
+
+
 def user_asset_path(assets: str | Path, scene_name: str, num_scenes: int) -> Path:
     """The PLY of ``scene_name`` under ``assets`` (a file for one scene, or a folder; a relative
     path that does not exist from the working directory is read from the repository root, so
@@ -149,10 +174,7 @@ def scene_asset(scene: Scene, *, assets: Optional[str], num_scenes: int, recon_c
     (the cached run's time when reused, so end-to-end runtimes stay comparable)."""
     if assets:
         path = user_asset_path(assets, scene.name, num_scenes)
-        try:
-            gaussians, read_info = read_asset_ply(path)  # 2DGS, or 3DGS flattened to surfels (recorded)
-        except Exception as exc:
-            raise AssetError(f"{path}: cannot read the Gaussian asset ({exc})") from exc
+        gaussians, read_info = read_user_asset(path)
         coverage = check_asset_covers_scene(gaussians, scene, str(path))
         return gaussians, {"source": "user", "path": str(path), "seconds": None, "coverage": coverage,
                            "asset_format": {k: v for k, v in read_info.items() if k != "path"}}

@@ -34,6 +34,7 @@ import torch
 
 from eval.layout import Scene, read_meta, read_scene, read_splits, write_meta
 from eval.atomic import write_json_atomic
+from eval.errors import StatedError, one_line
 from eval.records import run_points
 from eval.records.eval_folder import RESULT_FILES
 from gspi.device import resolve_device
@@ -129,9 +130,20 @@ def _run_scene_safely(name: str, scene_args: dict, progress: bool) -> tuple[str,
     """(name, meta.json, None) or (name, None, "<error type>: <message>"), the traceback logged."""
     try:
         return name, run_scene(name, progress=progress, **scene_args), None
+    except StatedError as exc:  # names its key or file: one line, no traceback
+        log.error("%s: %s failed: %s", name, scene_args["method"].name, one_line(exc))
+        return name, None, StatedMessage(f"{type(exc).__name__}: {one_line(exc)}")
     except Exception as exc:
         log.error("%s: %s failed:\n%s", name, scene_args["method"].name, traceback.format_exc())
         return name, None, f"{type(exc).__name__}: {exc}"
+
+
+class StatedMessage(str):
+    """A scene's error message from a stated error (picklable across scene workers)."""
+
+
+class ScenesFailedError(StatedError, RuntimeError):
+    """Every failed scene of a job failed with a stated error: the job's one-line error."""
 
 
 LOG_FORMAT = "[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"  # Hydra's job_logging format
@@ -320,7 +332,8 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
                                                      "seconds": round(time.perf_counter() - t0, 2)}, **record)
         tracker.finish(exit_code=0 if not errors else 1)
         if errors and reraise:
-            raise RuntimeError(f"{out}: {len(errors)} of {len(names)} scenes failed: {error}")
+            kind = ScenesFailedError if all(isinstance(e, StatedMessage) for e in errors.values()) else RuntimeError
+            raise kind(f"{out}: {len(errors)} of {len(names)} scenes failed: {error}")
     except Exception as exc:
         if read_result(out) is None or read_result(out).get("config_hash") != cfg_hash or \
                 read_result(out).get("status") != "failed":

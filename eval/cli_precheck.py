@@ -1,0 +1,79 @@
+"""Checks a CLI's command line against its config before Hydra starts (issue 40).
+
+Hydra resolves ``hydra.run.dir: ${out}`` before a task runs, so a missing required key (``???``)
+or a bad config-group choice reached the user as a 100-line traceback, and a missing ``data=``
+only after wandb had started. :func:`precheck` composes the config once with Hydra's compose API
+(the same config directory and overrides; a sweep's first value stands for the sweep) and turns
+what it finds into one stated line:
+
+- a required key nobody set: ``out: required (conf/gspi_run.yaml: out: ???); set out=...``;
+- an unknown config-group choice or key, a malformed override: Hydra's own message, one line.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from eval.errors import StatedError
+
+HYDRA_FLAGS = ("-m", "--multirun", "--cfg", "--info", "-c", "--help", "-h", "--hydra-help", "--resolve",
+               "-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir", "-p", "--package",
+               "--shell-completion", "-sc", "--run", "-r", "--experimental-rerun", "--version")
+
+
+ALIASES = {"data_dir": "data"}  # keys whose command-line alias the rewriters accept (gspi-run, gspi-train)
+
+
+class CommandLineError(StatedError, ValueError):
+    """A command line that cannot make a complete config: names the key or the override."""
+
+
+def first_of_sweeps(overrides: list[str]) -> list[str]:
+    """Overrides with every sweep (``k=a,b``, ``k=range(..)``, ``k=choice(..)``) replaced by its first value."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out = []
+    for text, parsed in zip(overrides, OverridesParser.create().parse_overrides(overrides)):
+        if parsed.is_sweep_override():
+            first = next(iter(parsed.sweep_string_iterator()))
+            text = f"{parsed.get_key_element()}={first}"
+        out.append(text)
+    return out
+
+
+def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
+    """Raises :class:`CommandLineError` (one line) when ``argv`` cannot make a complete config."""
+    if any(a in HYDRA_FLAGS or a.startswith("--") for a in argv if a not in ("-m", "--multirun")):
+        return  # Hydra's own modes (help, --cfg, ...): left to Hydra
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    overrides = [a for a in argv if a not in ("-m", "--multirun")]
+    try:
+        overrides = first_of_sweeps(overrides)
+        with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
+            cfg = compose(config_name=config_name, overrides=overrides)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise CommandLineError(_hydra_message(exc)) from None
+    missing = sorted(k for k in _missing_keys(cfg, OmegaConf) if not k.startswith("hydra."))
+    if missing:
+        source = Path(config_dir) / f"{config_name}.yaml"
+        hint = " ".join(f"{ALIASES.get(k, k)}=..." for k in missing)
+        raise CommandLineError(f"required key(s) not set: {', '.join(missing)} ({source}: ???); add {hint}")
+
+
+def _missing_keys(cfg, OmegaConf) -> set[str]:
+    return set(OmegaConf.missing_keys(cfg))
+
+
+def _hydra_message(exc: BaseException) -> str:
+    """Hydra's message without its 'Available options' list (the first line and the choices, joined)."""
+    text = str(exc).strip()
+    lines = [x.strip() for x in text.splitlines() if x.strip()]
+    head = lines[0] if lines else type(exc).__name__
+    options = [x for x in lines[1:] if not x.lower().startswith(("available options", "config search path",
+                                                                   "provider=", "in '", "set the environment"))]
+    if "Available options" in text and options:
+        head += f" (available: {', '.join(options[:12])}{', ...' if len(options) > 12 else ''})"
+    return head
