@@ -124,7 +124,7 @@ def test_mixed_with_gspi_eval_folders_is_refused(folders):
 
 
 def test_breakdown_by_material_class_and_image_size(tmp_path):
-    from eval.points_breakdown import breakdown, material_class, to_markdown
+    from experiments.ladder.points_breakdown import breakdown, material_class, to_markdown
 
     assert material_class("p0230_multipart_painted_metal") == "painted_metal"
     assert material_class("p0231_blob_metal") == "metal" and material_class("x") == "other"

@@ -1,10 +1,10 @@
-"""gspi.recon.highlights: radiance statistics inside a mask, computed by hand."""
+"""experiments.highlights.highlights: radiance statistics inside a mask, computed by hand."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gspi.recon.highlights import radiance_stats
+from experiments.highlights.highlights import radiance_stats
 
 
 def test_radiance_stats_by_hand():

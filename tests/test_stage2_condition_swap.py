@@ -1,4 +1,4 @@
-"""gspi.stage2.condition_swap: each variant swaps exactly one input to the asset's renders."""
+"""experiments.condition_swap.condition_swap: each variant swaps exactly one input to the asset's renders."""
 from __future__ import annotations
 
 import json
@@ -7,7 +7,7 @@ import numpy as np
 
 from eval.layout import read_scene, read_view_file
 from gspi.data.asset_conditions import LATTICE_SPLIT
-from gspi.stage2.condition_swap import write_variant
+from experiments.condition_swap.condition_swap import write_variant
 from tests.stage2_fixtures import make_lattice_scene
 
 

@@ -1,4 +1,4 @@
-"""The learnability ladder's rungs (gspi/stage2/ladder.py, regressors.py): each trains on a
+"""The learnability ladder's rungs (experiments/ladder/ladder.py, regressors.py): each trains on a
 fixed batch, is saved and loaded back, and is scored with Table 2's measure."""
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import torch
 
 from gspi.stage2.checkpoint import CheckpointError
 from gspi.stage2.encoders import build_encoder
-from gspi.stage2.ladder import (build_rung, ladder_config, load_rung, predict_rung, rung_loss, save_rung,
+from experiments.ladder.ladder import (build_rung, ladder_config, load_rung, predict_rung, rung_loss, save_rung,
                                 score_rung)
-from gspi.stage2.regressors import pooled_prior, rung_features
+from experiments.ladder.regressors import pooled_prior, rung_features
 from gspi.stage2.splits import load_split
 from tests.stage2_fixtures import make_lattice_dataset
 
@@ -104,7 +104,7 @@ def _scores(folder, rung, seed, values, ladder=True):
 
 
 def test_summary_pools_seeds_and_reports_metal(tmp_path):
-    from gspi.stage2.ladder_summary import summarise, to_markdown
+    from experiments.ladder.ladder_summary import summarise, to_markdown
 
     folders = [_scores(tmp_path / "a", "r1", 0, [(10, 20, 6), (14, 20, 30)]),
                _scores(tmp_path / "b", "r1", 1, [(12, 20, 9), (14, 22, 30)]),
@@ -118,7 +118,7 @@ def test_summary_pools_seeds_and_reports_metal(tmp_path):
     assert s["no_decomposition"]["mean"]["metal_iou@metal"] == 0.0   # no metal predicted: IoU 0
     assert s["r5"]["seeds"] == [0]
     assert "| R0 no decomposition | 1 |" in to_markdown(s)
-    from gspi.stage2.ladder_summary import versus
+    from experiments.ladder.ladder_summary import versus
 
     d = versus(folders, "r1")  # avg over channels, paired over (scene, seed); hand-computed
     assert d["r5"][0] == pytest.approx((52 / 3 - 12 + 74 / 3 - 64 / 3) / 2)
@@ -143,7 +143,7 @@ def test_point_metal_iou(ladder_data):
 
 
 def test_rung_of_a_diffusion_run_is_its_folder_name():
-    from gspi.stage2.ladder_summary import rung_of
+    from experiments.ladder.ladder_summary import rung_of
 
     assert rung_of({"ladder": {}, "ablation": "r3"}) == "r3"
     assert rung_of({"ablation": "full", "checkpoint": "/x/runs/r5skip_s2/checkpoint.pt"}) == "r5skip"

@@ -11,7 +11,7 @@ scene's own, as symlinks:
   source view at its stored pixel;
 - ``prior``: the lattice ``rgb.exr`` files replaced by the asset's renders.
 
-Used by ``gspi.stage2.condition_swap`` (one condition at a time) and
+Used by ``experiments.condition_swap.condition_swap`` (one condition at a time) and
 ``gspi.recon.reconstructed_pool`` (both: a training pool as the paper trains, on lattice renders
 of reconstructed assets).
 """

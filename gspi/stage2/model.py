@@ -159,7 +159,7 @@ class RCWDenoiser(nn.Module):
     def head(self, f_t: Tensor, t: Tensor, inputs: Stage2Inputs, *, prev_latents: Optional[Tensor] = None,
              cond_keep: Optional[Tensor] = None, write_chunk: Optional[int] = None) -> tuple[Tensor, Tensor]:
         """(raw head output [B, N, 5], final latents): eps or x0 as ``config.prediction`` says.
-        The ladder's direct regressor (``gspi.stage2.regressors.RCWRegressor``) reads it as x0."""
+        The ladder's direct regressor (``experiments.ladder.regressors.RCWRegressor``) reads it as x0."""
         b, n = inputs.xyz.shape[:2]
         if f_t.shape != (b, n, self.config.feature_dim):
             raise ValueError(f"f_t must be [B, N, {self.config.feature_dim}] = {(b, n)}, got {tuple(f_t.shape)}")

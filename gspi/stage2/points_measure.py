@@ -11,7 +11,7 @@ views, then over scenes; "avg" is the mean of the three channels. A per-view PSN
 ``PSNR_CAP_DB`` (an exact match would be inf). ``point_metal_iou``: IoU of the metal points.
 
 Used by the validation while training (``gspi.stage2.validate``), the one CLI
-(``python -m gspi.stage2.evaluate_points``) and the learnability ladder (``gspi.stage2.ladder``).
+(``python -m gspi.stage2.evaluate_points``) and the learnability ladder (``experiments.ladder.ladder``).
 """
 from __future__ import annotations
 

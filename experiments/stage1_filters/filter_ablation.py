@@ -5,7 +5,7 @@ the given config and each filter alone, with distances to the scene's GT point c
 (``gt_points.npz`` ``xyz``) and that cloud's own spacing (the floor of the measure). Writes
 ``report.json`` and ``report.md`` into the output folder.
 
-    python -m gspi.stage1.filter_ablation --assets '/tmp/rc/v3_{scene}/point_cloud.ply' \\
+    python -m experiments.stage1_filters.filter_ablation --assets '/tmp/rc/v3_{scene}/point_cloud.ply' \\
         --data /tmp/data_small --out runs/stage1_report \\
         --scenes s002_multipart_ceramic s004_superquadric_metal [--config default] [key=value ...]
 """
@@ -20,13 +20,14 @@ import numpy as np
 import torch
 
 from eval.atomic import write_json_atomic, write_text_atomic
+from eval.config import CONF_DIR
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import LatticeRenders, apply_filters, render_lattice, unproject_renders
 from gspi.point_cloud import PointCloud
 from gspi.stage1.report import reference_spacing, source_footprint
 
 FILTERS = ("outliers", "mask_consistency", "depth_consensus")
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf" / "stage1"
+STAGE1_CONF = Path(CONF_DIR) / "stage1"
 
 
 def variants(cfg: Stage1Config) -> dict[str, Stage1Config]:
@@ -79,7 +80,7 @@ def load_config(name: str, overrides: list[str]) -> Stage1Config:
     from omegaconf import OmegaConf
 
     def compose(n: str):
-        node = OmegaConf.load(CONF_DIR / f"{n}.yaml")
+        node = OmegaConf.load(STAGE1_CONF / f"{n}.yaml")
         bases = [compose(b) for b in node.pop("defaults", []) if b != "_self_"]
         return OmegaConf.merge(*bases, node)
 

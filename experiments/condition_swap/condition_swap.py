@@ -14,7 +14,7 @@ cloud) and the same model, Table 2's measure is taken three times:
 A drop from ``gt`` to one of the others names the input the asset degrades (docs/RESULTS.md
 "The ladder-fixed checkpoint end to end": on the metal demo scene the prior, not Top-RGB).
 
-    python -m gspi.stage2.condition_swap CKPT SCENE_DIR ASSET_PLY OUT [--baseline-train POOL]
+    python -m experiments.condition_swap.condition_swap CKPT SCENE_DIR ASSET_PLY OUT [--baseline-train POOL]
         [--num-steps 10] [--max-points 20000]
 
 Each variant is a dataset view under ``OUT/<variant>/`` (symlinks to the scene's files, the

@@ -12,7 +12,7 @@ which part of Stage II loses what:
   no condition dropout; its raw head is read as f0.
 
 R0 (no decomposition) and R5 (the RCW diffusion, today's Full) are the existing baseline and
-model (``gspi.stage2.evaluate_points``); ``gspi.stage2.ladder`` trains and scores them all.
+model (``gspi.stage2.evaluate_points``); ``experiments.ladder.ladder`` trains and scores them all.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The ladder's table: each rung over its seeds, per channel, per material class, metal IoU.
 
-Reads ``scores.json`` folders (format gspi-points-eval) of ``gspi.stage2.ladder`` rungs and of
+Reads ``scores.json`` folders (format gspi-points-eval) of ``experiments.ladder.ladder`` rungs and of
 ``gspi.stage2.evaluate_points`` (R5); the no-decomposition baseline (R0) is the same in every
 folder of one evaluation and is read once. For each rung: the mean over seeds of the per-seed
 scene means (PSNR dB) per channel and their average, the seed spread (max - min of the per-seed
@@ -16,8 +16,8 @@ import re
 
 import numpy as np
 
-from eval.points_breakdown import MATERIAL_CLASSES as CLASSES
-from eval.points_breakdown import material_class as scene_class
+from experiments.ladder.points_breakdown import MATERIAL_CLASSES as CLASSES
+from experiments.ladder.points_breakdown import material_class as scene_class
 from eval.records.points_scores import BASELINE_KEY as BASELINE
 from eval.tables.build import AVG_CHANNELS as CHANNELS
 

@@ -1,18 +1,18 @@
 """The learnability ladder: where Stage II loses the material signal (docs/STAGE2.md
 "Where the signal is lost").
 
-Rungs R1-R4 (``gspi.stage2.regressors``) are trained here as direct regressors of f0 on the
+Rungs R1-R4 (``experiments.ladder.regressors``) are trained here as direct regressors of f0 on the
 same batches as the diffusion model (local 512-point subsets of the perturbed GT clouds of the
 training scenes, ``gspi.stage2.data``), with the Stage II recipe's optimiser, learning-rate
 schedule, clipping and EMA (``stage2.train``), for ``--steps`` steps or ``--cpu-minutes`` of
 this process's CPU time, whichever ends first. R0 (no decomposition) and R5 (the diffusion
 model, ``gspi-train``) are scored by ``gspi.stage2.evaluate_points``; every rung is scored by the
 same function (``evaluate_scenes``: Table 2's measure) and written in the same ``scores.json``
-format, so ``python -m gspi.stage2.ladder summary`` and ``eval.points_breakdown`` read them all.
+format, so ``python -m experiments.ladder.ladder summary`` and ``experiments.ladder.points_breakdown`` read them all.
 
-    python -m gspi.stage2.ladder train --rung r1 --seed 0 --data POOL --out runs/ladder/r1_s0 \\
+    python -m experiments.ladder.ladder train --rung r1 --seed 0 --data POOL --out runs/ladder/r1_s0 \\
         --eval heldout=POOL:test --eval small=SMALL:test [--cpu-minutes 10] [--steps 4000]
-    python -m gspi.stage2.ladder summary runs/ladder/*/eval_heldout
+    python -m experiments.ladder.ladder summary runs/ladder/*/eval_heldout
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from gspi.stage2.data import (PointDataConfig, ScenePoints, local_condition, loc
                               perturb_along_rays, sample_batch)
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.normalize import pbr_from_model, to_unit_sphere
-from gspi.stage2.regressors import (MLP_RUNGS, PointMLP, RCWRegressor, point_features, pooled_prior,
+from experiments.ladder.regressors import (MLP_RUNGS, PointMLP, RCWRegressor, point_features, pooled_prior,
                                     regression_loss, rung_features)
 
 log = logging.getLogger(__name__)
@@ -264,7 +264,7 @@ def main(argv: list[str] | None = None) -> None:
         torch.set_num_threads(args.threads)
         run_train(args)
     else:
-        from gspi.stage2.ladder_summary import print_summary, versus
+        from experiments.ladder.ladder_summary import print_summary, versus
 
         folders = [Path(f) for f in args.folders]
         print_summary(folders)

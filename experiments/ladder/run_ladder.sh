@@ -4,7 +4,7 @@
 # the 32 held-out pool scenes and the 4 `small` test scenes. Two workers (one per core) take
 # jobs from one ordered list (a job is claimed by creating $RUNS/.claims/<job> atomically):
 # the diffusion model R5 (gspi-train, stage2=table2_cpu) and its evaluation, and the direct
-# regressors R1-R4 (python -m gspi.stage2.ladder). Finished jobs are skipped, so a rerun
+# regressors R1-R4 (python -m experiments.ladder.ladder). Finished jobs are skipped, so a rerun
 # continues (remove $RUNS/.claims first if a run was killed). Data (once, ~5 min on 2 cores):
 #   gspi-data preset=stage2_pool out=$POOL_ROOT seed=0 'data.pool_indices=[[0,64],[224,256]]' data.workers=2
 #   python -m gspi.data.pool_split $POOL_ROOT $POOL --train 0:64 --test 224:256
@@ -12,7 +12,7 @@
 # Diffusion rungs are name=recipe[:ablation] (a conf/stage2 preset; ablation default full), e.g.
 # the departures measured after R5: DIFFUSION_RUNGS="r6=table2_cpu_trunc_snr r6skip=table2_cpu_skip_trunc_snr"
 # REGRESSOR_RUNGS=; or Table 2's variants on a recipe: "r6a1=table2_cpu_trunc_snr:a1_no_global_prior".
-# Usage: benchmarks/run_ladder.sh POOL SMALL RUNS [SEEDS...]
+# Usage: experiments/ladder/run_ladder.sh POOL SMALL RUNS [SEEDS...]
 set -u
 POOL=$1; SMALL=$2; RUNS=$3; shift 3
 SEEDS=${*:-0 1 2}
@@ -46,7 +46,7 @@ run_job() {  # kind rung seed
     [[ $spec == *:* ]] && abl=${spec#*:} && spec=${spec%%:*}
     $PY -m gspi.cli.train data="$POOL" out="$d" stage2=$spec ablation=$abl seed=$3 > "$d.log" 2>&1
   elif [ $1 = train ]; then
-    $PY -m gspi.stage2.ladder train --rung $2 --seed $3 --data "$POOL" --out "$d" \
+    $PY -m experiments.ladder.ladder train --rung $2 --seed $3 --data "$POOL" --out "$d" \
       --eval heldout="$POOL":test --eval small="$SMALL":test > "$d.log" 2>&1
   else
     while [ ! -f "$d/stats.json" ]; do sleep 20; done  # its training, on the other worker
@@ -69,6 +69,6 @@ worker() {
 
 for w in $(seq "$WORKERS"); do worker & done
 wait
-$PY -m gspi.stage2.ladder summary "$RUNS"/*/eval_heldout > "$RUNS/summary_heldout.md"
-$PY -m gspi.stage2.ladder summary "$RUNS"/*/eval_small > "$RUNS/summary_small.md"
+$PY -m experiments.ladder.ladder summary "$RUNS"/*/eval_heldout > "$RUNS/summary_heldout.md"
+$PY -m experiments.ladder.ladder summary "$RUNS"/*/eval_small > "$RUNS/summary_small.md"
 cat "$RUNS/summary_heldout.md" "$RUNS/summary_small.md"

@@ -6,8 +6,8 @@ baseline per group of scenes: by material class (the scene name's suffix, e.g.
 `p0230_multipart_metal` -> `metal`), by image size (the scene's `scene.json` width: the pool
 mixes the presets' 64 and 128 px, hence their point densities) and per channel.
 
-    python -m eval.points_breakdown runs/t2cpu/*/eval_heldout
-    python -m eval.points_breakdown runs/t2cpu/*/eval_heldout --channel metallic   # groups of one channel
+    python -m experiments.ladder.points_breakdown runs/t2cpu/*/eval_heldout
+    python -m experiments.ladder.points_breakdown runs/t2cpu/*/eval_heldout --channel metallic   # groups of one channel
 """
 from __future__ import annotations
 
