@@ -164,3 +164,40 @@ def test_scene_workers_inside_a_joblib_sweep_worker(micro_dataset, tmp_path):
     (result,) = Parallel(n_jobs=2, backend="loky")(delayed(run_job)(cfg, reraise=False) for _ in range(1))
     assert result["status"] == "complete" and result["scene_errors"] == {}, result
     assert all((tmp_path / "job" / "predictions" / name / "meta.json").is_file() for name in scenes)
+
+
+def test_a_user_asset_that_does_not_match_the_photos_is_flagged(micro_dataset, tmp_path):
+    """asset_check (issue 41): a flat green sphere run on a scene whose photos it does not show
+    is recorded below asset_check.min_psnr with a one-line warning naming the PLY, shown on the
+    report's scene page; asset_check.strict=true fails the scene instead."""
+    from eval.layout import read_scene, read_splits
+    from eval.report_site.collect import Job
+    from eval.report_site.scene_page import SceneWriter
+    from gspi.gaussians.ply import write_ply
+    from gspi.run.runner import run_job
+    from tests.fixtures import surfel_sphere
+
+    flat = tmp_path / "flat_green_sphere.ply"
+    write_ply(flat, surfel_sphere(2000, radius=0.8, color=(0.05, 0.9, 0.05)))
+    name = read_splits(micro_dataset)["test"][0]
+    out = tmp_path / "loose"
+    result = run_job(run_config(micro_dataset, out, ["method=no_decomposition", f"assets={flat}"]))
+    assert result["status"] == "complete", result
+    check = json.loads((out / "predictions" / name / "meta.json").read_text())["asset"]["asset_check"]
+    assert check["passed"] is False and check["psnr_masked"] < check["min_psnr"] == 10.0, check
+    assert str(flat) in check["warning"] and "may not depict this scene" in check["warning"]
+    job = Job(run_dir=out, method="no_decomposition", ablation="full", table="table1", seed=0,
+              label="No decomposition", data=micro_dataset, predictions=out / "predictions", eval_dir=None,
+              scenes=(name,))
+    html = SceneWriter(tmp_path / "site", read_scene(micro_dataset / name), [job], thumb=16, quality=50).asset_checks()
+    assert "Warning" in html and f"{check['psnr_masked']:.2f} dB" in html
+    # the same asset with a threshold below its score passes, and is shown without a warning
+    ok = run_config(micro_dataset, tmp_path / "lenient", ["method=no_decomposition", f"assets={flat}",
+                                                           "asset_check.min_psnr=0"])
+    assert run_job(ok)["status"] == "complete"
+    meta = json.loads((tmp_path / "lenient" / "predictions" / name / "meta.json").read_text())
+    assert meta["asset"]["asset_check"]["passed"] is True and "warning" not in meta["asset"]["asset_check"]
+    strict = run_config(micro_dataset, tmp_path / "strict", ["method=no_decomposition", f"assets={flat}",
+                                                              "asset_check.strict=true"])
+    failed = run_job(strict, reraise=False)
+    assert failed["status"] == "failed" and "asset_check.strict=true" in failed["error"], failed

@@ -169,3 +169,24 @@ def test_what_flattening_loses_grows_with_the_thickness():
         _, alpha = render_3dgs(surfels.means, quats, log_scales.exp(), surfels.opacities, colors, viewmats, Ks, 32, 32)
         psnr[rel] = -10 * np.log10(float(((alpha - flat.alpha) ** 2).mean()))
     assert psnr[1e-4] > 26 and psnr[1.0] < psnr[1e-4] - 5, psnr
+
+
+def test_what_flattening_drops_is_named_in_one_line_and_the_record(tmp_path, caplog):
+    """Issue 41: the third scale is always dropped, PBR columns of a relightable 3DGS file too;
+    both are named in one warning line and in the asset's record; an all-isotropic file warns."""
+    import logging
+
+    from gspi.gaussians.ply import PBR, POSITION, NORMAL, F_DC, ROT, SCALE3, _write_vertices, read_asset_ply
+
+    n = 40
+    g = torch.Generator().manual_seed(0)
+    names = list(POSITION) + list(NORMAL) + list(F_DC) + ["opacity"] + list(SCALE3) + list(ROT) + list(PBR)
+    values = torch.randn(n, len(names), generator=g)
+    values[:, 10:13] = -3.0  # log scales, all equal: every Gaussian isotropic
+    _write_vertices(tmp_path / "pbr3d.ply", names, values.numpy())
+    with caplog.at_level(logging.WARNING, logger="gspi.gaussians.ply"):
+        _, info = read_asset_ply(tmp_path / "pbr3d.ply")
+    dropped = [r.getMessage() for r in caplog.records if "dropped on reading" in r.getMessage()]
+    assert len(dropped) == 1 and "smallest axis" in dropped[0] and "albedo_0" in dropped[0] and "metallic" in dropped[0]
+    assert any("smallest axis" in d for d in info["dropped"]) and any("roughness" in d for d in info["dropped"])
+    assert any("near-isotropic" in r.getMessage() and r.levelno == logging.WARNING for r in caplog.records)

@@ -131,6 +131,31 @@ class SceneWriter:
         return ("<p>glTF 2.0 (mesh, base colour and metallic-roughness textures; docs/EXPORT.md). "
                 "Still: shaded, base colour, roughness, metallic.</p>" + "".join(parts))
 
+    def asset_checks(self) -> str:
+        """The user asset each job started from, checked against the scene's photos (gspi-run's
+        ``asset_check``, in the prediction's meta.json): its PSNR, and its warning when below."""
+        from eval.layout import read_meta
+
+        parts = []
+        for job in self.jobs:
+            pred = job.prediction(self.scene.name)
+            check = ((read_meta(pred).get("asset") or {}).get("asset_check") if pred is not None else None)
+            if not check:
+                continue
+            psnr = check.get("psnr_masked")
+            text = (f"{escape(job.label)} (seed {job.seed}): the asset's renders of the {check.get('views')} "
+                    f"{escape(str(check.get('split')))} views score "
+                    f"{'n/a' if psnr is None else f'{psnr:.2f}'} dB masked display PSNR against the photos "
+                    f"(threshold {check.get('min_psnr')} dB)")
+            if check.get("passed", True):
+                parts.append(f"<li>{text}.</li>")
+            else:
+                parts.append(f"<li class=\"warning\"><strong>Warning:</strong> {text}: the asset may not "
+                             f"depict this scene.</li>")
+        if not parts:
+            return ""
+        return "<h2>User asset check</h2><ul class=\"asset-check\">" + "".join(parts) + "</ul>"
+
     def scene_scores(self) -> str:
         """Per-scene means of every shown job (eval_meta.json per_scene)."""
         import json
@@ -167,7 +192,7 @@ class SceneWriter:
             f"{escape(vp.view)}</h2>{self.comparison(vp, envs)}<h2>Relighting, view "
             f"{escape(vp.view)}</h2>{self.strip(vp, envs, env_imgs)}</div>" for vp in panels)
         body = (f"<p><a href=\"index.html\">&larr; report</a></p><h1>{escape(self.scene.name)}</h1>"
-                f"<p class=\"views\">View: {buttons}</p>"
+                f"{self.asset_checks()}<p class=\"views\">View: {buttons}</p>"
                 f"<p>Error maps: |prediction − GT| (mean over colour channels, display values) "
                 f"<span class=\"cbar\" style=\"background:{css_gradient()}\"></span> 0 to "
                 f"{ERROR_MAX} (clipped), colour map magma. Scores under each panel: per_view.csv "

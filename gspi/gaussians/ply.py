@@ -165,11 +165,29 @@ def _read_3dgs(path: PathLike, data: np.ndarray) -> tuple[Gaussians2D, dict]:
     if missing:
         raise PlyFormatError(path, f"a 3D Gaussian splatting file (has scale_2) missing {missing}")
     surfels, info = flatten_3dgs(**_gaussian_columns(path, data, _sh_rest_count(path, names), SCALE3))
-    info = {**info, "path": str(path)}
-    logging.getLogger(__name__).info("%s: a 3D Gaussian splatting file, %d Gaussians flattened to 2DGS surfels "
-                                     "(%s; %.1f %% near-isotropic)", path, len(data), info["rule"],
-                                     100 * info["isotropic_fraction"])
+    info = {**info, "path": str(path), "dropped": dropped_3dgs_attributes(names)}
+    log = logging.getLogger(__name__)
+    log.info("%s: a 3D Gaussian splatting file, %d Gaussians flattened to 2DGS surfels (%s; %.1f %% near-isotropic)",
+             path, len(data), info["rule"], 100 * info["isotropic_fraction"])
+    log.warning("%s: dropped on reading: %s", path, "; ".join(info["dropped"]))
+    if len(data) and info["isotropic_fraction"] >= ALL_ISOTROPIC:
+        log.warning("%s: %.0f %% of the 3D Gaussians are near-isotropic: their surfel normals are arbitrary",
+                    path, 100 * info["isotropic_fraction"])
     return surfels, info
+
+
+ALL_ISOTROPIC = 0.9  # a 3DGS file this isotropic has no surface orientation to flatten to (warned)
+
+
+def dropped_3dgs_attributes(names: set[str]) -> list[str]:
+    """What flattening a 3DGS file to surfels does not keep, one phrase each: always the third
+    scale (the smallest axis becomes the surfel's normal), and PBR columns if present (a
+    relightable 3DGS file: its materials are not read; Stage II predicts them)."""
+    dropped = ["scale of each Gaussian's smallest axis (it becomes the surfel's normal)"]
+    pbr = [n for n in PBR if n in names]
+    if pbr:
+        dropped.append(f"PBR attributes {', '.join(pbr)} (not read from a 3DGS file)")
+    return dropped
 
 
 def write_3dgs_ply(path: PathLike, means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor,

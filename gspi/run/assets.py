@@ -76,6 +76,33 @@ def check_asset_covers_scene(gaussians: Gaussians2D, scene: Scene, source: str) 
     return info
 
 
+def check_asset_matches_photos(gaussians: Gaussians2D, scene: Scene, source: str, *, display_cfg,
+                               min_psnr: float, strict: bool, split: str = "train") -> dict:
+    """A user's asset rendered at ``scene``'s input views against the captured images: masked
+    display PSNR per view (``gspi.recon.trainer.evaluate_views``, Stage 0's record measure).
+    Below ``min_psnr`` (``asset_check.min_psnr``) the asset may not depict this scene (another
+    object, other lighting, an unlit export): one warning line, or with ``strict`` an
+    :class:`AssetError`. Returns the record's ``asset_check`` entry."""
+    from gspi.recon.data import load_scene_views
+    from gspi.recon.trainer import evaluate_views
+
+    metrics = evaluate_views(gaussians, load_scene_views(scene, split), display_cfg)
+    psnr = metrics["psnr_masked"]
+    info = {"split": split, "views": metrics["num_views"], "psnr_masked": psnr,
+            "psnr_masked_min": min((v["psnr_masked"] for v in metrics["per_view"]), default=None),
+            "alpha_iou": metrics["alpha_iou"], "min_psnr": float(min_psnr),
+            "passed": psnr is None or psnr >= float(min_psnr)}
+    if not info["passed"]:
+        message = (f"{source}: its renders of the {metrics['num_views']} {split} views of {scene.name} score "
+                   f"{psnr:.2f} dB masked display PSNR against the photos (asset_check.min_psnr={min_psnr:g}): "
+                   f"the asset may not depict this scene")
+        if strict:
+            raise AssetError(message + " (asset_check.strict=true)")
+        log.warning("%s", message)
+        info["warning"] = message
+    return info
+
+
 def check_prediction_covers_scene(scene: Scene, pred_scene: Path, split: str) -> float:
     """The fraction of ground-truth foreground pixels (over the split's views) where the
     prediction has any non-zero material value. Raises when it is below MIN_COVERAGE: maps that
@@ -169,14 +196,22 @@ def cached_reconstruction(scene: Scene, recon_cfg: Mapping[str, Any], cache_root
 
 
 def scene_asset(scene: Scene, *, assets: Optional[str], num_scenes: int, recon_cfg: Mapping[str, Any],
-                cache_root: Path, device: str = "cpu") -> tuple[Gaussians2D, dict]:
+                cache_root: Path, device: str = "cpu", asset_check: Optional[Mapping[str, Any]] = None
+                ) -> tuple[Gaussians2D, dict]:
     """(asset, info): info["source"] is "user" or "recon"; "seconds" is the reconstruction time
     (the cached run's time when reused, so end-to-end runtimes stay comparable)."""
     if assets:
         path = user_asset_path(assets, scene.name, num_scenes)
         gaussians, read_info = read_user_asset(path)
         coverage = check_asset_covers_scene(gaussians, scene, str(path))
+        from gspi.recon.trainer import ReconConfig
+
+        check = {"min_psnr": 10.0, "strict": False, **dict(asset_check or {})}
+        photos = check_asset_matches_photos(gaussians, scene, str(path),
+                                            display_cfg=ReconConfig.from_dict(dict(recon_cfg)).display,
+                                            min_psnr=float(check["min_psnr"]), strict=bool(check["strict"]))
         return gaussians, {"source": "user", "path": str(path), "seconds": None, "coverage": coverage,
+                           "asset_check": photos,
                            "asset_format": {k: v for k, v in read_info.items() if k != "path"}}
     gaussians, info = cached_reconstruction(scene, recon_cfg, cache_root, device=device)
     coverage = check_asset_covers_scene(gaussians, scene, f"reconstruction {info.get('path')}")

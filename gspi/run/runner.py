@@ -99,7 +99,8 @@ def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, An
     asset, asset_info = None, {}
     if method.needs_asset:
         with clock.stage("recon"):
-            asset, asset_info = scene_asset(scene, assets=cfg.get("assets"), num_scenes=num_scenes,
+            asset, asset_info = scene_asset(scene, assets=cfg.get("assets"), asset_check=cfg.get("asset_check"),
+                                            num_scenes=num_scenes,
                                             recon_cfg=cfg["recon"], cache_root=cache_root,
                                             device=str(resolve_device(cfg.get("device", "cpu"))))
     stats = method.predict(scene, pred_scene, asset=asset, clock=clock, work_dir=work, split=split,
