@@ -22,6 +22,9 @@ $(STAMP): pyproject.toml
 	# the cache (gspi/data/pmndrs_assets.py). Without npm it says so and the procedural
 	# environments remain (the leading '-' keeps the install going).
 	-$(PY) -m gspi.data.pmndrs_assets
+	# The report's 3D viewer: npm pack @google/model-viewer@4.4.0, checksummed, its UMD bundle
+	# kept in the cache (eval/report_site/model_viewer.py); without npm the report says so.
+	-$(PY) -m eval.report_site.model_viewer
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -28,7 +28,9 @@ def find_chromium() -> str | None:
 class Browser:
     """One headless browser with one page; collects console errors and failed loads."""
 
-    def __init__(self, executable: str, *, width: int = 1400, height: int = 1000):
+    def __init__(self, executable: str, *, width: int = 1400, height: int = 1000, webgl: bool = False):
+        """``webgl``: software WebGL (SwiftShader) for the report's 3D viewer, and no
+        ``--allow-file-access-from-files``, so pages are checked as a user's browser opens them."""
         self._profile = tempfile.mkdtemp(prefix="gspi-chromium-")
         cmd_r, self._cmd_w = os.pipe()
         self._resp_r, resp_w = os.pipe()
@@ -40,8 +42,9 @@ class Browser:
 
         self.proc = subprocess.Popen(
             [executable, "--headless=new", "--remote-debugging-pipe", "--no-sandbox",
-             "--disable-gpu", "--no-first-run", "--no-default-browser-check",
-             "--allow-file-access-from-files", f"--user-data-dir={self._profile}",
+             *(["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"] if webgl
+               else ["--disable-gpu", "--allow-file-access-from-files"]),
+             "--no-first-run", "--no-default-browser-check", f"--user-data-dir={self._profile}",
              f"--window-size={width},{height}", "about:blank"],
             close_fds=False, preexec_fn=wire_fds,  # other fds are non-inheritable: closed at exec
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -101,9 +104,9 @@ class Browser:
         self.call("Page.navigate", session=True, url=Path(path).resolve().as_uri())
         self.wait_event("Page.loadEventFired", timeout)
 
-    def evaluate(self, expression: str):
+    def evaluate(self, expression: str, timeout: float = 30.0):
         result = self.call("Runtime.evaluate", session=True, expression=expression,
-                           returnByValue=True, awaitPromise=True)
+                           returnByValue=True, awaitPromise=True, timeout=timeout)
         if "exceptionDetails" in result:
             raise RuntimeError(f"{expression!r}: {result['exceptionDetails']}")
         return result["result"].get("value")

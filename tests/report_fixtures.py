@@ -47,11 +47,16 @@ def _turntable(path: Path, frames: int = 3, size: int = 16) -> None:
 
 
 def _glb(folder: Path) -> None:
-    """A stand-in for gspi-export's output (the report copies and links it, never reads it)."""
+    """A stand-in for gspi-export's output: a real GLB (a metallic-roughness box, which the
+    report's viewer loads) and a preview image."""
+    import trimesh
     from PIL import Image
 
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "pbr_gs.glb").write_bytes(b"glTF" + bytes(60))
+    box = trimesh.creation.box(extents=[1.0, 0.8, 0.6])
+    box.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
+        baseColorFactor=[200, 120, 60, 255], metallicFactor=0.2, roughnessFactor=0.4))
+    (folder / "pbr_gs.glb").write_bytes(trimesh.Scene(box).export(file_type="glb"))
     Image.fromarray(np.full((16, 64, 3), 200, np.uint8)).save(folder / "pbr_gs_preview.png")
 
 

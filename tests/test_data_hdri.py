@@ -139,7 +139,9 @@ def test_asset_install_checks_checksum_and_decodes(tmp_path, monkeypatch):
     with pytest.raises(pmndrs_assets.AssetsUnavailable, match="SHA-256"):
         pmndrs_assets.install(tgz)
     assert not (tmp_path / "cache" / pmndrs_assets.FOLDER / "MANIFEST").exists()
-    monkeypatch.setattr(pmndrs_assets.shutil, "which", lambda _: None)
+    import eval.npm_package
+
+    monkeypatch.setattr(eval.npm_package.shutil, "which", lambda _: None)
     with pytest.raises(pmndrs_assets.AssetsUnavailable, match="npm not found"):
         pmndrs_assets.install()
 

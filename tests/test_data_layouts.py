@@ -21,7 +21,7 @@ from eval.layout import LayoutError, read_view_file
 from gspi.data.layouts import detect_format
 from gspi.data.layouts.nero_glossy import export_nero_glossy, import_nero_glossy
 from gspi.data.layouts.orb_envmap import orb_directions, orb_to_world, world_to_orb
-from gspi.data.layouts.radiance_hdr import read_hdr, write_hdr
+from eval.radiance_hdr import read_hdr, write_hdr
 from gspi.data.layouts.stanford_orb import export_stanford_orb, import_stanford_orb
 from gspi.data.layouts.tensoir import export_tensoir, import_tensoir
 from gspi.data.nerf_synthetic import linear_from_rgba, write_rgba

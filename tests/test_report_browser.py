@@ -108,3 +108,72 @@ def test_existing_report_in_headless_chromium(chromium, tmp_path):
     assert (out / "index.html").is_file(), f"{out}: no index.html"
     with Browser(chromium) as browser:
         check_site(browser, out, tmp_path, "existing")
+    with_viewer = [p for p in sorted(out.glob("scene_*.html")) if "<model-viewer" in p.read_text()]
+    with Browser(chromium, webgl=True, width=900, height=900) as browser:
+        for page in with_viewer:  # every exported GLB, under 3 of the run's HDRIs
+            assert check_viewer(browser, page, tmp_path) == 3, page.name
+
+
+# The viewer's canvas as a PNG data URL once its model is loaded and shown (model-viewer's own API).
+VIEWER_PIXELS = """(async () => {
+  const mv = document.querySelector('model-viewer[data-key]');
+  mv.scrollIntoView();  // model-viewer renders only while it is on screen
+  const t0 = Date.now();
+  while (!(mv.loaded && mv.modelIsVisible) && Date.now() - t0 < 60000) await new Promise(r => setTimeout(r, 200));
+  await new Promise(r => setTimeout(r, 1500));
+  return {loaded: mv.loaded, png: mv.toDataURL('image/png')};
+})()"""
+
+
+def _pixels(data_url: str):
+    import base64
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(data_url.split(",", 1)[1]))).convert("RGBA"),
+                      dtype=np.float64) / 255.0
+
+
+def check_viewer(browser: Browser, page: Path, shots: Path, max_envs: int = 3) -> int:
+    """The page's first <model-viewer> loads its GLB (the object covers pixels, not all) and
+    each of up to ``max_envs`` of the run's environments lights it differently from the one
+    before. Returns the number of environments checked."""
+    import numpy as np
+    from PIL import Image
+
+    browser.open(page)
+    envs = browser.evaluate("Array.from(document.querySelector('select.viewer-env').options).map(o => o.value)")
+    assert len(envs) >= 2, (page.name, envs)
+    shown = []
+    for k, env in enumerate(envs[:max_envs]):
+        browser.evaluate(f"(() => {{ const s = document.querySelector('select.viewer-env'); s.value = {env!r}; "
+                         "s.dispatchEvent(new Event('change')); })()")
+        state = browser.evaluate(VIEWER_PIXELS, timeout=90)
+        assert state["loaded"], (page.name, browser.errors())
+        shown.append(_pixels(state["png"]))
+        Image.fromarray((shown[-1] * 255).astype("uint8")).save(shots / f"viewer_{page.stem}_{k}.png")
+        _keep(shots / f"viewer_{page.stem}_{k}.png")
+    assert [e for e in browser.errors() if "model-viewer" in e.lower() or "glb" in e.lower()] == []
+    for before, after in zip(shown, shown[1:]):
+        covered = (before[..., 3] > 0.5) & (after[..., 3] > 0.5)
+        assert 0.02 < covered.mean() < 0.9, (page.name, covered.mean())  # the object, not the whole canvas
+        assert np.abs(before[..., :3] - after[..., :3])[covered].mean() > 0.01, page.name  # relit
+    return len(shown)
+
+
+def test_viewer_turns_the_glb_and_relights_it(report, chromium, tmp_path):
+    """The scene page's <model-viewer> (vendored; the page opened from file:// without extra
+    flags) loads the exported GLB: the object covers pixels, and another of the run's
+    environments changes them."""
+    from eval.report_site.model_viewer import installed_script
+
+    if installed_script() is None:
+        pytest.fail("the viewer's script is not installed: python -m eval.report_site.model_viewer "
+                    "(make install runs it)")
+    page = report.scene_pages["sphere_0"]
+    assert "<model-viewer" in page.read_text()
+    assert (report.out / "js" / "model-viewer.LICENSE").is_file()
+    with Browser(chromium, webgl=True, width=900, height=900) as browser:
+        assert check_viewer(browser, page, tmp_path) == 3

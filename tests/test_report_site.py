@@ -186,3 +186,47 @@ def test_hydra_overrides_compose():
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("gspi_report", overrides=overrides)
     assert list(cfg.runs) == ["/tmp"] and cfg.gt == "/tmp/data" and cfg.max_views == 2
+
+
+def test_viewer_install_checks_the_tarball_and_the_bundle(tmp_path, monkeypatch):
+    """eval.report_site.model_viewer refuses a tarball whose SHA-256 is not the pinned one, and
+    says so in one line when npm is missing; nothing is left looking installed."""
+    import io
+    import tarfile
+
+    import eval.npm_package
+    from eval.npm_package import NpmUnavailable
+    from eval.report_site import model_viewer
+
+    monkeypatch.setenv("GSPI_CACHE", str(tmp_path / "cache"))
+    fake = tmp_path / model_viewer.TARBALL
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tar:
+        for member in model_viewer.FILES.values():
+            info = tarfile.TarInfo(member)
+            info.size = 4
+            tar.addfile(info, io.BytesIO(b"fake"))
+    fake.write_bytes(buf.getvalue())
+    with pytest.raises(NpmUnavailable, match="SHA-256"):
+        model_viewer.install(fake)
+    assert model_viewer.installed_script() is None
+    monkeypatch.setattr(eval.npm_package.shutil, "which", lambda _: None)
+    with pytest.raises(NpmUnavailable, match="npm not found.*3D viewer"):
+        model_viewer.install()
+
+
+def test_viewer_hdr_is_the_environment_resampled(tmp_path):
+    """The viewer's HDRI: the scene's EXR at 128 x 256, RGBE-encoded (read back within RGBE
+    rounding); a constant map stays constant whichever way it is resampled."""
+    import numpy as np
+
+    from eval.imageio import write_exr
+    from eval.radiance_hdr import read_hdr
+    from eval.report_site.viewer import ENV_ROWS, env_hdr
+
+    for rows in (16, 512):
+        write_exr(tmp_path / "e.exr", np.full((rows, 2 * rows, 3), [0.5, 1.0, 2.0], np.float32))
+        (tmp_path / "e.hdr").write_bytes(env_hdr(tmp_path / "e.exr"))
+        back = read_hdr(tmp_path / "e.hdr")
+        assert back.shape == (ENV_ROWS, 2 * ENV_ROWS, 3)
+        np.testing.assert_allclose(back, np.broadcast_to([0.5, 1.0, 2.0], back.shape), rtol=2 ** -7)

@@ -23,6 +23,7 @@ from eval.report_site.html_tables import frame_html
 from eval.report_site.images import colorize_error, css_gradient, save_thumbnail
 from eval.report_site.page import page, tile, url
 from eval.report_site.panels import ERROR_MAX, ViewPanels
+from eval.report_site.viewer import viewer_html
 
 
 def _metric_caption(metrics: dict | None) -> str:
@@ -108,12 +109,13 @@ class SceneWriter:
     def glbs(self, all_jobs: list[Job]) -> str:
         """The relightable GLB of each job that exported one: its still (drawn by gspi-export from
         the file, no three.js) linking to a copy of the file."""
-        parts = []
+        parts, viewable = [], []
         for k, job in enumerate(all_jobs):
             found = job.glb(self.scene.name)
             if found is None:
                 continue
             glb, preview = found
+            viewable.append((f"a{k}", glb, f"{escape(job.label)} (seed {job.seed})"))
             rel = f"glb/{self.scene.name}/a{k}.glb"
             (self.out / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(glb, self.out / rel)
@@ -129,7 +131,8 @@ class SceneWriter:
             return "<p>No GLB: run <code>gspi-export asset=&lt;run&gt;/work/&lt;scene&gt;/pbr_gs.ply " \
                    "out=&lt;run&gt;/export/&lt;scene&gt;/pbr_gs.glb</code> to add one.</p>"
         return ("<p>glTF 2.0 (mesh, base colour and metallic-roughness textures; docs/EXPORT.md). "
-                "Still: shaded, base colour, roughness, metallic.</p>" + "".join(parts))
+                "Still: shaded, base colour, roughness, metallic.</p>" + "".join(parts)
+                + viewer_html(self.out, self.scene, viewable))
 
     def asset_checks(self) -> str:
         """The user asset each job started from, checked against the scene's photos (gspi-run's

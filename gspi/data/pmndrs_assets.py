@@ -16,16 +16,15 @@ from __future__ import annotations
 
 import argparse
 import base64
-import hashlib
 import re
-import shutil
-import subprocess
 import sys
 import tarfile
 import tempfile
 from pathlib import Path
 
 from eval.lpips.weights import cache_dir
+from eval.npm_package import NpmUnavailable, checked_tarball, sha256
+from eval.npm_package import npm_pack as eval_npm_pack
 
 PACKAGE = "@pmndrs/assets@1.7.0"
 TARBALL = "pmndrs-assets-1.7.0.tgz"
@@ -38,7 +37,7 @@ MODEL_NAMES = ("bunny", "suzi")
 _MODULE = re.compile(r"export default '(data:[^;]+;base64,)([A-Za-z0-9+/=]+)'")
 
 
-class AssetsUnavailable(RuntimeError):
+class AssetsUnavailable(NpmUnavailable):
     """npm is missing, the download failed or the tarball does not match its checksum."""
 
 
@@ -46,22 +45,13 @@ def asset_root() -> Path:
     return cache_dir() / FOLDER
 
 
-def _sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def npm_pack(dest: Path) -> Path:
     """`npm pack @pmndrs/assets@1.7.0` into `dest`; returns the tarball path."""
-    npm = shutil.which("npm")
-    if npm is None:
-        raise AssetsUnavailable(f"npm not found: cannot fetch {PACKAGE} (Poly Haven HDRIs); "
-                                "install npm or use data.capture_envs/relight_envs=procedural")
-    proc = subprocess.run([npm, "pack", PACKAGE, "--pack-destination", str(dest)],
-                          capture_output=True, text=True, timeout=600)
-    if proc.returncode != 0 or not (dest / TARBALL).is_file():
-        raise AssetsUnavailable(f"`npm pack {PACKAGE}` failed (exit {proc.returncode}): "
-                                f"{proc.stderr.strip()[-500:]}")
-    return dest / TARBALL
+    try:
+        return eval_npm_pack(PACKAGE, TARBALL, dest, why="Poly Haven HDRIs; install npm or use "
+                             "data.capture_envs/relight_envs=procedural")
+    except NpmUnavailable as exc:
+        raise AssetsUnavailable(str(exc)) from None
 
 
 def decode_module(text: str, where: str) -> bytes:
@@ -79,9 +69,10 @@ def install(tgz: Path | None = None, *, force: bool = False) -> Path:
         return root
     with tempfile.TemporaryDirectory() as tmp:
         tgz = Path(tgz) if tgz is not None else npm_pack(Path(tmp))
-        data = tgz.read_bytes()
-        if _sha256(data) != SHA256:
-            raise AssetsUnavailable(f"{tgz}: SHA-256 {_sha256(data)} does not match {SHA256}")
+        try:
+            checked_tarball(tgz, SHA256)
+        except NpmUnavailable as exc:
+            raise AssetsUnavailable(str(exc)) from None
         files = {f"hdri/{n}.exr": f"package/hdri/{n}.exr.js" for n in HDRI_NAMES}
         files |= {f"models/{n}.glb": f"package/models/{n}.glb.js" for n in MODEL_NAMES}
         with tarfile.open(tgz) as tar:
@@ -90,7 +81,7 @@ def install(tgz: Path | None = None, *, force: bool = False) -> Path:
     for rel, payload in decoded.items():
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_bytes(payload)
-    manifest = "".join(f"{_sha256(p)}  {rel}\n" for rel, p in sorted(decoded.items()))
+    manifest = "".join(f"{sha256(p)}  {rel}\n" for rel, p in sorted(decoded.items()))
     (root / "MANIFEST").write_text(manifest)
     return root
 

@@ -55,7 +55,7 @@ from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.imageio import read_exr, write_exr
 from eval.layout import SPLITS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_material, write_scene_json, write_view_file
-from gspi.data.layouts.radiance_hdr import read_hdr, write_hdr
+from eval.radiance_hdr import read_hdr, write_hdr
 from gspi.data.nerf_synthetic import blender_c2w_to_opencv_w2c, check_angle_x_camera, intrinsics_from_angle_x, \
     linear_from_rgba, opencv_w2c_to_blender_c2w, read_rgba, rgba_from_linear, write_input_view, write_rgba
 

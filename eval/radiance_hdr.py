@@ -84,6 +84,13 @@ def read_hdr(path: str | Path) -> np.ndarray:
 def write_hdr(path: str | Path, rgb: np.ndarray) -> Path:
     """Write [H, W, 3] linear RGB (negative values clamp to 0) as flat RGBE scanlines."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(encode_hdr(rgb))
+    return path
+
+
+def encode_hdr(rgb: np.ndarray) -> bytes:
+    """The bytes of a Radiance .hdr file (flat RGBE scanlines) of [H, W, 3] linear RGB."""
     rgb = np.clip(np.asarray(rgb, np.float64), 0.0, None)
     peak = rgb.max(axis=-1)
     mant, expo = np.frexp(peak)  # peak = mant * 2^expo, mant in [0.5, 1)
@@ -93,6 +100,4 @@ def write_hdr(path: str | Path, rgb: np.ndarray) -> Path:
     rgbe[..., :3] = np.clip(np.round(rgb * factor[..., None]), 0, 255).astype(np.uint8)
     rgbe[..., 3] = np.where(peak > 1e-32, expo + 128, 0).astype(np.uint8)
     h, w = rgb.shape[:2]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {h} +X {w}\n".encode() + rgbe.tobytes())
-    return path
+    return b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {h} +X {w}\n".encode() + rgbe.tobytes()
