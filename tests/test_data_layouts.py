@@ -16,7 +16,7 @@ import torch
 from eval.colorspace import srgb_to_linear
 from eval.envmap import latlong_directions
 from eval.evaluate import evaluate
-from eval.imageio import read_exr, write_exr, write_png
+from eval.imageio import read_exr, read_png, write_exr, write_png
 from eval.layout import LayoutError, read_view_file
 from gspi.data.layouts import detect_format
 from gspi.data.layouts.nero_glossy import export_nero_glossy, import_nero_glossy
@@ -318,6 +318,28 @@ def test_stanford_orb_round_trip(generated, tmp_path):
                                       read_exr(generated.view_dir("test", v.id) / f"relit_{env}.exr"))
 
 
+def test_stanford_orb_npy_only_albedo_imports(generated, tmp_path):
+    """ORB's README lists pseudo_gt_albedo/<id>.npy: a ground truth with only those (linear
+    float arrays) imports to the same albedo as the PNGs ORB's evaluator reads, within 8 bits;
+    a bad array is one line naming it."""
+    folder = export_stanford_orb(generated.root, tmp_path / "orb")
+    gt_dirs = list((tmp_path / "orb").rglob("pseudo_gt_albedo"))
+    assert gt_dirs
+    for d in gt_dirs:
+        for png in d.glob("*.png"):
+            srgb = torch.from_numpy(read_png(png, channels=3))
+            np.save(png.with_suffix(".npy"), srgb_to_linear(srgb).numpy())
+            png.unlink()
+    back = import_stanford_orb(folder, tmp_path / "back", resolution=generated.width)
+    for v in generated.views["test"]:
+        a, b = generated.view_dir("test", v.id), back.view_dir("test", v.id)
+        assert np.abs(read_view_file(a, "albedo.png") - read_view_file(b, "albedo.png")).max() <= 0.5 / 255 + 1e-4
+    bad = next(gt_dirs[0].glob("*.npy"))
+    np.save(bad, np.full((4, 4), 200.0, np.float32))
+    with pytest.raises(LayoutError, match=f"{bad.name}: expected an \\[H, W, 3\\]"):
+        import_stanford_orb(folder, tmp_path / "back2", resolution=generated.width)
+
+
 def test_stanford_orb_missing_transforms_is_one_line(tmp_path):
     src, _ = write_orb_fixture(tmp_path)
     (src / "transforms_test.json").unlink()
@@ -414,3 +436,20 @@ def test_eval_refuses_ground_truth_without_channels(generated, tmp_path):
     back = import_nero_glossy(export_nero_glossy(generated.root, tmp_path / "x"), tmp_path / "gt")
     with pytest.raises(LayoutError, match="provides none of eval.channels"):
         evaluate(tmp_path / "gt", back.root.parent, protocol(), net=object())
+
+
+def test_nero_glossy_real_is_refused_in_one_line_saying_why(tmp_path):
+    """NeRO's Glossy Real captures (COLMAP cameras, no masks) are not read: detection and an
+    explicit import.format=nero_glossy both say so, naming the folder, through gspi-data too."""
+    src = tmp_path / "GlossyReal" / "bear"
+    (src / "colmap" / "sparse" / "0").mkdir(parents=True)
+    (src / "images").mkdir()
+    (src / "object_point_cloud.ply").write_bytes(b"ply\n")
+    with pytest.raises(LayoutError, match="bear: a NeRO Glossy Real capture.*not supported.*no masks"):
+        detect_format(src)
+    with pytest.raises(LayoutError, match="Glossy Real capture"):
+        import_nero_glossy(src, tmp_path / "out")
+    from gspi.cli.data import main
+    code, text = run_cli(main, [f"import.src={src}", f"out={tmp_path / 'o'}"])
+    lines = [x for x in text.splitlines() if "error" in x]
+    assert code == 2 and len(lines) == 1 and "Glossy Real" in lines[0], text

@@ -21,6 +21,21 @@ SIGNATURES = {  # what detect_format looks for, for its error message
 }
 
 
+def is_glossy_real(src: Path) -> bool:
+    """NeRO's Glossy Real capture: COLMAP cameras, a reference point cloud, photos."""
+    return (src / "colmap" / "sparse" / "0").is_dir() and (src / "object_point_cloud.ply").is_file()
+
+
+def refuse_glossy_real(src: Path) -> None:
+    """One line for a NeRO Glossy Real folder, which gspi does not read (why, in the message)."""
+    if is_glossy_real(src):
+        raise LayoutError(f"{src}: a NeRO Glossy Real capture (colmap/sparse/0, object_point_cloud.ply): not "
+                          "supported; its cameras are COLMAP binaries normalised by a per-object table in "
+                          "NeRO's code (GlossyRealDatabase.meta_info) and it has no masks "
+                          "(GlossyRealDatabase.get_mask raises NotImplementedError); gspi reads NeRO's Glossy "
+                          "Synthetic layout (<k>.png, <k>-camera.pkl, <k>-depth.png)")
+
+
 def detect_format(src: str | Path) -> str:
     """The layout of folder ``src``, from its files (checked in the order of SIGNATURES).
 
@@ -40,5 +55,6 @@ def detect_format(src: str | Path) -> str:
         return "nerf_synthetic"
     if any(n.endswith("-camera.pkl") for n in names):
         return "nero_glossy"
+    refuse_glossy_real(src)
     raise LayoutError(f"{src}: no dataset layout recognised (looked for "
                       + "; ".join(f"{k}: {v}" for k, v in SIGNATURES.items()) + "); set import.format")

@@ -90,6 +90,9 @@ def import_nero_glossy(src: str | Path, out_dir: str | Path, *, name: str | None
     Raises:
         LayoutError: no `*-camera.pkl`, or a camera, image or depth file missing or malformed.
     """
+    from gspi.data.layouts import refuse_glossy_real
+
+    refuse_glossy_real(Path(src))
     src = Path(src)
     n = len(list(src.glob("*-camera.pkl"))) if src.is_dir() else 0
     if n == 0:

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from eval.atomic import write_json_atomic
-from eval.colorspace import srgb_to_linear
+from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.imageio import read_exr, read_png, write_exr, write_png
 from eval.layout import GT_CHANNELS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_material, write_scene_json, write_view_file
@@ -119,13 +119,33 @@ def world_normals(normal_cam_gl: np.ndarray, c2w_gl: np.ndarray, mask: np.ndarra
 def _write_gt_maps(gt: Path, vid: str, vdir: Path, c2w: np.ndarray, mask: np.ndarray, factor: int,
                    albedo: bool) -> None:
     if albedo:
-        path = gt / "pseudo_gt_albedo" / f"{vid}.png"
-        write_material(vdir, "albedo", block_mean(read_png(path, channels=3), factor, path) * mask)
+        write_material(vdir, "albedo", pseudo_gt_albedo_srgb(gt, vid, factor) * mask)
     path = gt / "surface_normal" / f"{vid}.npy"
     write_view_file(vdir, "normal.exr", world_normals(block_mean(_npy(path), factor, path), c2w, mask))
     path = gt / "z_depth" / f"{vid}.npy"
     if path.is_file():
         write_view_file(vdir, "depth.exr", block_mean(_npy(path), factor, path)[..., None] * mask)
+
+
+def pseudo_gt_albedo_srgb(gt: Path, vid: str, factor: int) -> np.ndarray:
+    """The pseudo-GT albedo of test image ``vid``, sRGB-encoded as gspi stores albedo.
+
+    ``pseudo_gt_albedo/<id>.png`` (sRGB) is what ORB's evaluator reads (orb/pipelines/mymethod.py
+    47, orb/utils/test.py compute_metrics_material: ``srgb_to_rgb(load_rgb_png(...))``) and is
+    preferred. ORB's README lists ``pseudo_gt_albedo/<id>.npy`` instead; no ORB code reads it, so
+    it is taken as the layout's other float arrays are (linear values in [0, 1]: the
+    evaluator's ``target_rgb``), area-averaged, then encoded. A folder with neither is one line."""
+    png, npy = gt / "pseudo_gt_albedo" / f"{vid}.png", gt / "pseudo_gt_albedo" / f"{vid}.npy"
+    if png.is_file():
+        return block_mean(read_png(png, channels=3), factor, png)
+    if not npy.is_file():
+        raise LayoutError(f"{png}: pseudo-GT albedo not found (nor {npy.name})")
+    linear = _npy(npy)
+    if linear.ndim != 3 or linear.shape[-1] < 3 or not np.isfinite(linear).all() or linear.max() > 1.5:
+        raise LayoutError(f"{npy}: expected an [H, W, 3] float array of linear albedo in [0, 1], got shape "
+                          f"{linear.shape}, max {np.nanmax(linear):.3g}")
+    linear = np.clip(block_mean(linear[..., :3], factor, npy), 0.0, 1.0)
+    return linear_to_srgb(torch.from_numpy(np.ascontiguousarray(linear, dtype=np.float32))).numpy()
 
 
 def _npy(path: Path) -> np.ndarray:
