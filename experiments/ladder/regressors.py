@@ -1,4 +1,4 @@
-"""The learnability ladder's direct regressors (docs/STAGE2.md "Where the signal is lost").
+"""The learnability ladder's direct regressors (docs/log/stage2.md "Where the signal is lost").
 
 Each rung of the ladder predicts the clean PBR features f0 in [-1, 1] of every point in one
 forward pass, from a stated set of inputs, so that its gain or loss against the next rung says

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The learnability ladder (docs/STAGE2.md "Where the signal is lost"): R1-R5 x 3 seeds, each
+# The learnability ladder (docs/log/stage2.md "Where the signal is lost"): R1-R5 x 3 seeds, each
 # trained on the same 64 pool scenes with one thread, then scored with Table 2's measure on
 # the 32 held-out pool scenes and the 4 `small` test scenes. Two workers (one per core) take
 # jobs from one ordered list (a job is claimed by creating $RUNS/.claims/<job> atomically):

@@ -4,7 +4,7 @@ Paper, "Training vs. Inference Dynamics": "the 32 reference views used by both t
 evaluation are deterministically rasterized ... from the reconstructed Gaussian asset". A
 generated pool scene holds the exact renders of its 32 lattice views; a run reads Stage I's
 renders of a 2DGS asset fitted to those views, which loses what a surfel asset cannot hold
-(mirror reflections: docs/STAGE2.md "End to end, metal is lost in Stage 0's asset"). This
+(mirror reflections: docs/log/stage2.md "End to end, metal is lost in Stage 0's asset"). This
 writes, for every scene of a dataset whose ``train`` views are the lattice (a pool, a
 ``pool_split`` view, a generated benchmark scene):
 

@@ -101,7 +101,7 @@ class RCWDenoiser(nn.Module):
             self.global_proj = nn.Linear(c.global_token_dim, c.latent_dim)
             self.view_embed = nn.Parameter(torch.empty(c.num_lattice_views, c.latent_dim))
             self.cell_embed = nn.Parameter(torch.empty(c.global_grid_cells, c.latent_dim))
-        if c.point_global_skip and c.global_token_dim > 0:  # docs/STAGE2.md "Where the signal is lost"
+        if c.point_global_skip and c.global_token_dim > 0:  # docs/log/stage2.md "Where the signal is lost"
             self.point_global_norm = nn.LayerNorm(c.global_token_dim)
             self.point_global_proj = nn.Linear(c.global_token_dim, c.point_dim)
         hidden = int(c.latent_dim * c.mlp_ratio)
@@ -179,7 +179,7 @@ class RCWDenoiser(nn.Module):
         network has to represent changes. With an eps head, the clean-feature estimate at
         high noise is ``(f_t - sqrt(1 - abar) eps_hat) / sqrt(abar)``, a tiny correction to an
         identity map that a small network reproduces poorly, so its conditions hardly matter
-        (docs/STAGE2.md "Why an x0 head for the CPU checkpoint").
+        (docs/STAGE2.md "Why an x0 head for the CPU checkpoints").
         """
         abar = self._alphas_cumprod(f_t.device)[t.long()].to(f_t.dtype).reshape(-1, 1, 1)
         return eps_from_f0(f_t, f0_hat, abar)
