@@ -116,17 +116,22 @@ def test_stated_error_is_one_line_and_exit_2(case, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def bad_inputs(tmp_path_factory) -> Path:
+def matrix_runs(tmp_path_factory) -> dict[str, subprocess.CompletedProcess]:
+    """Every case of REQUIRED, run as installed, 4 at a time (each is mostly Python start-up)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     tmp = tmp_path_factory.mktemp("bad")
     write_bad_plys(tmp)
-    return tmp
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        futures = {case: pool.submit(run_cli_case, argv, tmp) for case, (argv, _) in REQUIRED.items()}
+        return {case: f.result() for case, f in futures.items()}
 
 
 @pytest.mark.parametrize("case", sorted(REQUIRED))
-def test_every_cli_bad_input_is_at_most_two_lines(case, bad_inputs):
+def test_every_cli_bad_input_is_at_most_two_lines(case, matrix_runs):
     """Issue 40's matrix: no traceback, exit 2, at most 2 lines in all, the last names the key or file."""
     argv, expected = REQUIRED[case]
-    done = run_cli_case(argv, bad_inputs)
+    done = matrix_runs[case]
     lines = [x for x in (done.stdout + done.stderr).splitlines() if x.strip()]
     assert done.returncode == 2, (done.returncode, done.stderr[-2000:])
     assert "Traceback" not in done.stderr and len(lines) <= 2, lines

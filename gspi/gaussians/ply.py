@@ -167,9 +167,9 @@ def _read_3dgs(path: PathLike, data: np.ndarray) -> tuple[Gaussians2D, dict]:
     surfels, info = flatten_3dgs(**_gaussian_columns(path, data, _sh_rest_count(path, names), SCALE3))
     info = {**info, "path": str(path), "dropped": dropped_3dgs_attributes(names)}
     log = logging.getLogger(__name__)
-    log.info("%s: a 3D Gaussian splatting file, %d Gaussians flattened to 2DGS surfels (%s; %.1f %% near-isotropic)",
-             path, len(data), info["rule"], 100 * info["isotropic_fraction"])
-    log.warning("%s: dropped on reading: %s", path, "; ".join(info["dropped"]))
+    log.warning("%s: a 3D Gaussian splatting file, %d Gaussians flattened to 2DGS surfels (%s; %.1f %% "
+                "near-isotropic); dropped on reading: %s", path, len(data), info["rule"],
+                100 * info["isotropic_fraction"], "; ".join(info["dropped"]))
     if len(data) and info["isotropic_fraction"] >= ALL_ISOTROPIC:
         log.warning("%s: %.0f %% of the 3D Gaussians are near-isotropic: their surfel normals are arbitrary",
                     path, 100 * info["isotropic_fraction"])

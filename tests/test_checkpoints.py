@@ -1,0 +1,50 @@
+"""The shipped Stage II checkpoints (checkpoints/README.md): every card names its file and that
+file's SHA-256, every .pt has a card, and gspi-run's default model loads with the config its
+card and its recipe name (issue 42)."""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+CARDS = sorted((ROOT / "checkpoints").glob("stage2_*.json"))
+
+
+def default_stage2() -> str:
+    """The stage2 group option gspi-run's defaults list chooses."""
+    defaults = yaml.safe_load((ROOT / "conf" / "gspi_run.yaml").read_text())["defaults"]
+    return next(d["stage2"] for d in defaults if isinstance(d, dict) and "stage2" in d)
+
+
+@pytest.mark.parametrize("card", CARDS, ids=lambda p: p.name)
+def test_card_names_its_file_and_hash(card):
+    data = json.loads(card.read_text())
+    path = ROOT / data["file"]
+    assert path.is_file(), card
+    assert path.stem == card.stem, f"{card.name} describes {data['file']}"
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == data["sha256"], card.name
+    assert path.stat().st_size == data["size_bytes"]
+
+
+def test_every_checkpoint_has_a_card_and_a_readme_row():
+    readme = (ROOT / "checkpoints" / "README.md").read_text()
+    for pt in sorted((ROOT / "checkpoints").glob("stage2_*.pt")):
+        assert pt.with_suffix(".json").is_file(), f"{pt.name} has no card"
+        assert f"`{pt.name}`" in readme, f"{pt.name} is not listed in checkpoints/README.md"
+
+
+def test_the_default_model_loads_and_is_the_one_the_readme_names():
+    from gspi.stage2.checkpoint import load_stage2_checkpoint
+
+    option = default_stage2()
+    node = yaml.safe_load((ROOT / "conf" / "stage2" / f"{option}.yaml").read_text())
+    ckpt = ROOT / node["checkpoint"]
+    model, saved = load_stage2_checkpoint(ckpt)
+    assert sum(p.numel() for p in model.parameters()) > 0 and saved["stage2"].model is not None
+    readme = (ROOT / "checkpoints" / "README.md").read_text()
+    default_line = next(line for line in readme.splitlines() if line.startswith("**Default"))
+    assert f"`{ckpt.name}`" in default_line and f"stage2={option}" in default_line, default_line
