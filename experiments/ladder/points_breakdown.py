@@ -20,12 +20,13 @@ import numpy as np
 from eval.records.points_scores import BASELINE_KEY, MODEL_KEY, SCORES_NAME, find_points_folders, read_points_scores
 from eval.tables.build import AVG_CHANNELS as CHANNELS
 
-MATERIAL_CLASSES = ("rough_plastic", "glossy_plastic", "painted_metal", "metal", "fabric", "ceramic")
+from gspi.data.materials import MATERIAL_CLASSES  # the one list (issue 40)
 
 
 def material_class(scene: str) -> str:
-    """The material class a scene name ends with ("other" if none)."""
-    return next((c for c in MATERIAL_CLASSES if scene.endswith("_" + c)), "other")
+    """The material class a scene name ends with ("other" if none); the longest match, so
+    ``..._painted_metal`` is painted_metal, not metal."""
+    return max((c for c in MATERIAL_CLASSES if scene.endswith("_" + c)), key=len, default="other")
 
 
 def image_size(data_dir: Path, scene: str) -> int | None:
