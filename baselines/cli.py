@@ -43,7 +43,6 @@ from eval.cli_entry import hydra_cli
 log = logging.getLogger(__name__)
 # Absolute, as gspi/cli/*.py: a relative path would resolve as a Python package when the module
 # is imported by a console script.
-SYSTEM_ALIAS = ("system=", "method=")
 
 
 def model_dir(cfg: DictConfig) -> Path:
@@ -96,12 +95,6 @@ def _run_import_and_print(cfg: DictConfig) -> dict:
     return record
 
 
-def alias_system(argv: list[str]) -> list[str]:
-    """Rewrite `system=X` to Hydra's group override `method=X`."""
-    old, new = SYSTEM_ALIAS
-    return [new + a[len(old):] if a.startswith(old) else a for a in argv]
-
-
 PATH_KEYS = ("src", "scene", "out")  # quoted for Hydra's grammar (eval/argv.py)
 ASSET_KEY = "asset="
 
@@ -126,11 +119,11 @@ _export_asset = hydra_cli(run_asset_export, "gspi_export_asset", path_keys=("ass
 
 def is_asset_export(argv: list[str]) -> bool:
     """The command line asks for the GLB export: it has `asset=` and no `system=`/`method=`."""
-    return any(a.startswith(ASSET_KEY) for a in argv) and not any(a.startswith(SYSTEM_ALIAS) for a in argv)
+    return any(a.startswith(ASSET_KEY) for a in argv) and not any(a.startswith(("system=", "method=")) for a in argv)
 
 
-_export = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS, rewrite=alias_system)
-import_main = hydra_cli(_run_import_and_print, "gspi_import", path_keys=PATH_KEYS, rewrite=alias_system)
+_export = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS)
+import_main = hydra_cli(_run_import_and_print, "gspi_import", path_keys=PATH_KEYS)
 
 
 def export_main() -> None:

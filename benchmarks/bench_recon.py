@@ -29,14 +29,15 @@ REPO = Path(__file__).resolve().parents[1]
 def generate_scene(out: Path, size: int) -> Path:
     from hydra import compose, initialize_config_dir
 
-    from gspi.cli.data import alias_preset, run
+    from eval.argv import apply_aliases
+    from gspi.cli.data import run
 
     overrides = ["preset=tiny", f"out={out}", "seed=0", "data.num_train_scenes=1", "data.num_val_scenes=0",
                  "data.num_test_scenes=0", f"data.image_size={size}", "data.env_height=32", "data.num_test_views=1",
                  "data.num_val_views=0", "data.num_relight_envs=1", "data.contact_sheets=false",
                  "data.point_clouds=false"]
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        run(compose("gspi_data", overrides=alias_preset(overrides)))
+        run(compose("gspi_data", overrides=apply_aliases(overrides, "gspi_data")))
     return next(p for p in out.iterdir() if (p / "scene.json").is_file())
 
 

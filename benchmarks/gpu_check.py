@@ -238,7 +238,8 @@ def step_paper_scene(ctx: dict) -> dict:
     not depend on the weights; stage2.train.steps=2 gives the run a checkpoint)."""
     if "data" not in ctx:
         return {"skipped": "no data (e2e_tiny did not run)"}
-    from gspi.cli.data import alias_preset, run as data_run
+    from eval.argv import apply_aliases
+    from gspi.cli.data import run as data_run
     from hydra import compose, initialize_config_dir
 
     cfg = ctx["sizes"]
@@ -252,7 +253,7 @@ def step_paper_scene(ctx: dict) -> dict:
                      "data.num_test_views=2", "data.num_val_views=1", "data.num_relight_envs=1",
                      "data.contact_sheets=false"]
         with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-            data_run(compose("gspi_data", overrides=alias_preset(overrides)))
+            data_run(compose("gspi_data", overrides=apply_aliases(overrides, "gspi_data")))
     data_s = time.perf_counter() - t0
     device = "cuda" if ctx["device"].type == "cuda" else "cpu"
     stage2 = "stage2=tiny" if ctx["smoke"] else "stage2=default"
@@ -308,14 +309,15 @@ def step_stage2_train_burst(ctx: dict) -> dict:
 
 def _gspi_data(ctx: dict, name: str, device: str) -> dict:
     """gspi-data (in-process, as the CLI composes it) of the DATA_CHECK dataset on ``device``."""
-    from gspi.cli.data import alias_preset, run as data_run
+    from eval.argv import apply_aliases
+    from gspi.cli.data import run as data_run
     from hydra import compose, initialize_config_dir
 
     out = ctx["work"] / name
     overrides = [*DATA_CHECK, f"out={out}", f"device={device}", f"data.image_size={int(ctx['sizes']['data_image_size'])}"]
     t0 = time.perf_counter()
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        data_run(compose("gspi_data", overrides=alias_preset(overrides)))
+        data_run(compose("gspi_data", overrides=apply_aliases(overrides, "gspi_data")))
     _sync(torch.device(device))
     return {"out": out, "seconds": round(time.perf_counter() - t0, 2)}
 

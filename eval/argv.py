@@ -38,3 +38,27 @@ def quote_path_overrides(argv: list[str], keys: tuple[str, ...]) -> list[str]:
             arg = f"{key}={quote_value(value)}"
         out.append(arg)
     return out
+
+
+# The command line's aliases, one table for every CLI (issue 40): config name -> {alias: key}.
+# `gspi-run data=DIR` is `data_dir=DIR` (`data` is a config group there), `gspi-data preset=tiny`
+# the group choice `data=tiny`, `gspi-eval method=X` the key `method_name=X` (`method` is a
+# group), `gspi-export/-import system=X` the group `method=X`.
+ALIASES: dict[str, dict[str, str]] = {
+    "gspi_run": {"data": "data_dir"},
+    "gspi_train": {"data": "data_dir"},
+    "gspi_data": {"preset": "data", "+preset": "data"},
+    "gspi_eval": {"method": "method_name"},
+    "gspi_export": {"system": "method"},
+    "gspi_import": {"system": "method"},
+}
+
+
+def apply_aliases(argv: list[str], config_name: str) -> list[str]:
+    """``alias=value`` -> ``key=value`` by ``ALIASES[config_name]`` (other arguments unchanged)."""
+    table = ALIASES.get(config_name, {})
+    out = []
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        out.append(f"{table[key]}={value}" if sep and key in table else arg)
+    return out

@@ -48,20 +48,13 @@ register_configs()
 
 # `method=<name>` is an alias of the key `method_name=<name>`: conf/method/ is a config group
 # (the methods gspi-run can run), so Hydra would read `method=...` as a group override.
-METHOD_ALIAS = ("method=", "method_name=")
-
-
-def rewrite_method_alias(argv: list[str]) -> list[str]:
-    """``method=X`` -> ``method_name=X`` (other arguments unchanged)."""
-    old, new = METHOD_ALIAS
-    return [new + a[len(old):] if a.startswith(old) else a for a in argv]
 
 
 PATH_KEYS = ("gt", "pred", "out")  # quoted for Hydra when they hold = , ' spaces or non-ASCII (eval/argv.py)
 
 
 def main() -> None:
-    hydra_cli(run, "gspi_eval", path_keys=PATH_KEYS, rewrite=rewrite_method_alias)()
+    hydra_cli(run, "gspi_eval", path_keys=PATH_KEYS)()
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """The one way a gspi CLI starts: one config directory (``eval.config.CONF_DIR``), its argv
-aliases rewritten, its path keys quoted for Hydra's grammar (``eval.argv``), the command line checked
+aliases rewritten by the one table ``eval.argv.ALIASES``, its path keys quoted for Hydra's grammar (``eval.argv``), the command line checked
 against the config before Hydra starts (``eval.cli_precheck``: missing required keys, bad
 overrides), its task run under ``@hydra.main`` with stated errors as one line (``eval.errors``).
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 from typing import Callable, Optional
 
-from eval.argv import quote_path_overrides
+from eval.argv import apply_aliases, quote_path_overrides
 from eval.config import CONF_DIR
 from eval.errors import exit_on_stated_error, print_stated_error
 
@@ -24,7 +24,8 @@ def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = 
         exit_on_stated_error(task))
 
     def main() -> None:
-        argv = sys.argv[1:] if rewrite is None else rewrite(sys.argv[1:])
+        argv = apply_aliases(sys.argv[1:], config_name)  # the one alias table (eval.argv.ALIASES)
+        argv = argv if rewrite is None else rewrite(argv)
         argv = quote_path_overrides(argv, path_keys)
         precheck_or_exit(config_name, argv)
         sys.argv = [sys.argv[0], *argv]

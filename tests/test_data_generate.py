@@ -15,7 +15,8 @@ from hydra import compose, initialize_config_dir
 
 from eval.imageio import read_exr
 from eval.layout import GT_VIEW_FILES, read_scene, read_splits, read_view_file
-from gspi.cli.data import alias_preset, run
+from eval.argv import apply_aliases
+from gspi.cli.data import run
 from gspi.data.lattice import lattice_cameras
 from gspi.data.render_scene import relight_stored_view
 from gspi.data.sdf_shapes import ShapeSDF
@@ -29,8 +30,8 @@ SMALL = ["data.num_train_scenes=2", "data.num_val_scenes=0", "data.num_test_scen
 
 def make_config(out: Path, seed: int = 0, extra: list[str] | None = None):
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        return compose("gspi_data", overrides=alias_preset(
-            ["preset=tiny", f"out={out}", f"seed={seed}", *SMALL, *(extra or [])]))
+        return compose("gspi_data", overrides=apply_aliases(
+            ["preset=tiny", f"out={out}", f"seed={seed}", *SMALL, *(extra or [])], "gspi_data"))
 
 
 def file_hashes(root: Path) -> dict[str, str]:
@@ -164,7 +165,7 @@ def test_other_seed_gives_other_scenes(tmp_path):
 
 
 def test_preset_alias():
-    assert alias_preset(["preset=tiny", "out=x", "seed=0"]) == ["data=tiny", "out=x", "seed=0"]
+    assert apply_aliases(["preset=tiny", "out=x", "seed=0"], "gspi_data") == ["data=tiny", "out=x", "seed=0"]
 
 
 def test_command_line_records_its_config_inside_out(tmp_path):

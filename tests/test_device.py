@@ -169,11 +169,12 @@ def test_data_device_cuda_fails_at_start_up_before_writing(tmp_path, mode):
     from hydra import compose, initialize_config_dir
 
     from eval.config import CONF_DIR
-    from gspi.cli.data import alias_preset, run
+    from eval.argv import apply_aliases
+    from gspi.cli.data import run
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose("gspi_data", overrides=alias_preset(["preset=tiny", f"out={tmp_path / 'd'}",
-                                                           "device=cuda", *mode]))
+        cfg = compose("gspi_data", overrides=apply_aliases(["preset=tiny", f"out={tmp_path / 'd'}",
+                                                           "device=cuda", *mode], "gspi_data"))
     with pytest.raises(DeviceError, match=r"device=cuda.*not available"):
         run(cfg)
     assert not (tmp_path / "d").exists()

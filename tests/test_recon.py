@@ -38,7 +38,8 @@ def _single_thread():
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory) -> Path:
     """One generated scene (torus, rough plastic) at 48 px with 2 held-out views (~4 s)."""
-    from gspi.cli.data import alias_preset, run as data_run
+    from eval.argv import apply_aliases
+    from gspi.cli.data import run as data_run
 
     out = tmp_path_factory.mktemp("recon_data")
     overrides = ["preset=tiny", f"out={out}", "seed=0", "data.num_train_scenes=1", "data.num_val_scenes=0",
@@ -46,7 +47,7 @@ def scene_dir(tmp_path_factory) -> Path:
                  "data.num_test_views=2", "data.num_val_views=0", "data.num_relight_envs=1",
                  "data.contact_sheets=false", "data.point_clouds=false"]
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        data_run(compose("gspi_data", overrides=alias_preset(overrides)))
+        data_run(compose("gspi_data", overrides=apply_aliases(overrides, "gspi_data")))
     (scene,) = [p for p in out.iterdir() if (p / "scene.json").is_file()]
     return scene
 

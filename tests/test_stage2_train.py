@@ -10,7 +10,8 @@ import torch
 from omegaconf import OmegaConf
 
 from eval.config import CONF_DIR
-from gspi.cli.train import rewrite_data_alias, run
+from eval.argv import apply_aliases
+from gspi.cli.train import run
 from gspi.stage2.checkpoint import CheckpointError, export_ema_only, load_stage2_checkpoint
 from gspi.stage2.config import complete_stage2
 from gspi.stage2.sampler import predict_point_pbr
@@ -62,7 +63,7 @@ def test_stage2_presets_compose():
         assert cfg.stage2.prior.encoder == "alexnet"
     assert compose_cfg(["data_dir=d", "out=o", "stage2=tiny"]).stage2.data.num_points != \
         compose_cfg(["data_dir=d", "out=o", "stage2=default"]).stage2.data.num_points
-    assert rewrite_data_alias(["data=/x", "out=o", "stage2.data.num_points=3"]) == \
+    assert apply_aliases(["data=/x", "out=o", "stage2.data.num_points=3"], "gspi_train") == \
         ["data_dir=/x", "out=o", "stage2.data.num_points=3"]
 
 

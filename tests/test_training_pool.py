@@ -9,7 +9,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from eval.layout import read_scene, read_splits
-from gspi.cli.data import alias_preset, run
+from eval.argv import apply_aliases
+from gspi.cli.data import run
 from gspi.data.generate import BenchmarkConfig, scene_recipes
 from gspi.data.materials import MATERIAL_CLASSES
 from gspi.data.sdf_shapes import FAMILIES
@@ -22,8 +23,8 @@ SHRUNK = ["data.num_train_scenes=3", "data.image_sizes=[12,8]", "data.env_height
 
 def make_config(out: Path, seed: int = 0, extra: list[str] | None = None):
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        return compose("gspi_data", overrides=alias_preset(
-            ["preset=stage2_pool", f"out={out}", f"seed={seed}", *SHRUNK, *(extra or [])]))
+        return compose("gspi_data", overrides=apply_aliases(
+            ["preset=stage2_pool", f"out={out}", f"seed={seed}", *SHRUNK, *(extra or [])], "gspi_data"))
 
 
 def hashes(root: Path) -> dict[str, str]:

@@ -37,7 +37,6 @@ from omegaconf import DictConfig, OmegaConf
 from eval.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
-PRESET_ALIAS = ("preset=", "data=")
 
 
 def benchmark_config(cfg: DictConfig):
@@ -161,16 +160,9 @@ def _task(cfg: DictConfig) -> None:
         sys.exit(1)
 
 
-def alias_preset(argv: list[str]) -> list[str]:
-    """Rewrite `preset=X` (and `+preset=X`) to Hydra's group override `data=X`."""
-    old, new = PRESET_ALIAS
-    return [new + a[len(old):] if a.startswith(old) else
-            new + a[len(old) + 1:] if a.startswith("+" + old) else a for a in argv]
-
-
 # paths quoted for Hydra's grammar, stated errors as one line
 main = hydra_cli(_task, "gspi_data", path_keys=("out", "import.src", "import.glb", "export.src", "import.envmaps",
-                                                "import.ground_truth", "import.split"), rewrite=alias_preset)
+                                                "import.ground_truth", "import.split"))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ import logging
 from omegaconf import DictConfig, OmegaConf
 
 from eval.cli_entry import hydra_cli
-from gspi.cli.train import rewrite_data_alias
 
 log = logging.getLogger(__name__)
 # Quoted for Hydra's grammar when they hold = , ' spaces or non-ASCII (eval/argv.py).
@@ -62,7 +61,7 @@ def main() -> None:
     from eval.config import register_configs
 
     register_configs()
-    hydra_cli(run_task, "gspi_run", path_keys=PATH_KEYS, rewrite=rewrite_data_alias)()
+    hydra_cli(run_task, "gspi_run", path_keys=PATH_KEYS)()
 
 
 if __name__ == "__main__":

@@ -27,13 +27,6 @@ from eval.cli_entry import hydra_cli
 log = logging.getLogger(__name__)
 # `data=<dir>` is an alias of the key `data_dir=<dir>`: conf/data/ is a config group (dataset
 # presets), so Hydra would read `data=...` as a group override. `main` rewrites the argument.
-DATA_ALIAS = ("data=", "data_dir=")
-
-
-def rewrite_data_alias(argv: list[str]) -> list[str]:
-    """``data=X`` -> ``data_dir=X`` (other arguments unchanged)."""
-    old, new = DATA_ALIAS
-    return [new + a[len(old):] if a.startswith(old) else a for a in argv]
 
 
 def run(cfg: DictConfig) -> dict:
@@ -84,7 +77,7 @@ def _task(cfg: DictConfig) -> float | None:
 
 
 # paths quoted for Hydra's grammar, stated errors as one line
-main = hydra_cli(_task, "gspi_train", path_keys=("data_dir", "out"), rewrite=rewrite_data_alias)
+main = hydra_cli(_task, "gspi_train", path_keys=("data_dir", "out"))
 
 
 if __name__ == "__main__":
