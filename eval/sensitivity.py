@@ -13,12 +13,10 @@ methods stays the same.
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from eval.errors import exit_on_stated_error
 from eval.evaluate import EXTRA_METRICS, METRICS, evaluate
 from eval.atomic import write_text_atomic
 
@@ -36,7 +34,7 @@ def compose_protocol(overrides: list[str]):
 
     register_configs()
     args = dict(config_name="gspi_eval", overrides=["gt=_", "pred=_", "out=_", *overrides])
-    if GlobalHydra.instance().is_initialized():  # inside this module's @hydra.main (same conf/)
+    if GlobalHydra.instance().is_initialized():  # inside this module's CLI (hydra_cli, same conf/)
         cfg = compose(**args)
     else:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
@@ -159,17 +157,10 @@ def run(cfg) -> pd.DataFrame:
 
 
 def main() -> None:
-    import hydra
+    """`python -m eval.sensitivity gt=... out=... 'methods={...}'`, through the one CLI door."""
+    from eval.cli_entry import hydra_cli
 
-    from eval.config import CONF_DIR
-
-    @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="gspi_sensitivity")
-    @exit_on_stated_error
-    def _main(cfg) -> None:
-        run(cfg)
-
-    sys.argv = [sys.argv[0], *sys.argv[1:]]
-    _main()
+    hydra_cli(run, "gspi_sensitivity", path_keys=("gt", "out"))()
 
 
 if __name__ == "__main__":
