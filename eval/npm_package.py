@@ -7,10 +7,13 @@ with one line.
 """
 from __future__ import annotations
 
+import argparse
 import hashlib
 import shutil
 import subprocess
+import sys
 from pathlib import Path
+from typing import Callable
 
 
 class NpmUnavailable(RuntimeError):
@@ -39,3 +42,18 @@ def checked_tarball(path: Path, expected_sha256: str) -> bytes:
     if sha256(data) != expected_sha256:
         raise NpmUnavailable(f"{path}: SHA-256 {sha256(data)} does not match {expected_sha256}")
     return data
+
+
+def install_main(argv: list[str] | None, install: Callable[..., Path], description: str) -> int:
+    """The install CLI of a vendored package: ``[--from-tgz FILE] [--force]``; prints the folder,
+    or the one-line reason and exit 1."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--from-tgz", type=Path, default=None, help="use this npm tarball")
+    p.add_argument("--force", action="store_true", help="unpack again")
+    args = p.parse_args(argv)
+    try:
+        print(install(args.from_tgz, force=args.force))
+    except NpmUnavailable as e:
+        print(e, file=sys.stderr)
+        return 1
+    return 0

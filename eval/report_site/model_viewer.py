@@ -15,7 +15,6 @@ CLI (run by `make install`): `python -m eval.report_site.model_viewer [--from-tg
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import tarfile
 import tempfile
@@ -23,7 +22,7 @@ from pathlib import Path
 from typing import Optional
 
 from eval.lpips.weights import cache_dir
-from eval.npm_package import NpmUnavailable, checked_tarball, npm_pack, sha256
+from eval.npm_package import NpmUnavailable, checked_tarball, install_main, npm_pack, sha256
 
 PACKAGE = "@google/model-viewer@4.4.0"
 TARBALL = "google-model-viewer-4.4.0.tgz"
@@ -65,16 +64,7 @@ def install(tgz: Path | None = None, *, force: bool = False) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--from-tgz", type=Path, default=None, help="use this npm tarball")
-    p.add_argument("--force", action="store_true", help="unpack again")
-    args = p.parse_args(argv)
-    try:
-        print(install(args.from_tgz, force=args.force))
-    except NpmUnavailable as e:
-        print(e, file=sys.stderr)
-        return 1
-    return 0
+    return install_main(argv, install, __doc__.splitlines()[0])
 
 
 if __name__ == "__main__":

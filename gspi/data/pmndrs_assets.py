@@ -14,7 +14,6 @@ environments. CLI: `python -m gspi.data.pmndrs_assets [--from-tgz FILE] [--force
 """
 from __future__ import annotations
 
-import argparse
 import base64
 import re
 import sys
@@ -23,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 from eval.lpips.weights import cache_dir
-from eval.npm_package import NpmUnavailable, checked_tarball, sha256
+from eval.npm_package import NpmUnavailable, checked_tarball, install_main, sha256
 from eval.npm_package import npm_pack as eval_npm_pack
 
 PACKAGE = "@pmndrs/assets@1.7.0"
@@ -96,16 +95,7 @@ def asset_path(rel: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--from-tgz", type=Path, default=None, help="use this npm tarball")
-    p.add_argument("--force", action="store_true", help="decode again")
-    args = p.parse_args(argv)
-    try:
-        print(install(args.from_tgz, force=args.force))
-    except AssetsUnavailable as e:
-        print(e, file=sys.stderr)
-        return 1
-    return 0
+    return install_main(argv, install, __doc__.splitlines()[0])
 
 
 if __name__ == "__main__":
