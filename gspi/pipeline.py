@@ -16,13 +16,17 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import TYPE_CHECKING, Any, Mapping, Optional
 
 import numpy as np
 
 from eval.layout import Scene
 from eval.atomic import write_json_atomic
 from gspi.gaussians.model import Gaussians2D
+
+if TYPE_CHECKING:
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage3.config import Stage3Config
 from gspi.gaussians.ply import write_ply
 from gspi.stage_clock import StageClock
 
@@ -55,18 +59,19 @@ def gt_reference(scene: Scene) -> Optional[np.ndarray]:
 
 
 def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Mapping[str, Any], *,
-                   stage2: Stage2Context, clock: StageClock, work_dir: Path, split: str = "test",
-                   progress: bool = False) -> dict:
+                   stage1: Stage1Config, stage2: Stage2Context, stage3: Stage3Config, clock: StageClock,
+                   work_dir: Path, split: str = "test", progress: bool = False) -> dict:
     """Runs Stages I-III on ``asset`` and writes the material maps of ``scene``'s ``split`` views.
+
+    ``stage1``, ``stage2``, ``stage3``: the run's checked stage configs (and Stage II's model),
+    built once per run by the method's ``prepare``; ``cfg`` is read for ``device`` only.
 
     Returns:
         {"stage1": report, "stage2": stats, "stage3": stats, "points_scores": Table 2's
         measure on the generated cloud (None when the lattice size differs from the scene's)}.
     """
-    from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud
     from gspi.stage2.infer import predict_generated_points
-    from gspi.stage3.config import Stage3Config
     from gspi.stage3.distill import distill
     from gspi.stage3.export import write_scene_predictions
     from gspi.stage3.targets import stage_targets
@@ -77,7 +82,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     if device.type != "cpu":  # Stages I and III render where the asset lives
         asset = asset.to(device)
     work_dir.mkdir(parents=True, exist_ok=True)
-    s1cfg = Stage1Config.from_dict(dict(cfg["stage1"]))
+    s1cfg = stage1
     with clock.stage("stage1"):
         points, renders, s1 = extract_point_cloud(asset, s1cfg, reference=gt_reference(scene))
         points.save(work_dir / "points.npz")
@@ -101,7 +106,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         with clock.stage("points_eval"):
             points_scores = score_generated_points(points, pbr, scene.root)
 
-    s3cfg = Stage3Config.from_dict(dict(cfg["stage3"]))
+    s3cfg = stage3
     with clock.stage("stage3"):
         targets = stage_targets(points, pbr, renders, alpha_threshold=s1cfg.alpha_threshold)
         pbr_asset, s3 = distill(asset, targets, s3cfg, progress=progress)

@@ -57,15 +57,21 @@ class GspiMethod(Method):
 
     def prepare(self) -> dict:
         from gspi.run.stage2_model import load_stage2_context
+        from gspi.stage1.config import Stage1Config
+        from gspi.stage3.config import Stage3Config
 
         ctx = load_stage2_context(self.run_cfg, self.cache_root)
         self.shared["stage2"] = ctx
+        # Stages I and III's configs checked once per run and passed down (no per-scene re-parse)
+        self.shared["stage1"] = Stage1Config.from_dict(dict(self.run_cfg["stage1"]))
+        self.shared["stage3"] = Stage3Config.from_dict(dict(self.run_cfg["stage3"]))
         return {"stage2": {k: v for k, v in ctx.info.items() if k != "train_stats"}}
 
     def predict(self, scene, out_scene_dir, *, asset, clock, work_dir, split, progress=False) -> dict:
         from gspi.pipeline import run_gspi_scene
 
-        return run_gspi_scene(scene, asset, out_scene_dir, self.run_cfg, stage2=self.shared["stage2"],
+        return run_gspi_scene(scene, asset, out_scene_dir, self.run_cfg, stage1=self.shared["stage1"],
+                              stage2=self.shared["stage2"], stage3=self.shared["stage3"],
                               clock=clock, work_dir=work_dir, split=split, progress=progress)
 
 
