@@ -6,21 +6,20 @@ only after wandb had started. :func:`precheck` composes the config once with Hyd
 (the same config directory and overrides; a sweep's first value stands for the sweep) and turns
 what it finds into one stated line:
 
-- a required key nobody set: ``out: required (conf/gspi_run.yaml: out: ???); set out=...``;
+- a required key nobody set: ``required key(s) not set: out (conf/gspi_run.yaml: ???); add out=...``
+  (the hint uses the command-line alias of ``eval.argv.ALIASES`` where there is one: ``data=...``);
 - an unknown config-group choice or key, a malformed override: Hydra's own message, one line.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
+from eval.argv import ALIASES
 from eval.errors import StatedError
 
 HYDRA_FLAGS = ("-m", "--multirun", "--cfg", "--info", "-c", "--help", "-h", "--hydra-help", "--resolve",
                "-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir", "-p", "--package",
                "--shell-completion", "-sc", "--run", "-r", "--experimental-rerun", "--version")
-
-
-ALIASES = {"data_dir": "data"}  # keys whose command-line alias the rewriters accept (gspi-run, gspi-train)
 
 
 class CommandLineError(StatedError, ValueError):
@@ -56,15 +55,12 @@ def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
             cfg = compose(config_name=config_name, overrides=overrides)
     except (HydraException, OmegaConfBaseException) as exc:
         raise CommandLineError(_hydra_message(exc)) from None
-    missing = sorted(k for k in _missing_keys(cfg, OmegaConf) if not k.startswith("hydra."))
+    missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not k.startswith("hydra."))
     if missing:
         source = Path(config_dir) / f"{config_name}.yaml"
-        hint = " ".join(f"{ALIASES.get(k, k)}=..." for k in missing)
+        alias_of = {key: alias for alias, key in ALIASES.get(config_name, {}).items()}
+        hint = " ".join(f"{alias_of.get(k, k)}=..." for k in missing)
         raise CommandLineError(f"required key(s) not set: {', '.join(missing)} ({source}: ???); add {hint}")
-
-
-def _missing_keys(cfg, OmegaConf) -> set[str]:
-    return set(OmegaConf.missing_keys(cfg))
 
 
 def _hydra_message(exc: BaseException) -> str:

@@ -21,7 +21,7 @@ from gspi.gaussians.rasterize import rasterize_2dgs
 from gspi.gaussians.sh import num_sh_bases, sh_colors
 from gspi.gaussians.torch_backend import surfel_table
 from gspi.recon.render import render_views
-from tests.raster_fixtures import random_scene
+from tests.raster_fixtures import assert_cpu_pipelines_call, random_scene
 
 W, H = 64, 48
 F64 = torch.float64
@@ -238,27 +238,4 @@ def test_camera_gradients_take_the_torch_path():
 
 def test_auto_reaches_the_compiled_projection_in_the_pipelines(monkeypatch):
     """Stage 0, lattice renders (Stage I), Stage III and relighting project through it on CPU."""
-    from gspi.gaussians.lattice_render import lattice_camera_tensors, render_lattice_views
-    from gspi.gaussians.model import Gaussians2D
-    from gspi.relight import shade_asset
-    from gspi.stage3.render import render_geometry, render_materials
-
-    calls = []
-    apply = numba_projection.NumbaViewProjection.apply
-    monkeypatch.setattr(numba_projection.NumbaViewProjection, "apply", lambda *a: calls.append(1) or apply(*a))
-    g = Gaussians2D.empty(30, 3, pbr=True)
-    with torch.no_grad():
-        g.means.copy_(torch.randn(30, 3, generator=torch.Generator().manual_seed(0)) * 0.3)
-    vm, K = lattice_camera_tensors(16)
-    vm, K = vm[:1], K[:1]
-    entry_points = {
-        "recon.render_views": lambda: render_views(g.means, g.quats, g.scales, g.opacities, g.sh, 3, vm, K, 16, 16),
-        "render_lattice_views": lambda: render_lattice_views(g, image_size=16, lattice={"num_views": 1}),
-        "stage3.render_geometry": lambda: render_geometry(g, vm, K, 16, 16),
-        "stage3.render_materials": lambda: render_materials(g, vm, K, 16, 16),
-        "relight.shade_asset": lambda: shade_asset(g, torch.ones(8, 16, 3), vm, K, 16, 16),
-    }
-    for name, call in entry_points.items():
-        calls.clear()
-        call()
-        assert calls, f"{name} did not use the compiled projection"
+    assert_cpu_pipelines_call(monkeypatch, numba_projection.NumbaViewProjection, "the compiled projection")

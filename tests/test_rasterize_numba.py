@@ -265,31 +265,9 @@ def test_auto_reaches_the_numba_compositor_in_the_pipelines(monkeypatch):
     """Stage 0 (recon.render), lattice renders (Stage I), Stage III and relighting: on CPU
     their default backend ("auto") composites through NumbaComposite."""
     from gspi.gaussians import numba_composite
-    from gspi.gaussians.lattice_render import lattice_camera_tensors, render_lattice_views
-    from gspi.gaussians.model import Gaussians2D
-    from gspi.recon.render import render_views
-    from gspi.relight import shade_asset
-    from gspi.stage3.render import render_geometry, render_materials
+    from tests.raster_fixtures import assert_cpu_pipelines_call
 
-    calls = []
-    apply = numba_composite.NumbaComposite.apply
-    monkeypatch.setattr(numba_composite.NumbaComposite, "apply", lambda *a: calls.append(1) or apply(*a))
-    g = Gaussians2D.empty(30, 3, pbr=True)
-    with torch.no_grad():
-        g.means.copy_(torch.randn(30, 3, generator=torch.Generator().manual_seed(0)) * 0.3)
-    vm, K = lattice_camera_tensors(16)
-    vm, K = vm[:1], K[:1]
-    entry_points = {
-        "recon.render_views": lambda: render_views(g.means, g.quats, g.scales, g.opacities, g.sh, 3, vm, K, 16, 16),
-        "render_lattice_views": lambda: render_lattice_views(g, image_size=16, lattice={"num_views": 1}),
-        "stage3.render_geometry": lambda: render_geometry(g, vm, K, 16, 16),
-        "stage3.render_materials": lambda: render_materials(g, vm, K, 16, 16),
-        "relight.shade_asset": lambda: shade_asset(g, torch.ones(8, 16, 3), vm, K, 16, 16),
-    }
-    for name, call in entry_points.items():
-        calls.clear()
-        call()
-        assert calls, f"{name} did not use the numba compositor"
+    assert_cpu_pipelines_call(monkeypatch, numba_composite.NumbaComposite, "the numba compositor")
 
 
 def test_tile_order_deals_long_and_short_tiles_to_every_thread():

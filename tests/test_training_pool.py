@@ -224,7 +224,7 @@ def test_each_part_evaluates_its_own_material():
     every part holds a real share of the object's points."""
     import torch
 
-    from gspi.data.material_parts import part_index
+    from gspi.data.patterns import part_regions
     from gspi.data.materials import evaluate_material
 
     q = torch.nn.functional.normalize(torch.randn(6000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
@@ -233,7 +233,7 @@ def test_each_part_evaluates_its_own_material():
     for recipe in _parts_pool(count=(3, 3), roughness_spread=0.2, texture=0.5)[:14]:
         parts = recipe["material"]["parts"]
         whole = evaluate_material(recipe["material"], q)
-        index = part_index(parts, q)
+        index = part_regions(q, parts)
         shares = torch.bincount(index, minlength=3).float() / len(q)
         if shares.min() < 0.02:  # a cut outside the object: allowed, but not every time
             continue
@@ -274,7 +274,7 @@ def test_part_variations_widen_metal_colour_and_roughness():
 @pytest.mark.parametrize("bad, match", [({"share": 1.5}, "data.parts.share"), ({"count": [1, 3]}, "data.parts.count"),
                                         ({"layouts": ["rings"]}, "data.parts.layouts"),
                                         ({"metal_f0": "gold"}, "data.parts.metal_f0"),
-                                        ({"sharee": 0.5}, "unknown key")])
+                                        ({"sharee": 0.5}, r"unknown data config key.*data\.parts\.sharee")])
 def test_parts_config_names_the_bad_key(bad, match):
     from gspi.data.material_parts import PartsConfig
 

@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import colorsys
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
-from torch import Tensor
-
 from gspi.data import patterns
 from gspi.data.materials import MATERIAL_CLASSES, METAL_CLASSES, sample_material
+from gspi.strict_config import dataclass_from_dict
 
 LAYOUTS = ("bands", "cells")
 METAL_F0_MODES = ("physical", "wide")
@@ -43,7 +43,8 @@ METAL_F0_MODES = ("physical", "wide")
 
 @dataclass(frozen=True)
 class PartsConfig:
-    """``data.parts`` (conf/data/stage2_pool.yaml); the defaults draw nothing."""
+    """``data.parts`` (conf/data/stage2_pool.yaml); the defaults draw nothing. Built and checked
+    by :meth:`from_mapping` (``gspi.strict_config``: unknown keys, types, ``RANGES``, ``CHOICES``)."""
 
     share: float = 0.0                      # share of pool scenes made of several parts
     count: tuple = (2, 4)                   # [min, max] parts of such a scene
@@ -52,9 +53,10 @@ class PartsConfig:
     roughness_spread: float = 0.0           # per-part roughness shift U(-s, s)
     texture: float = 0.0                    # per-part fBm amplitude over albedo and roughness
 
-    def __post_init__(self):
-        if not 0.0 <= float(self.share) <= 1.0:
-            raise ValueError(f"data.parts.share must be in [0, 1], got {self.share}")
+    RANGES: ClassVar[dict] = {"share": (0.0, 1.0), "roughness_spread": (0.0, 0.5), "texture": (0.0, 1.0)}
+    CHOICES: ClassVar[dict] = {"metal_f0": METAL_F0_MODES}
+
+    def __post_init__(self):  # the two list-valued keys, which the strict layer does not look inside
         count = tuple(int(c) for c in self.count)
         if len(count) != 2 or not 2 <= count[0] <= count[1] <= 8:
             raise ValueError(f"data.parts.count must be [min, max] with 2 <= min <= max <= 8, got {list(self.count)}")
@@ -63,20 +65,10 @@ class PartsConfig:
         if bad or not self.layouts:
             raise ValueError(f"data.parts.layouts: {list(self.layouts)}; allowed: {', '.join(LAYOUTS)}")
         object.__setattr__(self, "layouts", tuple(self.layouts))
-        if self.metal_f0 not in METAL_F0_MODES:
-            raise ValueError(f"data.parts.metal_f0: {self.metal_f0!r}; allowed: {', '.join(METAL_F0_MODES)}")
-        if not 0.0 <= float(self.roughness_spread) <= 0.5:
-            raise ValueError(f"data.parts.roughness_spread must be in [0, 0.5], got {self.roughness_spread}")
-        if not 0.0 <= float(self.texture) <= 1.0:
-            raise ValueError(f"data.parts.texture must be in [0, 1], got {self.texture}")
 
     @classmethod
     def from_mapping(cls, node) -> "PartsConfig":
-        node = dict(node or {})
-        unknown = sorted(set(node) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"data.parts: unknown key(s) {unknown}; allowed: {sorted(cls.__dataclass_fields__)}")
-        return cls(**node)
+        return dataclass_from_dict(cls, dict(node or {}), "data.parts")
 
     @property
     def varies_parts(self) -> bool:
@@ -141,9 +133,4 @@ def sample_parts(primary: dict, cfg: PartsConfig, rng: np.random.Generator) -> d
                       "noise_seed": int(rng.integers(0, 2**20)), "materials": recipes}}
 
 
-def part_index(parts: dict, q: Tensor) -> Tensor:
-    """[N] long: the part of each object-space point (``patterns.part_regions``)."""
-    return patterns.part_regions(q, parts)
-
-
-__all__ = ["LAYOUTS", "PartsConfig", "part_classes", "part_index", "sample_parts", "vary_part"]
+__all__ = ["LAYOUTS", "PartsConfig", "part_classes", "sample_parts", "vary_part"]

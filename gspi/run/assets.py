@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import Any, ClassVar, Mapping, Optional
 
 import numpy as np
 import torch
@@ -24,12 +25,27 @@ from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import read_asset_ply, read_ply, write_ply
 from gspi.run.locks import file_lock
 from gspi.run.record import config_hash
+from gspi.strict_config import dataclass_from_dict
 
 log = logging.getLogger(__name__)
 
 
 class AssetError(StatedError, FileNotFoundError):
     """The asset a run was given cannot be found or read, or does not cover its scene."""
+
+
+@dataclass(frozen=True)
+class AssetCheckConfig:
+    """gspi-run's ``asset_check`` (conf/gspi_run.yaml): a user asset against the scene's photos."""
+
+    min_psnr: float = 10.0   # dB, masked display PSNR at the train views; below: a warning (docs/RELIABILITY.md)
+    strict: bool = False     # below min_psnr is an error
+
+    RANGES: ClassVar[dict] = {"min_psnr": (0.0, 200.0)}
+
+    @classmethod
+    def from_dict(cls, data: Optional[Mapping[str, Any]]) -> "AssetCheckConfig":
+        return dataclass_from_dict(cls, dict(data or {}), "asset_check")
 
 
 MIN_VISIBLE = 0.5     # fraction of surfel centres that must project into some view of the scene
@@ -77,11 +93,11 @@ def check_asset_covers_scene(gaussians: Gaussians2D, scene: Scene, source: str) 
 
 
 def check_asset_matches_photos(gaussians: Gaussians2D, scene: Scene, source: str, *, display_cfg,
-                               min_psnr: float, strict: bool, split: str = "train") -> dict:
+                               check: AssetCheckConfig, split: str = "train") -> dict:
     """A user's asset rendered at ``scene``'s input views against the captured images: masked
     display PSNR per view (``gspi.recon.trainer.evaluate_views``, Stage 0's record measure).
-    Below ``min_psnr`` (``asset_check.min_psnr``) the asset may not depict this scene (another
-    object, other lighting, an unlit export): one warning line, or with ``strict`` an
+    Below ``check.min_psnr`` the asset may not depict this scene (another object, other
+    lighting, an unlit export): one warning line, or with ``check.strict`` an
     :class:`AssetError`. Returns the record's ``asset_check`` entry."""
     from gspi.recon.data import load_scene_views
     from gspi.recon.trainer import evaluate_views
@@ -90,13 +106,13 @@ def check_asset_matches_photos(gaussians: Gaussians2D, scene: Scene, source: str
     psnr = metrics["psnr_masked"]
     info = {"split": split, "views": metrics["num_views"], "psnr_masked": psnr,
             "psnr_masked_min": min((v["psnr_masked"] for v in metrics["per_view"]), default=None),
-            "alpha_iou": metrics["alpha_iou"], "min_psnr": float(min_psnr),
-            "passed": psnr is None or psnr >= float(min_psnr)}
+            "alpha_iou": metrics["alpha_iou"], "min_psnr": float(check.min_psnr),
+            "passed": psnr is None or psnr >= check.min_psnr}
     if not info["passed"]:
         message = (f"{source}: its renders of the {metrics['num_views']} {split} views of {scene.name} score "
-                   f"{psnr:.2f} dB masked display PSNR against the photos (asset_check.min_psnr={min_psnr:g}): "
+                   f"{psnr:.2f} dB masked display PSNR against the photos (asset_check.min_psnr={check.min_psnr:g}): "
                    f"the asset may not depict this scene")
-        if strict:
+        if check.strict:
             raise AssetError(message + " (asset_check.strict=true)")
         log.warning("%s", message)
         info["warning"] = message
@@ -206,10 +222,9 @@ def scene_asset(scene: Scene, *, assets: Optional[str], num_scenes: int, recon_c
         coverage = check_asset_covers_scene(gaussians, scene, str(path))
         from gspi.recon.trainer import ReconConfig
 
-        check = {"min_psnr": 10.0, "strict": False, **dict(asset_check or {})}
         photos = check_asset_matches_photos(gaussians, scene, str(path),
                                             display_cfg=ReconConfig.from_dict(dict(recon_cfg)).display,
-                                            min_psnr=float(check["min_psnr"]), strict=bool(check["strict"]))
+                                            check=AssetCheckConfig.from_dict(asset_check))
         return gaussians, {"source": "user", "path": str(path), "seconds": None, "coverage": coverage,
                            "asset_check": photos,
                            "asset_format": {k: v for k, v in read_info.items() if k != "path"}}

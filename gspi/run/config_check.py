@@ -34,14 +34,9 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
     resolve_device(cfg.get("device", "cpu"))  # device=cuda without CUDA fails here, naming the key
     for key in ("data_dir", "out"):
         check_value(key, cfg.get(key), str)
-    check = cfg.get("asset_check") or {}
-    unknown = sorted(set(check) - {"min_psnr", "strict"})
-    if unknown:
-        raise ValueError(f"asset_check: unknown key(s) {unknown}; allowed: min_psnr, strict")
-    if "min_psnr" in check:
-        check_value("asset_check.min_psnr", check["min_psnr"], float, lo=0.0, hi=200.0)
-    if "strict" in check:
-        check_value("asset_check.strict", check["strict"], bool)
+    from gspi.run.assets import AssetCheckConfig
+
+    AssetCheckConfig.from_dict(cfg.get("asset_check"))
     if cfg.get("scenes") is not None:
         if not isinstance(cfg["scenes"], (list, tuple)):
             raise ValueError(f"scenes={cfg['scenes']!r}: must be a list of scene names or null")

@@ -150,7 +150,7 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
     return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
 
 
-def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, total_steps: int, cpu_s: float) -> Path:
+def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, cpu_s: float) -> Path:
     """One JSON line per finished run (or chunk of a long recipe) in ``stage2.train.run_log``
     (relative paths: the repository's), so what a cut-off session finished is on record."""
     import datetime
@@ -164,8 +164,8 @@ def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, total_steps:
     path.parent.mkdir(parents=True, exist_ok=True)
     line = {"finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "out": str(Path(out_dir).resolve()), "commit": environment_info()["git_commit"], "seed": stats["seed"],
-            "steps": [stats["resumed_from"], stats["steps"]], "of": int(total_steps),
-            "done": stats["steps"] >= total_steps, "wall_s_total": stats["wall_time_s"],
+            "steps": [stats["resumed_from"], stats["steps"]], "of": stats["total_steps"],
+            "done": stats["steps"] >= stats["total_steps"], "wall_s_total": stats["wall_time_s"],
             "cpu_s_this_run": round(cpu_s, 1), "final_loss": stats["final_loss"]}
     with open(path, "a") as f:
         f.write(json.dumps(line) + "\n")
@@ -328,6 +328,5 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
              "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim,
              "best_validation": state.best or None}
     if train_cfg.run_log:
-        append_run_log(train_cfg.run_log, out_dir, stats, total_steps=total,
-                       cpu_s=time.process_time() - cpu0)
+        append_run_log(train_cfg.run_log, out_dir, stats, cpu_s=time.process_time() - cpu0)
     return stats
