@@ -107,3 +107,28 @@ def test_evaluate_points_baseline_constants_from_another_dataset(dataset, runs, 
     a, b = (json.loads((tmp_path / k / "scores.json").read_text()) for k in "ab")
     assert a["per_scene"] == b["per_scene"] and a["baseline_constants"] == b["baseline_constants"]
     assert a["baseline_train"] == str(dataset.resolve())
+
+
+
+def test_num_samples_averages_the_single_seed_predictions(dataset, runs):  # noqa: F811
+    """--num-samples K predicts, on the cloud perturbed by ``seed``, the mean of K DDIM samples
+    with noise seeds seed..seed+K-1 (gspi-run's stage2.inference.num_samples); K=1 is one sample."""
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.points_measure import PointSampling, subset_prediction, whole_scene_inputs
+    from gspi.stage2.sampler import predict_point_pbr
+    from gspi.stage2.splits import load_split
+
+    _, checked, _ = runs
+    model, cfg = load_stage2_checkpoint(checked / "best.pt")
+    scene = load_split({**cfg, "data_dir": str(dataset)}, "test", build_encoder(cfg["stage2"].prior))[0]
+    data_cfg = cfg["stage2"].data
+    xyz, cond = whole_scene_inputs(scene, data_cfg, np.random.default_rng([0, 0]))
+    feats = scene.prior_grid()
+    samples = [predict_point_pbr(model, xyz, cond, feats, num_steps=2, seed=k, frame=scene.frame).numpy()
+               for k in range(3)]
+
+    def measured(k: int) -> np.ndarray:
+        return subset_prediction(model, scene, 0, data_cfg, PointSampling(num_steps=2, seed=0, num_samples=k))
+    np.testing.assert_array_equal(measured(1), samples[0])
+    np.testing.assert_allclose(measured(3), np.mean(samples, axis=0), rtol=0, atol=1e-6)
+    assert not np.allclose(samples[0], samples[1])  # the seeds do draw different samples

@@ -41,6 +41,7 @@ class PointSampling:
     num_steps: int = 50              # DDIM steps
     max_points: Optional[int] = None  # per scene: seeded subset + 1-NN fill; None = every point
     seed: int = 0
+    num_samples: int = 1             # DDIM samples (seeds seed, seed+1, ...) averaged per point (stage2.inference.num_samples)
 
 
 def scatter_to_views(values: np.ndarray, scene: ScenePoints) -> tuple[np.ndarray, np.ndarray]:
@@ -136,7 +137,9 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
         keep = np.sort(rng.choice(scene.num_points, cfg.max_points, replace=False))
     feats = scene.prior_grid()
     device = next(model.parameters()).device
-    values = predict_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
-                               num_steps=cfg.num_steps, seed=cfg.seed, frame=scene.frame,
-                               write_chunk=write_chunk).cpu().numpy()
+    samples = [predict_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
+                                 num_steps=cfg.num_steps, seed=cfg.seed + k, frame=scene.frame,
+                                 write_chunk=write_chunk).cpu().numpy()
+               for k in range(max(1, getattr(cfg, "num_samples", 1)))]
+    values = samples[0] if len(samples) == 1 else np.mean(samples, axis=0).astype(np.float32)
     return values if len(keep) == scene.num_points else nearest_fill(scene.xyz[keep], values, scene.xyz)
