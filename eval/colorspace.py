@@ -18,9 +18,11 @@ def srgb_to_linear(x: Tensor, *, clamp: bool = True) -> Tensor:
     return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
-def linear_to_srgb(x: Tensor) -> Tensor:
-    """IEC 61966-2-1 sRGB encoding; input clamped to [0, 1] first."""
-    x = x.clamp(0.0, 1.0)
+def linear_to_srgb(x: Tensor, *, clamp: bool = True) -> Tensor:
+    """IEC 61966-2-1 sRGB encoding; input clamped to [0, 1] first. With ``clamp=False`` the
+    curve continues past 1 (the inverse of ``srgb_to_linear(..., clamp=False)``: an aligned
+    albedo kept unclamped, as GS-IR and IRGS keep it)."""
+    x = x.clamp(0.0, 1.0) if clamp else x.clamp_min(0.0)
     return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1.0 / 2.4) - 0.055)
 
 

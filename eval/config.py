@@ -79,7 +79,7 @@ class ProtocolConfig:
     background: float = 0.0             # composite value outside the mask for SSIM/LPIPS
     albedo_alignment: str = "none"      # none | scale | lstsq (= per_channel) | median_ratio
     alignment_scope: str = "scene"      # scene (pooled over its views) | view
-    albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear | gamma22
+    albedo_space: str = "srgb"          # colour space albedo is scored in: srgb | linear | linear_gamma22 | gamma22
     alignment_space: str = "linear"     # values the albedo scale is fitted and applied on: linear
                                         # (decoded sRGB) | stored (the file's values: TensoIR, GS-IR, IRGS)
     alignment_pixels: str = "mask"      # mask | mask_positive_gt (IRGS: GT > 0 in every channel too)
@@ -104,7 +104,7 @@ SCOPES = ("scene", "view")
 OUTSIDE_BRDF = ("include", "exclude")
 RELIT_REFERENCES = ("shaded", "stored")
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
-ALBEDO_SPACES = ("srgb", "linear", "gamma22")
+ALBEDO_SPACES = ("srgb", "linear", "linear_gamma22", "gamma22")
 ALIGNMENT_SPACES = ("linear", "stored")
 ALIGNMENT_PIXELS = ("mask", "mask_positive_gt")
 MAP_POOLINGS = ("view", "scene")

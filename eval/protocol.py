@@ -72,7 +72,7 @@ def apply_albedo_scale(albedo_srgb: Tensor, scale: Tensor, space: str = "linear"
         out = albedo_srgb.double() * scale.to(torch.float64)
         return (out.clamp(0.0, 1.0) if clamp else out).to(albedo_srgb.dtype)
     lin = _decoder(space)(albedo_srgb) * scale.to(torch.float64)
-    return linear_to_srgb(lin.clamp(0.0, 1.0) if clamp else lin.clamp_min(0.0)).to(albedo_srgb.dtype)
+    return linear_to_srgb(lin, clamp=clamp).to(albedo_srgb.dtype)
 
 
 def unclamped_linear_albedo(albedo_srgb: Tensor, scale: Tensor, space: str = "linear") -> Tensor:

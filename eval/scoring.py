@@ -43,15 +43,18 @@ METRIC_NAMES = ("psnr", "ssim", "lpips")
 
 def encode_albedo(albedo: Tensor, space: str) -> Tensor:
     """An albedo as stored (sRGB-encoded) in the space a metric reads: ``srgb`` as stored,
-    ``linear`` decoded, ``gamma22`` the stored values raised to 1/2.2 (TensoIR reads its PNG
-    as linear and encodes it with x^(1/2.2) for its albedo PSNR)."""
+    ``linear`` decoded (past 1 where an unclamped alignment put it), ``linear_gamma22`` the
+    linear values raised to 1/2.2 (TensoIR: its albedo PNG holds linear values, encoded with
+    x^(1/2.2) for its albedo PSNR), ``gamma22`` the stored values raised to 1/2.2."""
     if space == "srgb":
         return albedo
     if space == "linear":
-        return srgb_to_linear(albedo.double())
+        return srgb_to_linear(albedo.double().clamp_min(0.0), clamp=False)
+    if space == "linear_gamma22":
+        return srgb_to_linear(albedo.double().clamp_min(0.0), clamp=False) ** (1.0 / 2.2)
     if space == "gamma22":
         return albedo.double().clamp_min(0.0) ** (1.0 / 2.2)
-    raise ValueError(f"unknown albedo space {space!r}; allowed: srgb, linear, gamma22")
+    raise ValueError(f"unknown albedo space {space!r}; allowed: srgb, linear, linear_gamma22, gamma22")
 
 
 def metric_space(protocol, metric: str) -> str:

@@ -142,16 +142,16 @@ def test_relight_clamp_albedo_false_shades_the_unclamped_aligned_albedo(data):
     view = scene.split_views("test")[0]
     envs = EnvironmentCache()
     g = load_gt_view(scene, view)
-    raw = torch.full_like(g["albedo"], 0.7)
+    raw = torch.full_like(g["albedo"], 0.9)
     scale = torch.tensor([2.0, 1.5, 0.5], dtype=torch.float64)
-    p = {"albedo": apply_albedo_scale(raw, scale, "stored"), "roughness": g["roughness"], "metallic": g["metallic"]}
     clamped, free = preset("tensoir"), preset("tensoir")
     clamped.relight.clamp_albedo = True
+    space = free.alignment_space  # linear: TensoIR's albedo.png values are linear (version 3)
+    p = {"albedo": apply_albedo_scale(raw, scale, space), "roughness": g["roughness"], "metallic": g["metallic"]}
     kept = relit_pairs(scene, g, p, raw, scale, g["mask"], clamped, envs)
     unkept = relit_pairs(scene, g, p, raw, scale, g["mask"], free, envs)
-    lin = unclamped_linear_albedo(raw, scale, "stored")
-    torch.testing.assert_close(lin[0, 0], srgb_to_linear(torch.tensor([1.4, 1.05, 0.35], dtype=torch.float64),
-                                                         clamp=False))
+    lin = unclamped_linear_albedo(raw, scale, space)
+    torch.testing.assert_close(lin[0, 0], srgb_to_linear(torch.tensor([0.9] * 3, dtype=torch.float64)) * scale)
     assert lin[..., 0].max() > 1.0 and lin[..., 2].max() < 1.0  # only the channels that clip differ
     env = next(iter(unkept))
     want = relight_view(None, g["roughness"], g["metallic"], g["normal"], g["view_dir"],

@@ -134,6 +134,15 @@ def _row(psnr, ssim, lpips) -> dict:
     return {"psnr": float(psnr), "ssim": float(ssim), "lpips": float(lpips)}
 
 
+def albedo_as_linear(case: dict) -> dict:
+    """A fixture's albedo maps as TensoIR's data holds them: its albedo.png values are linear
+    (gspi stores their sRGB encoding, gspi/data/layouts/tensoir.py), and so are the albedo maps
+    its and GS-IR's models render; both projects' code is handed these values."""
+    from eval.colorspace import srgb_to_linear
+
+    return {**case, "gt": [srgb_to_linear(g) for g in case["gt"]], "pred": [srgb_to_linear(p) for p in case["pred"]]}
+
+
 def _albedo_case(views: list[dict], ratio) -> dict:
     """A case's albedo record: the per-view rows, their means and the fitted scale."""
     scene = {k: float(np.mean([r[k] for r in views])) for k in ("psnr", "ssim", "lpips")}
@@ -157,7 +166,7 @@ def record_tensoir(root: Path) -> dict:
     device = types.SimpleNamespace(device="cpu")
     out = {"albedo": {}, "relight": {}}
     for case in CASES:
-        c = albedo_case(case)
+        c = albedo_as_linear(albedo_case(case))
         n = len(c["gt"])
         # dataset: albedo RGBA blended on white (dataLoader/tensoIR_relighting_test.py); float32
         gts = [(g * m[..., None] + (1 - m[..., None].double())).float() for g, m in zip(c["gt"], c["mask"])]
@@ -230,11 +239,11 @@ def record_gs_ir(root: Path) -> dict:
     render, relight = files["render.py"], files["relight_eval.py"]
     out = {"albedo": {}, "relight": {}}
     for case in CASES:
-        c = albedo_case(case)
+        c = albedo_as_linear(albedo_case(case))
         ns = {"torch": torch, "tqdm": lambda x, **k: x, "get_psnr": get_psnr, "get_ssim": get_ssim,
               "lpips_fn": lpips_fn, "albedo_gts": [], "albedo_maps": [], "masks": [],
               "gt_albedo_list": [], "reconstructed_albedo_list": []}
-        for g, p, m in zip(c["gt"], c["pred"], c["mask"]):  # the PNGs' values / 255, as read
+        for g, p, m in zip(c["gt"], c["pred"], c["mask"]):  # the PNG's values / 255 (linear), as read
             ns.update(albedo_gt=g.float(), albedo_map=p.float().clone(), mask=m)
             render.run(326, 326, ns)
             render.run(328, 329, ns)
