@@ -99,11 +99,12 @@ def test_the_default_protocol_differs_from_the_goldens(vgg):
 
 @pytest.mark.parametrize("project,old", [
     ("tensoir", ("eval.alignment_space=stored", "eval.albedo_space=srgb", "eval.psnr.albedo_space=gamma22")),
-    ("gs_ir", ("eval.alignment_space=stored", "eval.albedo_space=srgb"))])
+    ("gs_ir", ("eval.alignment_space=stored", "eval.albedo_space=srgb")),
+    ("irgs", ("eval.alignment_space=stored", "eval.albedo_space=srgb"))])
 def test_reading_the_stored_srgb_as_the_projects_values_misses_their_code(project, old, vgg):
-    """Issue 41: TensoIR's and GS-IR's code read albedo.png's linear values; the goldens hand them
-    gspi's stored sRGB decoded to linear, and version 2 of the presets (the stored values read as
-    theirs) disagrees with them well beyond the tolerances."""
+    """Issue 41: TensoIR's, GS-IR's and IRGS's code read albedo.png's linear values; the goldens
+    hand them gspi's stored sRGB decoded to linear, and the presets' previous versions (the stored
+    values read as theirs) disagree with them well beyond the tolerances."""
     want = golden(project)["albedo"]["clean"]
     rows, pooled, _ = gspi_albedo(preset(project, *old), "clean", vgg)
     ssim_gap = max(abs(got["ssim"] - ref["ssim"]) for got, ref in zip(rows, want["views"]))

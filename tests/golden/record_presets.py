@@ -137,7 +137,7 @@ def _row(psnr, ssim, lpips) -> dict:
 def albedo_as_linear(case: dict) -> dict:
     """A fixture's albedo maps as TensoIR's data holds them: its albedo.png values are linear
     (gspi stores their sRGB encoding, gspi/data/layouts/tensoir.py), and so are the albedo maps
-    its and GS-IR's models render; both projects' code is handed these values."""
+    its, GS-IR's and IRGS's models render; these projects' code is handed these values."""
     from eval.colorspace import srgb_to_linear
 
     return {**case, "gt": [srgb_to_linear(g) for g in case["gt"]], "pred": [srgb_to_linear(p) for p in case["pred"]]}
@@ -292,7 +292,7 @@ def record_irgs(root: Path) -> dict:
     renderer = files["gaussian_renderer/__init__.py"]
     out = {"albedo": {}, "relight": {}}
     for case in CASES:
-        c = albedo_case(case)
+        c = albedo_as_linear(albedo_case(case))  # load_img_rgb of TensoIR's albedo.png: linear values
         rgba = [torch.cat([g, m[..., None].double()], -1).numpy() for g, m in zip(c["gt"], c["mask"])]
         raw = [p.float().permute(2, 0, 1) for p in c["pred"]]  # the rendered linear base colour
         ns = {"torch": torch, "albedo_gt_list": [], "albedo_list": []}
