@@ -150,11 +150,11 @@ def first_existing(candidates: list[Path], what: str) -> Path:
 def export_blender_scene(scene_dir: Path, out_dir: Path) -> Path:
     """Canonical scene -> NeRF-synthetic folder (transforms_*.json + 8-bit RGBA PNGs).
 
-    Reuses gspi.data.nerf_synthetic (Blender/OpenGL c2w, `camera_angle_x`, frames in the
+    Reuses gspi.data.layouts.nerf_synthetic (Blender/OpenGL c2w, `camera_angle_x`, frames in the
     scene's view order, alpha = mask). The ground-truth maps and environment maps that exporter
     also copies are removed: a system must see only the images, like the in-house pipeline.
     """
-    from gspi.data.nerf_synthetic import MAP_SUFFIXES, export_nerf_synthetic
+    from gspi.data.layouts.nerf_synthetic import MAP_SUFFIXES, export_nerf_synthetic
 
     out = export_nerf_synthetic(scene_dir, out_dir, bits=8)
     for suffix in MAP_SUFFIXES.values():

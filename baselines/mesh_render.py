@@ -1,10 +1,10 @@
-"""Render UV-textured triangle meshes at canonical cameras on the CPU (numpy + torch).
+"""UV textures of a triangle mesh looked up at the canonical cameras' pixel centres (CPU).
 
-Used by the MaterialAnything adapter, whose outputs are UV textures on a mesh. No mesh library
-(pytorch3d, nvdiffrast, trimesh, pyrender) is installed here and none of them renders on a CPU
-without an OpenGL context, hence this small vectorised rasteriser: per triangle, every pixel
-centre of its screen bounding box is tested with edge functions, barycentrics are made
-perspective-correct, and the nearest candidate per pixel wins (a z-buffer by sorting).
+Used by the MaterialAnything adapter, whose outputs are UV textures on a mesh: the visible
+surface at each pixel centre comes from the project's one mesh ray caster
+(gspi.data.assets.mesh_render: trimesh, Embree when installed; hits and barycentrics in float64,
+equal to an analytic reference within 1e-9, tests/test_baselines_mesh_render.py), the texture
+coordinates are interpolated with its barycentrics and the textures sampled here.
 
 Conventions: cameras as in docs/FORMAT.md (OpenCV w2c, K with pixel centres at +0.5); OBJ
 texture coordinates with v = 0 at the bottom row of the texture image (the OBJ/Blender/pytorch3d
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-CANDIDATE_BUDGET = 2_000_000  # candidate (triangle, pixel) pairs per vectorised chunk
+from eval.views import pixel_rays
 
 
 class MeshError(ValueError):
@@ -78,78 +78,30 @@ def read_obj(path: str | Path) -> UVMesh:
                   np.asarray(faces, np.int64), np.asarray(face_uvs, np.int64))
 
 
-def _chunks(size: np.ndarray, budget: int):
-    """Split triangles sorted by bounding-box size into runs of <= budget candidate pixels."""
-    start, n = 0, len(size)
-    while start < n:
-        lo, hi = start + 1, n  # largest end with (end - start) * size[end - 1]^2 <= budget
-        while lo < hi:
-            mid = (lo + hi + 1) // 2
-            lo, hi = (mid, hi) if (mid - start) * size[mid - 1] ** 2 <= budget else (lo, mid - 1)
-        yield start, lo
-        start = lo
-
-
-def rasterize(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-              height: int, width: int, *, near: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-    """Visible triangle and perspective-correct barycentrics at every pixel centre.
+def visible_surface(mesh: UVMesh, K: np.ndarray, w2c: np.ndarray, height: int, width: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Visible triangle and its barycentrics at every pixel centre: the nearest hit of the
+    pixel-centre ray (float64 directions), cast by the project's one mesh ray caster
+    (``gspi.data.assets.mesh_render.closest_hits``: trimesh, Embree when installed).
 
     Args:
-        vertices: [V, 3] world. faces: [F, 3] indices. K: [3, 3]. w2c: [4, 4] OpenCV.
-        near: triangles with a vertex closer than this (camera z) are dropped (not clipped).
+        K: [3, 3]. w2c: [4, 4] OpenCV.
     Returns:
         face_id: [H, W] int64, -1 where no triangle covers the pixel centre;
         bary: [H, W, 3] float64 barycentrics of the visible triangle (0 where none).
     """
-    cam = vertices @ w2c[:3, :3].T + w2c[:3, 3]
-    z = cam[:, 2]
-    proj = (cam / np.where(z > 0, z, 1.0)[:, None]) @ K.T
-    keep = np.nonzero((z[faces] > near).all(1))[0]
-    p = proj[faces[keep], :2]                          # [F, 3, 2] pixel coords
-    zf = z[faces[keep]]                                # [F, 3]
-    area = ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
-            - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
-    j0 = np.clip(np.ceil(p[..., 0].min(1) - 0.5), 0, width).astype(np.int64)
-    j1 = np.clip(np.floor(p[..., 0].max(1) - 0.5), -1, width - 1).astype(np.int64)
-    i0 = np.clip(np.ceil(p[..., 1].min(1) - 0.5), 0, height).astype(np.int64)
-    i1 = np.clip(np.floor(p[..., 1].max(1) - 0.5), -1, height - 1).astype(np.int64)
-    nw, nh = j1 - j0 + 1, i1 - i0 + 1
-    ok = (np.abs(area) > 1e-12) & (nw > 0) & (nh > 0)
-    keep, p, zf, area, j0, i0, nw, nh = (a[ok] for a in (keep, p, zf, area, j0, i0, nw, nh))
-    size = np.maximum(nw, nh)
-    order = np.argsort(size, kind="stable")
-    found = []  # (pixel, depth, face, b0, b1, b2)
-    for s, e in _chunks(size[order], CANDIDATE_BUDGET):
-        idx = order[s:e]
-        m = int(size[idx].max())
-        di, dj = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
-        di, dj = di.reshape(1, -1), dj.reshape(1, -1)
-        valid = (di < nh[idx, None]) & (dj < nw[idx, None])
-        ii, jj = i0[idx, None] + di, j0[idx, None] + dj
-        qx, qy = jj + 0.5, ii + 0.5
-        pt = p[idx]
+    import trimesh
 
-        def edge(a, b):  # [n, m*m]: twice the signed area of (p_a, p_b, q)
-            return ((pt[:, b, 0:1] - pt[:, a, 0:1]) * (qy - pt[:, a, 1:2])
-                    - (pt[:, b, 1:2] - pt[:, a, 1:2]) * (qx - pt[:, a, 0:1]))
+    from gspi.data.assets.mesh_render import closest_hits, ray_intersector
 
-        w = np.stack([edge(1, 2), edge(2, 0), edge(0, 1)], -1) / area[idx, None, None]
-        inside = valid & (w >= -1e-9).all(-1)
-        t, c = np.nonzero(inside)
-        wz = w[t, c] / zf[idx][t]                     # perspective correction: w_i / z_i
-        inv_depth = wz.sum(-1)
-        found.append((ii[t, c] * width + jj[t, c], 1.0 / inv_depth, keep[idx][t],
-                       wz / inv_depth[:, None]))
+    dirs = pixel_rays(K, w2c, height, width, dtype=torch.float64).reshape(-1, 3).numpy()
+    origins = np.broadcast_to(np.linalg.inv(w2c)[:3, 3], dirs.shape).copy()
+    intersector = ray_intersector(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False))
+    ray, tri, _, bary = closest_hits(intersector, mesh.vertices, mesh.faces, origins, dirs)
     face_id = np.full(height * width, -1, np.int64)
-    bary = np.zeros((height * width, 3))
-    if found:
-        pix, depth, face, b = (np.concatenate(x) for x in zip(*found))
-        first = np.lexsort((depth, pix))               # nearest candidate first per pixel
-        pix_sorted = pix[first]
-        _, winner = np.unique(pix_sorted, return_index=True)
-        sel = first[winner]
-        face_id[pix[sel]], bary[pix[sel]] = face[sel], b[sel]
-    return face_id.reshape(height, width), bary.reshape(height, width, 3)
+    weights = np.zeros((height * width, 3))
+    face_id[ray], weights[ray] = tri, bary
+    return face_id.reshape(height, width), weights.reshape(height, width, 3)
 
 
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -176,7 +128,7 @@ def render_uv_maps(mesh: UVMesh, textures: dict[str, np.ndarray], K: np.ndarray,
     Returns:
         coverage: [H, W] bool; maps: name -> [H, W, C] float64 (0 where not covered).
     """
-    face_id, bary = rasterize(mesh.vertices, mesh.faces, K, w2c, height, width)
+    face_id, bary = visible_surface(mesh, K, w2c, height, width)
     covered = face_id >= 0
     corner_uv = mesh.uvs[mesh.face_uvs[face_id[covered]]]      # [N, 3, 2]
     uv = (bary[covered][..., None] * corner_uv).sum(1)

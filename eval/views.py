@@ -14,13 +14,15 @@ from torch import Tensor
 from eval.colorspace import srgb_to_linear
 
 
-def pixel_rays(K: np.ndarray, w2c: np.ndarray, height: int, width: int) -> Tensor:
+def pixel_rays(K: np.ndarray, w2c: np.ndarray, height: int, width: int, *,
+               dtype: torch.dtype = torch.float32) -> Tensor:
     """World-space unit ray directions through pixel centres (j + 0.5, i + 0.5).
 
     Args:
         K: [3, 3] pixel intrinsics. w2c: [4, 4] world-to-camera, OpenCV axes.
+        dtype: of the result (computed in float64).
     Returns:
-        [H, W, 3] float32 unit directions, camera -> scene.
+        [H, W, 3] unit directions, camera -> scene.
     """
     K = torch.as_tensor(K, dtype=torch.float64)
     w2c = torch.as_tensor(w2c, dtype=torch.float64)
@@ -29,7 +31,7 @@ def pixel_rays(K: np.ndarray, w2c: np.ndarray, height: int, width: int) -> Tenso
     pix = torch.stack([j, i, torch.ones_like(j)], dim=-1)           # [H, W, 3]
     dirs_cam = pix @ torch.linalg.inv(K).T                           # [H, W, 3]
     dirs_world = dirs_cam @ w2c[:3, :3]                              # R^T d, row-vector form
-    return torch.nn.functional.normalize(dirs_world, dim=-1).float()
+    return torch.nn.functional.normalize(dirs_world, dim=-1).to(dtype)
 
 
 def view_directions(K: np.ndarray, w2c: np.ndarray, height: int, width: int) -> Tensor:

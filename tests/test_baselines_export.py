@@ -25,7 +25,7 @@ def scene(tmp_path_factory):
     return make_scene(tmp_path_factory.mktemp("gt"), "ball", size=16, seed=3, num_test=3)
 
 
-def blender_to_opencv_w2c(c2w):  # independent of gspi.data.nerf_synthetic
+def blender_to_opencv_w2c(c2w):  # independent of gspi.data.layouts.nerf_synthetic
     c2w = np.asarray(c2w) @ np.diag([1.0, -1.0, -1.0, 1.0])
     return np.linalg.inv(c2w)
 

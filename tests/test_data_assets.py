@@ -9,13 +9,13 @@ import torch
 
 from eval.relight import irradiance_map
 from eval.views import pixel_rays
-from gspi.data import patterns
+from gspi.data.procedural import patterns
 from gspi.data.environments import CAPTURE_ENVS, HELDOUT_ENVS, env_names, make_environment
 from gspi.data.lattice import lattice_cameras
-from gspi.data.materials import MATERIAL_CLASSES, evaluate_material, sample_material
-from gspi.data.scene_recipe import assign_splits
-from gspi.data.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
-from gspi.data.sphere_trace import sdf_normals, sphere_trace
+from gspi.data.procedural.materials import MATERIAL_CLASSES, evaluate_material, sample_material
+from gspi.data.procedural.scene_recipe import assign_splits
+from gspi.data.procedural.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
+from gspi.data.procedural.sphere_trace import sdf_normals, sphere_trace
 
 
 @pytest.mark.parametrize("family", FAMILIES)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 
-from gspi.data.materials import MATERIAL_CLASSES, evaluate_material, sample_material
-from gspi.data.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
+from gspi.data.procedural.materials import MATERIAL_CLASSES, evaluate_material, sample_material
+from gspi.data.procedural.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
 
 META = torch.device("meta")
 
@@ -42,7 +42,7 @@ def test_every_shape_family_evaluates_on_the_points_device(seed):
 
 def test_the_renderer_traces_on_the_device_asked_for(monkeypatch):
     """render_views moves the (CPU-drawn) rays to `device` before tracing."""
-    import gspi.data.render_view as render_view
+    import gspi.data.procedural.render_view as render_view
     from gspi.data.lattice import lattice_cameras
 
     seen = {}

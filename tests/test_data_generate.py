@@ -18,8 +18,8 @@ from eval.layout import GT_VIEW_FILES, read_scene, read_splits, read_view_file
 from eval.argv import apply_aliases
 from gspi.cli.data import run
 from gspi.data.lattice import lattice_cameras
-from gspi.data.render_scene import relight_stored_view
-from gspi.data.sdf_shapes import ShapeSDF
+from gspi.data.procedural.render_scene import relight_stored_view
+from gspi.data.procedural.sdf_shapes import ShapeSDF
 
 REPO = Path(__file__).resolve().parents[1]
 # The tiny preset shrunk further so that the whole module runs in seconds.

@@ -1,5 +1,5 @@
 """glTF/GLB import: GT maps from known textures and factors, masks, unit frame, several
-primitives, bad files, the CLI (gspi.data.gltf, gspi.data.mesh_render, gspi.data.glb_import)."""
+primitives, bad files, the CLI (gspi.data.assets.gltf, gspi.data.assets.mesh_render, gspi.data.assets.glb_import)."""
 from __future__ import annotations
 
 import json
@@ -13,9 +13,9 @@ from omegaconf import OmegaConf
 
 from eval.colorspace import linear_to_srgb, srgb_to_linear
 from eval.layout import read_scene, read_splits, read_view_file
-from gspi.data.gltf import GLTFError, read_gltf
+from gspi.data.assets.gltf import GLTFError, read_gltf
 from gspi.data.lattice import intrinsics_from_fov, look_at_w2c
-from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
 from tests.gltf_fixtures import BLOCKS, FACTOR, MR_BLOCKS, blocky, quad_glb
 
 trimesh = pytest.importorskip("trimesh")
@@ -169,7 +169,7 @@ def test_cli_imports_a_folder_with_splits(tmp_path):
 
 
 def test_16_bit_greyscale_texture_is_read_at_full_depth():
-    from gspi.data.gltf import image_rgba
+    from gspi.data.assets.gltf import image_rgba
 
     grey = Image.fromarray(np.array([[0, 32768], [65535, 13107]], np.uint16))   # mode I;16
     assert grey.mode.startswith("I;16")
@@ -324,7 +324,7 @@ def test_sampler_wrap_modes(tmp_path):
     """UVs 0..2 over the quad (covering pixels ~[6.9, 25.1)): at pixel columns 9, 18, 23 u is
     ~0.29, 1.27, 1.82. REPEAT reads block columns 0, 0, 1; CLAMP_TO_EDGE 0, 1, 1 (the last
     texels stretched); MIRRORED_REPEAT 0, 1, 0 (the second tile mirrored)."""
-    from gspi.data.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT
+    from gspi.data.assets.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT
 
     uv = [[0, 0], [2, 0], [0, 1], [2, 1]]
     want = {None: (0, 0, 1), CLAMP_TO_EDGE: (0, 1, 1), MIRRORED_REPEAT: (0, 1, 0)}
@@ -488,7 +488,7 @@ def test_held_out_views_that_see_nothing_of_a_single_sided_asset_are_not_scored(
 def _wrapped_in_scaled_node(src: Path, dst: Path, scale: list[float]) -> Path:
     """`src` GLB with its scene's roots under one new node of the given scale (an asset authored
     in small units and scaled to metres, as product models are)."""
-    from gspi.data.gltf import _split_glb
+    from gspi.data.assets.gltf import _split_glb
 
     doc, binary = _split_glb(src, src.read_bytes())
     roots = doc["scenes"][doc.get("scene", 0)]["nodes"]
@@ -514,7 +514,7 @@ def test_an_asset_in_small_or_large_units_imports_with_the_unscaled_gt(tmp_path,
 
 
 def test_a_node_flattened_on_one_axis_is_still_named(tmp_path):
-    from gspi.data.gltf import is_degenerate
+    from gspi.data.assets.gltf import is_degenerate
 
     src = quad_glb(tmp_path / "quad.glb")
     with pytest.raises(GLTFError, match="flat.glb.*no triangle primitives"):

@@ -24,7 +24,7 @@ from gspi.data.layouts.orb_envmap import orb_directions, orb_to_world, world_to_
 from eval.radiance_hdr import read_hdr, write_hdr
 from gspi.data.layouts.stanford_orb import export_stanford_orb, import_stanford_orb
 from gspi.data.layouts.tensoir import export_tensoir, import_tensoir
-from gspi.data.nerf_synthetic import linear_from_rgba, write_rgba
+from gspi.data.layouts.nerf_synthetic import linear_from_rgba, write_rgba
 from tests.fixtures import generated_scene, make_envmap, protocol
 from tests.reliability.helpers import run_cli
 

@@ -1,4 +1,4 @@
-"""NeRF-synthetic import/export round trip (gspi.data.nerf_synthetic)."""
+"""NeRF-synthetic import/export round trip (gspi.data.layouts.nerf_synthetic)."""
 from __future__ import annotations
 
 import json
@@ -10,7 +10,7 @@ import torch
 
 from eval.colorspace import linear_to_srgb
 from eval.layout import read_scene, read_view_file
-from gspi.data.nerf_synthetic import (blender_c2w_to_opencv_w2c, export_nerf_synthetic,
+from gspi.data.layouts.nerf_synthetic import (blender_c2w_to_opencv_w2c, export_nerf_synthetic,
                                       import_nerf_synthetic, intrinsics_from_angle_x,
                                       opencv_w2c_to_blender_c2w, write_rgba)
 from tests.fixtures import generated_scene

@@ -1,4 +1,4 @@
-"""Path-traced input views (gspi.data.pathtrace): environment orientation, camera and image
+"""Path-traced input views (gspi.data.assets.pathtrace): environment orientation, camera and image
 orientation against the exact renderers, and a tiny pathtraced dataset whose GT is unchanged."""
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ from eval.relight import prefilter_environment  # noqa: E402
 from gspi.data.environments import make_environment  # noqa: E402
 from gspi.data.generate import BenchmarkConfig, generate_dataset, scene_recipes  # noqa: E402
 from gspi.data.lattice import intrinsics_from_fov, look_at_w2c  # noqa: E402
-from gspi.data.pathtrace import PathTraceConfig, _mitsuba, mitsuba_scene, retracer, \
+from gspi.data.assets.pathtrace import PathTraceConfig, _mitsuba, mitsuba_scene, retracer, \
     sensor  # noqa: E402
-from gspi.data.render_scene import scene_views, sdf_renderer  # noqa: E402
+from gspi.data.procedural.render_scene import scene_views, sdf_renderer  # noqa: E402
 
 
 def test_envmap_orientation_matches_the_project_convention():
@@ -63,8 +63,8 @@ def test_pathtraced_views_line_up_with_the_exact_renderer():
 
 
 def test_glb_textures_reach_mitsuba_upright(tmp_path):
-    from gspi.data.gltf import read_gltf
-    from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+    from gspi.data.assets.gltf import read_gltf
+    from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
     from tests.gltf_fixtures import quad_glb
 
     mesh = unit_frame_mesh(read_gltf(quad_glb(tmp_path / "quad.glb")))

@@ -138,7 +138,7 @@ def test_preview_image_is_written(exported):
 @pytest.mark.parametrize("source", ["views", "surfels"])
 def test_texture_channels_follow_gltf(tmp_path, source):
     """Roughness in G, metallic in B (linear), base colour sRGB-encoded: constants survive as such."""
-    from gspi.data.gltf import read_gltf
+    from gspi.data.assets.gltf import read_gltf
 
     asset = pbr_sphere(roughness=0.3, metallic=0.8)
     write_ply(tmp_path / "a.ply", asset)
@@ -157,7 +157,7 @@ def test_round_trip_through_the_importer(exported, tmp_path):
     from omegaconf import OmegaConf
 
     from gspi.data.generate import BenchmarkConfig
-    from gspi.data.glb_import import import_glb
+    from gspi.data.assets.glb_import import import_glb
     from gspi.export.roundtrip import compare_imported
 
     root, asset, _ = exported

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from gspi.data.gltf import Asset, read_gltf
+from gspi.data.assets.gltf import Asset, read_gltf
 from gspi.data.lattice import intrinsics_from_fov, look_at_w2c
-from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
 
 REAL_OBJECTS = Path(os.environ.get("GSPI_REAL_OBJECTS",
                                    Path(__file__).resolve().parents[2] / "shared" / "data" / "real-objects"))
@@ -110,14 +110,14 @@ def trimesh_materials(path: Path, origins: np.ndarray, dirs: np.ndarray):
 @pytest.mark.parametrize("asset", ["WaterBottle/WaterBottle.gltf", "Avocado/Avocado.gltf",
                                    "Suzanne/Suzanne.gltf", "BoomBoxWithAxes/BoomBoxWithAxes.gltf"])
 def test_textured_real_assets_match_an_independent_reader(asset):
-    """The GT maps gspi reads (gspi.data.gltf + mesh_render at pixel centres) equal trimesh's
+    """The GT maps gspi reads (gspi.data.assets.gltf + mesh_render at pixel centres) equal trimesh's
     reading of the same asset: median |difference| <= 0.01 per map over the pixels where both
     hit the same point (issue 26), from 6 directions at 48 px."""
     from eval.colorspace import linear_to_srgb
     from eval.views import pixel_rays
-    from gspi.data.gltf import Y_UP_TO_Z_UP
+    from gspi.data.assets.gltf import Y_UP_TO_Z_UP
     from gspi.data.lattice import fibonacci_hemisphere_lattice
-    from gspi.data.mesh_render import MeshTracer, evaluate_materials
+    from gspi.data.assets.mesh_render import MeshTracer, evaluate_materials
 
     path = REAL_OBJECTS / asset
     mesh = unit_frame_mesh(read_gltf(path))

@@ -10,7 +10,7 @@ import pytest
 from gspi.data.lattice import (GOLDEN_ANGLE, fibonacci_hemisphere_lattice, held_out_directions,
                                intrinsics_from_fov, lattice_cameras, look_at_w2c,
                                nearest_neighbour_angles)
-from gspi.data.render_scene import scene_views
+from gspi.data.procedural.render_scene import scene_views
 
 # Near-uniform spacing: for V = 32 the nearest-neighbour angles span 22.3..24.7 deg (ratio 1.11).
 MAX_NN_RATIO = 1.25

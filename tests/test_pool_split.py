@@ -1,10 +1,10 @@
-"""gspi.data.pool_split: train/val/test views of a training pool (symlinks + splits.json)."""
+"""gspi.data.pool.split: train/val/test views of a training pool (symlinks + splits.json)."""
 import json
 
 import pytest
 
-from gspi.data.pool_split import main, parse_range, split_view
-from gspi.data.training_pool import DONE_FILE
+from gspi.data.pool.split import main, parse_range, split_view
+from gspi.data.pool.training_pool import DONE_FILE
 
 
 @pytest.fixture

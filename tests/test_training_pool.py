@@ -1,4 +1,4 @@
-"""The Stage II training pool (gspi.data.training_pool): disjoint, deterministic, resumable."""
+"""The Stage II training pool (gspi.data.pool.training_pool): disjoint, deterministic, resumable."""
 from __future__ import annotations
 
 import hashlib
@@ -12,9 +12,9 @@ from eval.layout import read_scene, read_splits
 from eval.argv import apply_aliases
 from gspi.cli.data import run
 from gspi.data.generate import BenchmarkConfig, scene_recipes
-from gspi.data.materials import MATERIAL_CLASSES
-from gspi.data.sdf_shapes import FAMILIES
-from gspi.data.training_pool import DONE_FILE, describe, pool_recipes
+from gspi.data.procedural.materials import MATERIAL_CLASSES
+from gspi.data.procedural.sdf_shapes import FAMILIES
+from gspi.data.pool.training_pool import DONE_FILE, describe, pool_recipes
 
 REPO = Path(__file__).resolve().parents[1]
 SHRUNK = ["data.num_train_scenes=3", "data.image_sizes=[12,8]", "data.env_height=16",
@@ -152,7 +152,7 @@ def test_two_class_material_splits_the_object_between_its_classes():
     class on the other; both sides hold a real share of the object's points."""
     import torch
 
-    from gspi.data.materials import _second_region, evaluate_material
+    from gspi.data.procedural.materials import _second_region, evaluate_material
 
     recipe = next(r for r in pool_recipes(0, 84, [128], material_mix=1.0)
                   if r["material"]["mix"]["second"]["class"] == "metal")["material"]
@@ -183,7 +183,7 @@ def _recipes_sha(recipes) -> str:
 
 @pytest.mark.parametrize("mix", sorted(POOL_RECIPES_SHA256))
 def test_parts_defaults_keep_every_recipe(mix):
-    from gspi.data.material_parts import PartsConfig
+    from gspi.data.procedural.material_parts import PartsConfig
 
     recipes = pool_recipes(0, 256, [128, 64], material_mix=mix, parts=PartsConfig.from_mapping({}))
     assert _recipes_sha(recipes) == POOL_RECIPES_SHA256[mix]
@@ -192,13 +192,13 @@ def test_parts_defaults_keep_every_recipe(mix):
 
 
 def _parts_pool(share=1.0, **kw):
-    from gspi.data.material_parts import PartsConfig
+    from gspi.data.procedural.material_parts import PartsConfig
 
     return pool_recipes(0, 84, [128], parts=PartsConfig(share=share, **kw))
 
 
 def test_parts_recipes_hold_two_to_four_parts_mixed_like_real_objects():
-    from gspi.data.materials import METAL_CLASSES
+    from gspi.data.procedural.materials import METAL_CLASSES
 
     plain = pool_recipes(0, 84, [128])
     recipes = _parts_pool(count=(2, 4))
@@ -224,8 +224,8 @@ def test_each_part_evaluates_its_own_material():
     every part holds a real share of the object's points."""
     import torch
 
-    from gspi.data.patterns import part_regions
-    from gspi.data.materials import evaluate_material
+    from gspi.data.procedural.patterns import part_regions
+    from gspi.data.procedural.materials import evaluate_material
 
     q = torch.nn.functional.normalize(torch.randn(6000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
     q = q * torch.rand(6000, 1, generator=torch.Generator().manual_seed(1)) ** 0.3
@@ -252,7 +252,7 @@ def test_part_variations_widen_metal_colour_and_roughness():
     0.10); roughness_spread shifts each part; texture varies albedo inside a part."""
     import torch
 
-    from gspi.data.materials import METAL_F0, evaluate_material
+    from gspi.data.procedural.materials import METAL_F0, evaluate_material
 
     recipes = _parts_pool(share=0.0, metal_f0="wide", roughness_spread=0.2, texture=0.5)
     metals = [r["material"] for r in recipes if r["material"]["class"] == "metal"]
@@ -276,7 +276,7 @@ def test_part_variations_widen_metal_colour_and_roughness():
                                         ({"metal_f0": "gold"}, "data.parts.metal_f0"),
                                         ({"sharee": 0.5}, r"unknown data config key.*data\.parts\.sharee")])
 def test_parts_config_names_the_bad_key(bad, match):
-    from gspi.data.material_parts import PartsConfig
+    from gspi.data.procedural.material_parts import PartsConfig
 
     with pytest.raises(ValueError, match=match):
         PartsConfig.from_mapping(bad)

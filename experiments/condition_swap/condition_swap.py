@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gspi.data.asset_conditions import write_asset_conditions
+from gspi.data.pool.asset_conditions import write_asset_conditions
 
 VARIANTS = ("gt", "asset_top_rgb", "asset_prior")
 VARIANT_CONDITIONS = {"gt": (), "asset_top_rgb": ("top_rgb",), "asset_prior": ("prior",)}

@@ -20,7 +20,7 @@ import numpy as np
 from eval.records.points_scores import BASELINE_KEY, MODEL_KEY, SCORES_NAME, find_points_folders, read_points_scores
 from eval.tables.build import AVG_CHANNELS as CHANNELS
 
-from gspi.data.materials import MATERIAL_CLASSES  # the one list (issue 40)
+from gspi.data.procedural.materials import MATERIAL_CLASSES  # the one list (issue 40)
 
 
 def material_class(scene: str) -> str:

@@ -7,7 +7,7 @@
 # regressors R1-R4 (python -m experiments.ladder.ladder). Finished jobs are skipped, so a rerun
 # continues (remove $RUNS/.claims first if a run was killed). Data (once, ~5 min on 2 cores):
 #   gspi-data preset=stage2_pool out=$POOL_ROOT seed=0 'data.pool_indices=[[0,64],[224,256]]' data.workers=2
-#   python -m gspi.data.pool_split $POOL_ROOT $POOL --train 0:64 --test 224:256
+#   python -m gspi.data.pool.split $POOL_ROOT $POOL --train 0:64 --test 224:256
 #   gspi-data preset=small out=$SMALL seed=0 'data.only_splits=[test]'
 # Diffusion rungs are name=recipe[:ablation] (a conf/stage2 preset; ablation default full), e.g.
 # the departures measured after R5: DIFFUSION_RUNGS="r6=table2_cpu_trunc_snr r6skip=table2_cpu_skip_trunc_snr"

@@ -24,7 +24,7 @@ log() { echo "$(date -u +%FT%TZ) $*" | tee -a "$WORK/run.log"; }
 log "pool: generate (indices 0:64 train, 224:256 held out)"
 $BIN/gspi-data preset=stage2_pool out="$WORK/pool" seed=0 'data.pool_indices=[[0,64],[224,256]]' \
   data.workers=2 "${PARTS[@]}" >> "$WORK/run.log" 2>&1
-$BIN/python -m gspi.data.pool_split "$WORK/pool" "$WORK/pool64" --train 0:64 --test 224:256 >> "$WORK/run.log" 2>&1
+$BIN/python -m gspi.data.pool.split "$WORK/pool" "$WORK/pool64" --train 0:64 --test 224:256 >> "$WORK/run.log" 2>&1
 log "pool: Stage 0 reconstructions"
 $BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --workers 2 >> "$WORK/run.log" 2>&1
 $BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --summary > "$WORK/recon_summary.md" 2>&1

@@ -18,13 +18,13 @@ Examples:
 cannot name a group differently from its folder, so `main` rewrites the argument before Hydra
 parses the command line. Config: conf/gspi_data.yaml. Output: `out` is also Hydra's run dir,
 so `<out>/.hydra/` records the composed config; the working directory never changes.
-Layout of the output: gspi.data.render_scene (per scene), gspi.data.generate (dataset).
+Layout of the output: gspi.data.procedural.render_scene (per scene), gspi.data.generate (dataset).
 
 `device=auto|cpu|cuda` (default cpu) is resolved at start-up, whatever the mode (`cuda` without
 CUDA: one error naming the key). Procedural generation and the training pool render there
 (gspi.data.generate). On the CPU whatever the device: the import and export modes (file
 conversion; glb ray casting is trimesh/embree) and `data.renderer=pathtraced`'s input images
-(Mitsuba's scalar_rgb variant, gspi.data.pathtrace).
+(Mitsuba's scalar_rgb variant, gspi.data.assets.pathtrace).
 """
 from __future__ import annotations
 
@@ -74,7 +74,7 @@ def import_layout(imp: DictConfig, out: Path):
     if fmt != "nerf_synthetic" and imp.composite != "black":
         raise ConfigError(f"import.composite={imp.composite}: only the nerf_synthetic format composites")
     if fmt == "nerf_synthetic":
-        from gspi.data.nerf_synthetic import import_nerf_synthetic
+        from gspi.data.layouts.nerf_synthetic import import_nerf_synthetic
         return import_nerf_synthetic(imp.src, out, name=imp.name, composite=imp.composite), fmt
     if fmt == "tensoir":
         from gspi.data.layouts.tensoir import import_tensoir
@@ -96,7 +96,7 @@ def export_layout(exp: DictConfig, out: Path) -> Path:
     if exp.format not in FORMATS:
         raise ConfigError(f"export.format={exp.format}: must be one of {', '.join(FORMATS)}")
     if exp.format == "nerf_synthetic":
-        from gspi.data.nerf_synthetic import export_nerf_synthetic
+        from gspi.data.layouts.nerf_synthetic import export_nerf_synthetic
         return export_nerf_synthetic(exp.src, out, bits=int(exp.bits))
     if exp.format == "tensoir":
         from gspi.data.layouts.tensoir import export_tensoir
@@ -117,7 +117,7 @@ def run(cfg: DictConfig) -> dict:
     if device.type != "cpu" and mode != "generate":
         log.info("device=%s: %s runs on the CPU (module docstring)", device, mode)
     if mode == "import_glb":
-        from gspi.data.glb_import import import_glb
+        from gspi.data.assets.glb_import import import_glb
 
         stats = import_glb(cfg["import"].glb, out, benchmark_config(cfg), seed=int(cfg.seed))
         result = {"mode": "import_glb", **stats}

@@ -1,18 +1,19 @@
-"""Dataset sources of GS-PI: the procedural PBR benchmark generator and importers.
+"""Dataset sources of GS-PI, in rooms:
 
-One concept per module:
+    procedural/     the procedural PBR benchmark generator (shapes, materials, recipes, rendering)
+    assets/         glTF/GLB objects (reader, mesh rendering, import) and path tracing
+    layouts/        the field's dataset layouts (NeRF-synthetic, TensoIR, Stanford-ORB, NeRO)
+    pool/           Stage II's training pool (recipes, splits, reconstructed conditions)
+
+and the facts they share:
+
     lattice         the canonical V = 32 Fibonacci hemisphere lattice and its cameras
-    sdf_shapes      implicit shape families (recipes, normalised to the unit sphere)
-    sphere_trace    batched sphere tracing + autograd normals
-    patterns        3D procedural patterns (noise, Voronoi, checker, stripes, glyphs)
-    materials       spatially varying PBR material classes
     environments    procedural HDR lat-long environments (capture and held-out sets)
-    scene_recipe    seeded scene recipes and scene splits
-    render_view     supersampled split-sum rendering of views + exact GT maps
-    render_scene    one scene in the canonical layout (incl. relit ground truth)
+    hdri            real HDRIs as environments
+    env_sets        a scene's capture / held-out environment sets
     point_clouds    GT point clouds of the lattice views (gt_points.npz)
+    gt_maps         the GT material maps of a view
     contact_sheet   per-scene preview PNG
     generate        the whole dataset (splits.json, workers, determinism)
-    nerf_synthetic  NeRF-synthetic import/export
 Entry point: `gspi-data` (gspi/cli/data.py).
 """

@@ -7,7 +7,7 @@ Each option is one of
   user's own lat-long EXR files (named after the file stem).
 The two sets must be disjoint: a relighting environment is never seen in the inputs.
 
-A set left at `procedural` keeps the environments `gspi.data.scene_recipe` drew (datasets
+A set left at `procedural` keeps the environments `gspi.data.procedural.scene_recipe` drew (datasets
 stay byte-identical); another set is redrawn by `assign_environments` from its own seeded
 stream, so shape, material, views and jitter of every scene do not change with the sets, and
 changing only `relight_envs` leaves the input images byte-identical.
@@ -21,7 +21,7 @@ import torch
 from gspi.data.environments import CAPTURE_ENVS, HELDOUT_ENVS, env_names, make_environment
 from gspi.data.hdri import POLYHAVEN_CAPTURE, POLYHAVEN_HELDOUT, POLYHAVEN_PREFIX, load_hdri, \
     polyhaven_path
-from gspi.data.scene_recipe import scene_rng
+from gspi.data.procedural.scene_recipe import scene_rng
 
 PROCEDURAL = "procedural"
 RELIGHT_STREAM, CAPTURE_STREAM = 3, 4  # scene_rng streams of redrawn environments

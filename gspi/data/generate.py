@@ -3,7 +3,7 @@
 `generate_dataset(out_dir, config)` writes
 
     <out>/splits.json           {"train", "val", "test"}: scene names, assigned by seed
-    <out>/<scene>/...           one scene folder per scene (gspi.data.render_scene)
+    <out>/<scene>/...           one scene folder per scene (gspi.data.procedural.render_scene)
 
 Determinism: the same seed and config give byte-identical files (images, EXRs, JSON, npz),
 provided torch runs with the same thread count (`threads`, default 1: CPU reductions and
@@ -38,8 +38,8 @@ from gspi.data.contact_sheet import write_contact_sheet
 from gspi.data.environments import env_names
 from gspi.data.lattice import CANONICAL_LATTICE
 from gspi.data.point_clouds import write_scene_point_cloud
-from gspi.data.render_scene import generate_scene, load_environment
-from gspi.data.scene_recipe import assign_splits, sample_scene_recipe
+from gspi.data.procedural.render_scene import generate_scene, load_environment
+from gspi.data.procedural.scene_recipe import assign_splits, sample_scene_recipe
 
 GENERATOR_NAME = "gspi-procedural"
 GENERATOR_VERSION = 1
@@ -65,16 +65,16 @@ class BenchmarkConfig:
     threads: int = 1                          # torch threads per process
     workers: int = 1                          # scene-parallel processes
     only_splits: Optional[list] = None        # e.g. ["test"]: generate only those splits' scenes
-    training_pool: bool = False               # train-only pool scenes (gspi.data.training_pool)
+    training_pool: bool = False               # train-only pool scenes (gspi.data.pool.training_pool)
     image_sizes: Optional[list] = None        # training pool: sizes cycled over scenes
     pool_indices: Optional[list] = None       # training pool: only these [start, stop) index ranges
     material_mix: float = 0.0                 # training pool: share of two-class scenes (issue 24)
-    parts: dict = field(default_factory=dict) # training pool: multi-part objects (gspi.data.material_parts)
+    parts: dict = field(default_factory=dict) # training pool: multi-part objects (gspi.data.procedural.material_parts)
     capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
     relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
     renderer: str = "splitsum"                # input views: splitsum | pathtraced
     relit_renderer: str = "splitsum"          # relit GT of the test views: splitsum | pathtraced
-    pathtrace: dict = field(default_factory=dict)  # gspi.data.pathtrace.PathTraceConfig kwargs
+    pathtrace: dict = field(default_factory=dict)  # gspi.data.assets.pathtrace.PathTraceConfig kwargs
     lattice: dict = field(default_factory=lambda: dict(CANONICAL_LATTICE))
 
     # Allowed values, checked by gspi.strict_config when gspi-data starts (inclusive; None = open).
@@ -141,7 +141,7 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
     envs, pre = {}, {}
     for n in names:
         envs[n], pre[n] = _environment(n)
-    from gspi.data.pathtrace import retracer
+    from gspi.data.assets.pathtrace import retracer
 
     extra = {"name": GENERATOR_NAME, "version": GENERATOR_VERSION, "seed": seed,
              "preset": cfg.name, "supersample": cfg.supersample, "lattice": cfg.lattice}
@@ -166,7 +166,7 @@ def _make_scene(recipe: dict, out_dir: str, seed: int) -> dict:
     if cfg.contact_sheets:
         write_contact_sheet(scene)
     if cfg.training_pool:
-        from gspi.data.training_pool import mark_complete
+        from gspi.data.pool.training_pool import mark_complete
 
         mark_complete(scene.root, recipe, seed)
     stats["seconds"] += time.perf_counter() - t0
@@ -236,10 +236,10 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
 def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
                            scratch_dir: str | Path | None = None,
                            device: torch.device | str = "cpu") -> dict:
-    """The Stage II training pool (gspi.data.training_pool): resumes, skips complete scenes."""
+    """The Stage II training pool (gspi.data.pool.training_pool): resumes, skips complete scenes."""
     from gspi.data.env_sets import environment_sets, is_default
-    from gspi.data.material_parts import PartsConfig
-    from gspi.data.training_pool import pending_recipes, pool_recipes, read_pool_done
+    from gspi.data.procedural.material_parts import PartsConfig
+    from gspi.data.pool.training_pool import pending_recipes, pool_recipes, read_pool_done
 
     start = time.perf_counter()
     if cfg.only_splits or cfg.num_val_scenes or cfg.num_test_scenes:

@@ -57,7 +57,7 @@ def texel_samples(uv: np.ndarray, faces: np.ndarray, vertices: np.ndarray, size:
     """Which UV triangle holds each texel centre (module docstring), and its 3D point."""
     import trimesh
 
-    from gspi.data.mesh_render import ray_intersector
+    from gspi.data.assets.mesh_render import ray_intersector
 
     flat = trimesh.Trimesh(np.column_stack([uv * size, np.zeros(len(uv))]), faces, process=False, validate=False)
     caster = ray_intersector(flat)

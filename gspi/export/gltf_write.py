@@ -9,7 +9,7 @@ What the file holds (glTF 2.0, section 3.9 "Materials"):
   roughness in the GREEN channel and metallic in the BLUE channel, LINEAR (red unused, 0);
   both 8-bit RGB PNG; ``doubleSided`` true (the TSDF mesh is open where no lattice view saw it);
 * axes: glTF is Y-up, the project's world is Z-up; positions and normals are written as
-  (x, y, z) -> (x, z, -y), the inverse of the turn gspi's reader (``gspi.data.gltf``) and
+  (x, y, z) -> (x, z, -y), the inverse of the turn gspi's reader (``gspi.data.assets.gltf``) and
   Blender apply, so the asset comes back in its own frame.
 
 trimesh keeps texture channels as given (checked by tests/test_export_glb.py) but stores UVs

@@ -1,7 +1,7 @@
 """A static preview image of a GLB, drawn by gspi's own mesh renderer (no three.js, no browser).
 
-The file is read back with gspi's glTF reader (``gspi.data.gltf``), put in the importer's unit
-frame and ray-cast at one camera (``gspi.data.mesh_render``: Embree, 2 x 2 rays per pixel,
+The file is read back with gspi's glTF reader (``gspi.data.assets.gltf``), put in the importer's unit
+frame and ray-cast at one camera (``gspi.data.assets.mesh_render``: Embree, 2 x 2 rays per pixel,
 split-sum shading) under the procedural ``studio_softbox`` environment. Four panels side by
 side: shaded (ACES tone map, sRGB), base colour (sRGB), roughness, metallic; white where the
 mesh is not hit. What is shown is what the file holds: the textures as a glTF viewer reads them.
@@ -36,8 +36,8 @@ def preview_panels(glb: str | Path, size: int = PANEL_PX) -> np.ndarray:
     from eval.colorspace import tonemap
     from eval.relight import prefilter_environment
     from gspi.data.environments import make_environment
-    from gspi.data.gltf import read_gltf
-    from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+    from gspi.data.assets.gltf import read_gltf
+    from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
 
     mesh = unit_frame_mesh(read_gltf(glb))
     K, w2c = preview_camera(size)

@@ -94,7 +94,7 @@ def mesh_masks(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.n
     meets the mesh."""
     import trimesh
 
-    from gspi.data.mesh_render import ray_intersector
+    from gspi.data.assets.mesh_render import ray_intersector
     from gspi.gaussians.cameras import camera_centers, pixel_rays
 
     caster = ray_intersector(trimesh.Trimesh(vertices, faces, process=False))

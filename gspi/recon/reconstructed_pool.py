@@ -9,7 +9,7 @@ writes, for every scene of a dataset whose ``train`` views are the lattice (a po
 ``pool_split`` view, a generated benchmark scene):
 
     <out>/<scene>/                 the scene by symlinks, with its conditions from the asset
-                                   (``gspi.data.asset_conditions``: lattice rgb.exr, Top-RGB)
+                                   (``gspi.data.pool.asset_conditions``: lattice rgb.exr, Top-RGB)
     <out>/<scene>/asset/point_cloud.ply   the Stage 0 asset (``recon=<name>``)
     <out>/<scene>/asset/recon.json        its seconds, surfels and lattice-render statistics
     <out>/<scene>/reconstructed.json      written last: the scene is done
@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from eval.layout import read_splits
-from gspi.data.asset_conditions import LATTICE_SPLIT, write_asset_conditions
+from gspi.data.pool.asset_conditions import LATTICE_SPLIT, write_asset_conditions
 from gspi.recon.reconstruct import reconstruction_seconds
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """The field's dataset layouts gspi reads and writes (docs/DATA.md, "Datasets of the field").
 
 One module per layout, each with an importer (layout folder -> canonical scene) and an exporter
-(canonical scene -> layout folder); the NeRF-synthetic one is gspi.data.nerf_synthetic. This
+(canonical scene -> layout folder); the NeRF-synthetic one is gspi.data.layouts.nerf_synthetic. This
 module only names them and recognises a folder's layout from its files (`detect_format`).
 """
 from __future__ import annotations

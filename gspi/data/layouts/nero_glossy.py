@@ -33,7 +33,7 @@ from eval.atomic import write_json_atomic
 from eval.imageio import read_png, write_png
 from eval.layout import LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_scene_json, write_view_file
-from gspi.data.nerf_synthetic import linear_from_rgba, rgba_from_linear, write_input_view
+from gspi.data.layouts.nerf_synthetic import linear_from_rgba, rgba_from_linear, write_input_view
 
 DEPTH_MAX = 15.0   # depth = v / 65535 * 15 (GlossySyntheticDatabase.get_depth)
 DEPTH_BACKGROUND = 14.5

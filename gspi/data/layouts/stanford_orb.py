@@ -44,7 +44,7 @@ from eval.imageio import read_exr, read_png, write_exr, write_png
 from eval.layout import GT_CHANNELS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_material, write_scene_json, write_view_file
 from gspi.data.layouts.orb_envmap import orb_to_world, world_to_orb
-from gspi.data.nerf_synthetic import blender_c2w_to_opencv_w2c, check_angle_x_camera, \
+from gspi.data.layouts.nerf_synthetic import blender_c2w_to_opencv_w2c, check_angle_x_camera, \
     intrinsics_from_angle_x, opencv_w2c_to_blender_c2w, write_input_view
 
 log = logging.getLogger(__name__)

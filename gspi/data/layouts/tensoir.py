@@ -26,7 +26,7 @@ which is the layout's: no rotation) in `import.envmaps`, else the first of
 `.../high_res_envmaps_2k`, `<scene>/../../Environment_Maps/...` that exists. They are
 stored as they are (not rescaled: the relit images were rendered with them).
 
-Conversions: cameras as NeRF-synthetic (gspi.data.nerf_synthetic); rgb.exr and relit_<light>.exr
+Conversions: cameras as NeRF-synthetic (gspi.data.layouts.nerf_synthetic); rgb.exr and relit_<light>.exr
 = sRGB-decoded RGB x alpha (LDR: the renders are clipped at 1), mask = alpha != 0 (TensoIR's
 `~(alpha == 0)`); albedo.png = the sRGB encoding of TensoIR's linear albedo (its values blended
 on white by alpha), 0 outside the mask; normal.exr = TensoIR's decoded normal inside the mask.
@@ -56,7 +56,7 @@ from eval.imageio import read_exr, write_exr
 from eval.layout import SPLITS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_material, write_scene_json, write_view_file
 from eval.radiance_hdr import read_hdr, write_hdr
-from gspi.data.nerf_synthetic import blender_c2w_to_opencv_w2c, check_angle_x_camera, intrinsics_from_angle_x, \
+from gspi.data.layouts.nerf_synthetic import blender_c2w_to_opencv_w2c, check_angle_x_camera, intrinsics_from_angle_x, \
     linear_from_rgba, opencv_w2c_to_blender_c2w, read_rgba, rgba_from_linear, write_input_view, write_rgba
 
 log = logging.getLogger(__name__)

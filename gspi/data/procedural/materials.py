@@ -2,7 +2,7 @@
 
 A material is a JSON-serialisable *recipe* (stored in `scene.json`, key `generator.material`)
 evaluated at object-space surface points by `evaluate_material`; patterns come from
-`gspi.data.patterns` (regions, stripes, checker, cellular/Voronoi, text-like glyph stripes,
+`gspi.data.procedural.patterns` (regions, stripes, checker, cellular/Voronoi, text-like glyph stripes,
 fBm wear), so maps have sharp material boundaries and high-frequency detail.
 
 Classes (6): rough_plastic, glossy_plastic, metal (polished or brushed, coloured F0),
@@ -18,7 +18,7 @@ Two-class materials (`mix_materials`, the training pool's `data.material_mix` on
 with a `mix` entry is split by a noise-warped plane into its own class and a second class
 (metal beside a dielectric whenever either is metal), as real assets are (a metal bottle with a
 painted label, issue 24). Benchmark scenes never carry one. Objects of 2-4 parts with per-part
-variations (the pool's `data.parts`, issue 42): `gspi.data.material_parts`.
+variations (the pool's `data.parts`, issue 42): `gspi.data.procedural.material_parts`.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from eval.colorspace import srgb_to_linear
-from gspi.data import patterns
+from gspi.data.procedural import patterns
 
 MATERIAL_CLASSES = ("rough_plastic", "glossy_plastic", "metal", "painted_metal", "fabric",
                     "ceramic")
@@ -152,7 +152,7 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
     Returns:
         MaterialSample with linear albedo, on the device of `q`.
     """
-    if "parts" in recipe:  # gspi.data.material_parts
+    if "parts" in recipe:  # gspi.data.procedural.material_parts
         index = patterns.part_regions(q, recipe["parts"])
         samples = [evaluate_material(r, q) for r in recipe["parts"]["materials"]]
         pick = index[:, None, None].expand(-1, 1, 3)
@@ -240,7 +240,7 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         metal = _pick(rim, zeros, ones)
     else:
         raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")
-    if "roughness_shift" in recipe:  # data.parts variations (gspi.data.material_parts)
+    if "roughness_shift" in recipe:  # data.parts variations (gspi.data.procedural.material_parts)
         rough = rough + recipe["roughness_shift"]
     if "texture" in recipe:  # albedo x (1 + a (n - 1/2)), roughness + a/2 (n - 1/2), n a fBm in [0, 1]
         tex = recipe["texture"]

@@ -3,7 +3,7 @@
 Why not trimesh's loader: it stores `baseColorFactor` as 8-bit colour and flips texture
 rows; ground-truth albedo needs the factors and texture lookups exactly as the glTF spec
 defines them, so this module reads the (small) subset of the format the benchmark needs
-with numpy, and trimesh is used for what it does well, ray casting (gspi.data.mesh_render).
+with numpy, and trimesh is used for what it does well, ray casting (gspi.data.assets.mesh_render).
 
 Read: the default scene's node tree (matrix or TRS per node), every triangle primitive
 (mode 4) with POSITION, NORMAL, TEXCOORD_0/1, COLOR_0 and indices (any component type,
@@ -17,7 +17,7 @@ strides, normalised integers, sparse accessors), and its material's `pbrMetallic
 Textures are sampled bilinearly at their UV set after KHR_texture_transform, wrapped as their
 sampler says, glTF's texel convention (uv (0, 0) = the top-left corner of the image's first
 row); `alphaMode`, `alphaCutoff` and `doubleSided` are kept for the renderer
-(gspi.data.mesh_render: cut-outs, culling). Axes: glTF is Y-up; positions and normals are
+(gspi.data.assets.mesh_render: cut-outs, culling). Axes: glTF is Y-up; positions and normals are
 turned to the project's Z-up world as Blender's importer does, (x, y, z) -> (x, -z, y).
 
 Not read, and what happens instead (stated, logged, recorded in scene.json):

@@ -9,7 +9,7 @@ project's lat-long convention (`ENV_TO_WORLD`), `hide_emitters` so misses stay b
 layout's background), a box pixel filter (pixel averages, like the supersampled split-sum
 input). Only rgb changes: GT maps, masks and the relighting protocol stay exact.
 
-Geometry: a glTF asset goes in as it is (gspi.data.mesh_render.PBRMesh: triangles, vertex
+Geometry: a glTF asset goes in as it is (gspi.data.assets.mesh_render.PBRMesh: triangles, vertex
 normals, UVs, its textures baked with their factors into linear bitmaps). A procedural SDF
 scene is meshed with marching cubes (scikit-image) on a `mesh_resolution`^3 grid over
 [-1.05, 1.05]^3, vertex normals are the SDF's exact gradient and the material is
@@ -81,9 +81,9 @@ def sdf_mesh_parts(recipe: dict, resolution: int) -> list[dict]:
     """Marching-cubes mesh of a procedural scene with per-vertex material (one part)."""
     from skimage.measure import marching_cubes
 
-    from gspi.data.materials import evaluate_material
-    from gspi.data.sdf_shapes import ShapeSDF
-    from gspi.data.sphere_trace import sdf_normals
+    from gspi.data.procedural.materials import evaluate_material
+    from gspi.data.procedural.sdf_shapes import ShapeSDF
+    from gspi.data.procedural.sphere_trace import sdf_normals
 
     shape = ShapeSDF(recipe["shape"])
     lo, hi = -1.05, 1.05
@@ -110,7 +110,7 @@ def sdf_mesh_parts(recipe: dict, resolution: int) -> list[dict]:
 
 
 def glb_mesh_parts(mesh) -> list[dict]:
-    """One part per material of a `gspi.data.mesh_render.PBRMesh`, textures baked linear."""
+    """One part per material of a `gspi.data.assets.mesh_render.PBRMesh`, textures baked linear."""
     from eval.colorspace import srgb_to_linear
 
     corners = mesh.vertices[mesh.faces]

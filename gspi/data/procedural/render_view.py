@@ -31,9 +31,9 @@ from torch import Tensor
 from eval.colorspace import linear_to_srgb
 from eval.relight import split_sum
 from eval.views import pixel_rays
-from gspi.data.materials import evaluate_material
-from gspi.data.sdf_shapes import ShapeSDF
-from gspi.data.sphere_trace import sphere_trace
+from gspi.data.procedural.materials import evaluate_material
+from gspi.data.procedural.sdf_shapes import ShapeSDF
+from gspi.data.procedural.sphere_trace import sphere_trace
 
 CHUNK = 1 << 16  # samples per material/shading batch (bounds memory of the Voronoi pattern)
 

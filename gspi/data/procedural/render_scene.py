@@ -11,7 +11,7 @@
     gt_points.npz              GT point cloud of the lattice views (gspi.data.point_clouds)
     contact_sheet.png          preview (gspi.data.contact_sheet)
 
-Per-view conventions are those of `gspi.data.render_view`. Relit images use the same shader,
+Per-view conventions are those of `gspi.data.procedural.render_view`. Relit images use the same shader,
 the same environment file and the same `view_directions` as the evaluator, so re-rendering
 them from the files reproduces them bit for bit (on the CPU; relit images of a dataset made
 with `device=cuda` are shaded on the GPU and agree with a CPU re-rendering to float rounding).
@@ -30,8 +30,8 @@ from eval.layout import Scene, View, read_view_file, write_material, write_scene
     write_view_file
 from eval.views import relight_view, view_directions
 from gspi.data.lattice import cameras_from_directions, lattice_cameras
-from gspi.data.render_view import ViewRender, render_views
-from gspi.data.sdf_shapes import ShapeSDF
+from gspi.data.procedural.render_view import ViewRender, render_views
+from gspi.data.procedural.sdf_shapes import ShapeSDF
 
 VIEW_ID_PREFIX = {"val": "v", "test": "t"}
 
@@ -110,7 +110,7 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
     """Render every view of a scene and write it (see module docstring).
 
     Args:
-        recipe: from `gspi.data.scene_recipe.sample_scene_recipe`.
+        recipe: from `gspi.data.procedural.scene_recipe.sample_scene_recipe`.
         out_dir: dataset folder; the scene goes to `out_dir / recipe["name"]`.
         envs: env name -> [h, w, 3] float32 CPU map (written to envmaps/).
         prefiltered: env name -> `eval.relight.PrefilteredEnvironment` of the same map (best
@@ -121,7 +121,7 @@ def generate_scene(recipe: dict, out_dir: Path, *, envs: dict[str, torch.Tensor]
         render: `render(cameras, height, width, prefiltered env, supersample)` -> ViewRenders
             (default: `sdf_renderer(recipe)`); GT maps and split-sum rgb of every view.
         retrace: optional `retrace(cameras, height, width, env [h, w, 3])` -> one rgb
-            [H, W, 3] per camera that replaces the split-sum input (gspi.data.pathtrace);
+            [H, W, 3] per camera that replaces the split-sum input (gspi.data.assets.pathtrace);
             maps, masks and relit ground truth stay those of `render`.
         relit_retrace: optional, the same kind of function: renders the test views' relit
             ground truth under each relight environment (`data.relit_renderer=pathtraced`:

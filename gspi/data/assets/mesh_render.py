@@ -1,8 +1,8 @@
 """Render views of a textured PBR triangle mesh: supersampled split-sum input and exact GT maps.
 
-The mesh counterpart of `gspi.data.render_view` (same samples, same per-pixel reduction, same
+The mesh counterpart of `gspi.data.procedural.render_view` (same samples, same per-pixel reduction, same
 `ViewRender`): rays are cast with trimesh (Embree through `embreex` when installed, else
-trimesh's pure-numpy intersector), the material is looked up at the hit (`gspi.data.gltf`
+trimesh's pure-numpy intersector), the material is looked up at the hit (`gspi.data.assets.gltf`
 module docstring: factors x bilinear texture at the barycentric UV), normals are the
 barycentric interpolation of the vertex normals (face normals where a primitive has none),
 turned towards the ray when a back face is hit. Normal maps are not applied. Alpha MASK
@@ -20,8 +20,8 @@ from eval.colorspace import srgb_to_linear
 from eval.relight import split_sum
 from eval.views import pixel_rays
 # `_aggregate` is render_view's per-pixel reduction; reused so both renderers reduce alike.
-from gspi.data.render_view import ViewRender, _aggregate, subpixel_rays
-from gspi.data.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Asset, Material
+from gspi.data.procedural.render_view import ViewRender, _aggregate, subpixel_rays
+from gspi.data.assets.gltf import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Asset, Material
 
 MAX_LAYERS = 16      # culled / cut-out surfaces a ray passes before it is called a miss
 LAYER_EPS = 1e-5     # a passed ray restarts this far beyond the surface (unit-sphere scene)
@@ -240,16 +240,22 @@ class MeshTracer:
         return hit, t, tri_all, bary_all
 
     def _closest(self, origins: np.ndarray, dirs: np.ndarray):
-        """(ray ids hit, triangle, distance along the ray, barycentrics) of the first hits."""
-        import trimesh
+        return closest_hits(self.intersector, self.mesh.vertices, self.mesh.faces, origins, dirs)
 
-        tri, ray, loc = self.intersector.intersects_id(origins, dirs, multiple_hits=False,
-                                                       return_locations=True)
-        dist = ((loc - origins[ray]) * dirs[ray]).sum(-1)
-        corners = self.mesh.vertices[self.mesh.faces[tri]]
-        bary = np.clip(trimesh.triangles.points_to_barycentric(corners, loc), 0, 1)
-        bary /= np.maximum(bary.sum(-1, keepdims=True), 1e-12)
-        return ray, tri, dist, bary
+
+def closest_hits(intersector, vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray,
+                 dirs: np.ndarray):
+    """(ray ids hit, triangle, distance along the ray, barycentrics [n, 3]) of the first hits of
+    unit rays on the mesh (vertices, faces) that ``intersector`` (``ray_intersector``) was built
+    on. The one mesh ray cast of the project: this renderer and the MaterialAnything adapter's
+    UV lookup (baselines/mesh_render.py) both take their visible surface from here."""
+    import trimesh
+
+    tri, ray, loc = intersector.intersects_id(origins, dirs, multiple_hits=False, return_locations=True)
+    dist = ((loc - origins[ray]) * dirs[ray]).sum(-1)
+    bary = np.clip(trimesh.triangles.points_to_barycentric(vertices[faces[tri]], loc), 0, 1)
+    bary /= np.maximum(bary.sum(-1, keepdims=True), 1e-12)
+    return ray, tri, dist, bary
 
 
 def outside_brdf_map(mesh: PBRMesh, tri: np.ndarray, hit: np.ndarray, n_sub: int, height: int,
@@ -264,7 +270,7 @@ def outside_brdf_map(mesh: PBRMesh, tri: np.ndarray, hit: np.ndarray, n_sub: int
 
 def render_mesh_views(mesh: PBRMesh, cameras: list, height: int, width: int, *, env,
                       supersample: int) -> list[ViewRender]:
-    """Render views of `mesh`; arguments and outputs as `gspi.data.render_view.render_views`."""
+    """Render views of `mesh`; arguments and outputs as `gspi.data.procedural.render_view.render_views`."""
     tracer = MeshTracer(mesh)
     s2 = supersample * supersample
     out = []

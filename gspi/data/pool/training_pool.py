@@ -10,7 +10,7 @@ The benchmark presets hold 16 training scenes (`small`); this mode writes as man
 
 No val/test views, no relit GT, no contact sheet. Disjoint from the benchmark by construction:
 pool scene `i` of seed `s` draws from `SeedSequence([s, POOL_NAMESPACE, i])` (benchmark scenes
-use namespace 0, `gspi.data.scene_recipe.scene_rng`) and is named `p{i:04d}_...` (benchmark
+use namespace 0, `gspi.data.procedural.scene_recipe.scene_rng`) and is named `p{i:04d}_...` (benchmark
 scenes are `s{i:03d}_...`). Shape family and material class cycle jointly, so every one of the
 7 x 6 (family, class) pairs occurs once the pool has 42 scenes; the capture environment cycles
 through every capture environment; the image size cycles through `image_sizes` (the presets'
@@ -31,9 +31,9 @@ from typing import Optional
 import numpy as np
 
 from gspi.data.environments import env_names
-from gspi.data.material_parts import PartsConfig, sample_parts, vary_part
-from gspi.data.materials import MATERIAL_CLASSES, mix_materials, sample_material
-from gspi.data.sdf_shapes import FAMILIES, sample_shape
+from gspi.data.procedural.material_parts import PartsConfig, sample_parts, vary_part
+from gspi.data.procedural.materials import MATERIAL_CLASSES, mix_materials, sample_material
+from gspi.data.procedural.sdf_shapes import FAMILIES, sample_shape
 
 POOL_NAMESPACE = 2          # benchmark scenes: 0 (scene_rng), dataset-level draws: 1 (dataset_rng)
 DONE_FILE = "complete.json"
@@ -65,8 +65,8 @@ def sample_pool_recipe(seed: int, index: int, *, image_sizes: list[int],
     """Recipe of pool scene `index` (the benchmark recipe's keys, no held-out views or envs).
 
     `material_mix` (``data.material_mix``, in [0, 1]): the share of scenes that carry a second
-    material class over part of the object (`gspi.data.materials.mix_materials`); the scene's
-    name keeps its first class. `parts` (``data.parts``, `gspi.data.material_parts`): objects of
+    material class over part of the object (`gspi.data.procedural.materials.mix_materials`); the scene's
+    name keeps its first class. `parts` (``data.parts``, `gspi.data.procedural.material_parts`): objects of
     2-4 parts and per-part variations; a scene drawn multi-part is not also mixed.
     """
     family = FAMILIES[index % len(FAMILIES)]

@@ -6,10 +6,10 @@ CLI (gspi/cli/data.py):
                                                 # folder of *.glb / *.gltf (all -> test)
 
 Each file becomes one scene named after its stem, exactly like a procedural scene: the asset
-(gspi.data.gltf) is normalised to the unit frame (bounding-box centre at the origin,
+(gspi.data.assets.gltf) is normalised to the unit frame (bounding-box centre at the origin,
 farthest vertex at radius 1), rendered from the canonical lattice (train) and seeded
 held-out val/test views with the preset's image size and supersampling
-(gspi.data.mesh_render: GT albedo, roughness, metallic, normals, depth, masks and the
+(gspi.data.assets.mesh_render: GT albedo, roughness, metallic, normals, depth, masks and the
 split-sum input; `data.renderer=pathtraced` replaces the input by a Mitsuba rendering),
 lit by the capture environment, relit under the held-out ones (`data.capture_envs`,
 `data.relight_envs`). An asset draws its views and environments from `scene_rng(seed, k, ...)`
@@ -31,7 +31,7 @@ import numpy as np
 
 from eval.layout import SPLITS, read_scene
 from gspi.data.lattice import fibonacci_hemisphere_lattice, held_out_directions
-from gspi.data.scene_recipe import scene_rng
+from gspi.data.procedural.scene_recipe import scene_rng
 
 EXTENSIONS = (".glb", ".gltf")
 log = logging.getLogger(__name__)
@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 def glb_sources(src: str | Path) -> dict[str, list[Path]]:
     """split -> asset files (see module docstring)."""
     from eval.errors import MissingInputError
-    from gspi.data.gltf import GLTFError
+    from gspi.data.assets.gltf import GLTFError
 
     if not str(src).strip():
         raise GLTFError("import.glb is empty: give a .glb/.gltf file or a folder of them")
@@ -127,10 +127,10 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
     from eval.relight import prefilter_environment
     from gspi.data.env_sets import environment_sets, make_named_environment
     from gspi.data.generate import merge_splits
-    from gspi.data.gltf import GLTFError, read_gltf
-    from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
-    from gspi.data.pathtrace import retracer
-    from gspi.data.render_scene import generate_scene
+    from gspi.data.assets.gltf import GLTFError, read_gltf
+    from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
+    from gspi.data.assets.pathtrace import retracer
+    from gspi.data.procedural.render_scene import generate_scene
 
     out_dir = Path(out_dir)
     sources = glb_sources(src)

@@ -2,7 +2,7 @@
 
 Why SDFs: the benchmark needs *exact* per-pixel ground truth (depth, normals, material at the
 surface point) without a mesh library or a rasteriser. An analytic SDF gives the surface point
-by sphere tracing (`gspi.data.sphere_trace`), its normal as the exact gradient of the same
+by sphere tracing (`gspi.data.procedural.sphere_trace`), its normal as the exact gradient of the same
 expression (torch autograd), and its object-space position for 3D procedural materials, all in
 a few lines of dependency-free torch that batches every ray of a view and runs fast on 2 CPU
 cores: `benchmarks/bench_data.py` measured 0.37-0.88 M rays/s per thread for the tracer alone

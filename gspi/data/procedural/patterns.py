@@ -1,7 +1,7 @@
 """3D procedural patterns evaluated at surface points (pure torch, deterministic).
 
 Every function takes object-space points `q` [N, 3] (unit-sphere frame of
-`gspi.data.sdf_shapes.ShapeSDF.local`) and an integer `seed`, and returns per-point values
+`gspi.data.procedural.sdf_shapes.ShapeSDF.local`) and an integer `seed`, and returns per-point values
 on the device of `q`; there is no texture image, so material boundaries are exact at any
 resolution and supersampling integrates them. Hashing is integer arithmetic on int64 (wrap-around is
 deterministic), so the same seed gives the same pattern on every machine.
@@ -140,7 +140,7 @@ def brushed(q: Tensor, seed: int, axis: int = 2) -> Tensor:
 
 
 def part_regions(q: Tensor, parts: dict) -> Tensor:
-    """[N] long: which part of a multi-part object (``gspi.data.material_parts``) each point is in:
+    """[N] long: which part of a multi-part object (``gspi.data.procedural.material_parts``) each point is in:
     ``bands`` = how many of the sorted ``cuts`` the warped coordinate along ``axis`` passes,
     ``cells`` = the nearest of ``centres`` by warped distance."""
     warp = parts["warp"] * (value_noise(q * 2.5, int(parts["noise_seed"])) - 0.5)

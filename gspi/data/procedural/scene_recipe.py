@@ -17,8 +17,8 @@ import numpy as np
 
 from gspi.data.environments import env_names
 from gspi.data.lattice import fibonacci_hemisphere_lattice, held_out_directions
-from gspi.data.materials import MATERIAL_CLASSES, sample_material
-from gspi.data.sdf_shapes import FAMILIES, sample_shape
+from gspi.data.procedural.materials import MATERIAL_CLASSES, sample_material
+from gspi.data.procedural.sdf_shapes import FAMILIES, sample_shape
 
 
 def scene_rng(seed: int, index: int, stream: int = 0) -> np.random.Generator:

@@ -3,7 +3,7 @@
 Real assets are several parts with their own materials: a metal bottle with a painted label and
 a plastic cap, a lamp with a brass stem and a fabric shade. A pool scene drawn to be multi-part
 (`data.parts.share`) is split into 2-4 parts (`data.parts.count`), each a full recipe of its own
-class (`gspi.data.materials.sample_material`), by one of two layouts:
+class (`gspi.data.procedural.materials.sample_material`), by one of two layouts:
 
 - ``bands``: cuts across a random axis (cap / label / body), each cut warped by value noise;
 - ``cells``: the nearest of k random centres (a handle, a lid), the distance warped by noise.
@@ -33,8 +33,8 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from gspi.data import patterns
-from gspi.data.materials import MATERIAL_CLASSES, METAL_CLASSES, sample_material
+from gspi.data.procedural import patterns
+from gspi.data.procedural.materials import MATERIAL_CLASSES, METAL_CLASSES, sample_material
 from gspi.strict_config import dataclass_from_dict
 
 LAYOUTS = ("bands", "cells")

@@ -1,12 +1,12 @@
 """A dataset view of a Stage II training pool: chosen pool scenes as train / val / test splits.
 
-The pool (`gspi.data.training_pool`) lists every scene under "train". Experiments that train
+The pool (`gspi.data.pool.training_pool`) lists every scene under "train". Experiments that train
 on part of it and score on scenes it never saw (Table 2 at CPU scale, docs/RESULTS.md) need a
 dataset folder whose splits say so. This writes one without copying anything: a symlink per
 scene and a `splits.json`, ranges by pool index, disjoint by construction (overlap is refused):
 
-    python -m gspi.data.pool_split ~/.cache/gspi/stage2_pool data/pool64 --train 0:64
-    python -m gspi.data.pool_split ~/.cache/gspi/stage2_pool data/heldout32 --train 0:64 --test 224:256
+    python -m gspi.data.pool.split ~/.cache/gspi/stage2_pool data/pool64 --train 0:64
+    python -m gspi.data.pool.split ~/.cache/gspi/stage2_pool data/heldout32 --train 0:64 --test 224:256
 
 Only complete pool scenes (their `complete.json` exists) are used; a range reaching past the
 pool, or an unfinished scene inside it, is an error that names it. The view's prior-feature
@@ -19,7 +19,7 @@ import json
 import os
 from pathlib import Path
 
-from gspi.data.training_pool import is_complete
+from gspi.data.pool.training_pool import is_complete
 
 SPLITS = ("train", "val", "test")
 
