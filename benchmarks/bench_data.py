@@ -26,8 +26,8 @@ from omegaconf import OmegaConf
 from eval.views import pixel_rays
 from gspi.data.generate import BenchmarkConfig, generate_dataset
 from gspi.data.lattice import lattice_cameras
-from gspi.data.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
-from gspi.data.sphere_trace import sphere_trace
+from gspi.data.procedural.sdf_shapes import FAMILIES, ShapeSDF, sample_shape
+from gspi.data.procedural.sphere_trace import sphere_trace
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -9,7 +9,7 @@ For each ``WORK/<scene>/pbr_gs.ply``:
 * the round trip of docs/EXPORT.md: ``python -m gspi.cli.data import.glb=<glb> out=<dir>
   preset=small`` (gspi-data), then ``gspi.export.roundtrip.compare_imported`` on its test views:
   PSNR of the re-imported maps against the PBR-GS renders at the same cameras;
-* against ground truth: the GLB ray-cast (``gspi.data.mesh_render``, as the importer does) and
+* against ground truth: the GLB ray-cast (``gspi.data.assets.mesh_render``, as the importer does) and
   the PBR-GS asset rasterized (Stage III's renderer) at the GT scene ``DATA/<scene>``'s test
   cameras, each scored by ``eval.metrics.masked_psnr`` in the GT mask (no albedo alignment, so
   the two numbers differ only by the export), over the whole GT mask and over the GT pixels the
@@ -46,8 +46,8 @@ def export_config(overrides: list[str]):
 def glb_maps_at(glb: Path, views) -> list[dict]:
     """The GLB's maps at GT cameras, as gspi-data's importer renders them (unit frame, 2x2 rays)."""
     from eval.relight import prefilter_environment
-    from gspi.data.gltf import read_gltf
-    from gspi.data.mesh_render import render_mesh_views, unit_frame_mesh
+    from gspi.data.assets.gltf import read_gltf
+    from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
 
     mesh = unit_frame_mesh(read_gltf(glb))
     cameras = []
