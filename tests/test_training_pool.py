@@ -273,10 +273,45 @@ def test_part_variations_widen_metal_colour_and_roughness():
 
 @pytest.mark.parametrize("bad, match", [({"share": 1.5}, "data.parts.share"), ({"count": [1, 3]}, "data.parts.count"),
                                         ({"layouts": ["rings"]}, "data.parts.layouts"),
-                                        ({"metal_f0": "gold"}, "data.parts.metal_f0"),
+                                        ({"metal_f0": "gold"}, "data.parts.metal_f0"), ({"look_swap": 2}, "data.parts.look_swap"),
                                         ({"sharee": 0.5}, r"unknown data config key.*data\.parts\.sharee")])
 def test_parts_config_names_the_bad_key(bad, match):
     from gspi.data.procedural.material_parts import PartsConfig
 
     with pytest.raises(ValueError, match=match):
         PartsConfig.from_mapping(bad)
+
+
+# session 14's multi-part pool (experiments/parts_pool/run.sh), recorded before look_swap existed
+PARTS_POOL_SHA256 = "28bef96882a6fc280ecb7153845934f6b61e59119a9b0b1d9e66f5f99705f805"
+PARTS_POOL = dict(share=0.6, metal_f0="wide", roughness_spread=0.15, texture=0.3)
+
+
+def test_look_swap_zero_keeps_the_parts_pool():
+    from gspi.data.procedural.material_parts import PartsConfig
+
+    recipes = pool_recipes(0, 256, [128, 64], parts=PartsConfig(**PARTS_POOL, look_swap=0.0))
+    assert _recipes_sha(recipes) == PARTS_POOL_SHA256
+
+
+def test_a_swapped_look_changes_the_albedo_only_on_dielectric_points():
+    """look_swap: a dielectric part takes another dielectric class's albedo pattern; its roughness
+    and metallic are its own class's, point for point, and metal points keep their colour."""
+    import torch
+
+    from gspi.data.procedural.materials import METAL_CLASSES, evaluate_material
+
+    recipes = _parts_pool(share=0.0, look_swap=1.0)
+    looks = [r["material"] for r in recipes if "look" in r["material"]]
+    classes = {r["material"]["class"] for r in recipes if "look" not in r["material"]}
+    assert classes <= set(METAL_CLASSES) and len(looks) > 40  # every dielectric part, no metal one
+    assert all(m["look"]["class"] not in METAL_CLASSES and m["look"]["class"] != m["class"] for m in looks)
+    q = torch.nn.functional.normalize(torch.randn(3000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    for m in looks[:12]:
+        own = evaluate_material({k: v for k, v in m.items() if k != "look"}, q)
+        look = evaluate_material(m["look"], q)
+        worn = evaluate_material(m, q)
+        assert torch.equal(worn.roughness, own.roughness) and torch.equal(worn.metallic, own.metallic)
+        dielectric = own.metallic == 0
+        assert torch.equal(worn.albedo_linear[dielectric], look.albedo_linear[dielectric])
+        assert torch.equal(worn.albedo_linear[~dielectric], own.albedo_linear[~dielectric])

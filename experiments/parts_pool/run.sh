@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
-# Issue 42: the multi-part training pool, its Stage 0 reconstructions, the cpu_parts_pool
-# trainings (2 seeds) and Table 2's measure on the held-out pool scenes. Every step is resumable:
+# Issue 42: the multi-part training pool, its Stage 0 reconstructions, the trainings of a Stage II
+# recipe (2 seeds) and Table 2's measure on the held-out pool scenes. Every step is resumable:
 # rerun this script after a cut-off session and it continues where it stopped (complete.json,
 # reconstructed.json, the training's checkpoint.pt, scores.json mark what is done).
 #
 #   WORK=/work/data/parts_pool SEEDS="0 1" CHUNK_MIN=40 nohup setsid experiments/parts_pool/run.sh &
+#   WORK=/work/data/parts_pool RECIPE=cpu_parts_pool_s nohup setsid experiments/parts_pool/run.sh &
+#   # session 15's look-swap pool: train scenes only, measured on the parts pool's held-out scenes
+#   WORK=/work/data/looks_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.look_swap=0.5 \
+#     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=/work/data/parts_pool \
+#     nohup setsid experiments/parts_pool/run.sh &
 #
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed).
 # Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
@@ -15,16 +20,20 @@ WORK=${WORK:-/work/data/parts_pool}
 SEEDS=${SEEDS:-"0 1"}
 CHUNK_MIN=${CHUNK_MIN:-40}            # one gspi-train invocation (a chunk); checkpoints every 10 min inside
 RECIPE=${RECIPE:-cpu_parts_pool}
+POOL_INDICES=${POOL_INDICES:-'[[0,64],[224,256]]'}   # pool scenes generated (train, held out)
+SPLIT=${SPLIT:-"--train 0:64 --test 224:256"}          # their roles (gspi.data.pool.split)
+HELDOUT=${HELDOUT:-$WORK}             # whose rpool64 test split (and pool64 baseline) is measured
+PARTS_EXTRA=${PARTS_EXTRA:-}          # more data.parts keys, e.g. data.parts.look_swap=0.5
 BIN=.venv/bin
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
-PARTS=(data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3)
+PARTS=(data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3 $PARTS_EXTRA)
 mkdir -p "$WORK"
 log() { echo "$(date -u +%FT%TZ) $*" | tee -a "$WORK/run.log"; }
 
-log "pool: generate (indices 0:64 train, 224:256 held out)"
-$BIN/gspi-data preset=stage2_pool out="$WORK/pool" seed=0 'data.pool_indices=[[0,64],[224,256]]' \
+log "pool: generate (indices $POOL_INDICES; ${PARTS[*]})"
+$BIN/gspi-data preset=stage2_pool out="$WORK/pool" seed=0 "data.pool_indices=$POOL_INDICES" \
   data.workers=2 "${PARTS[@]}" >> "$WORK/run.log" 2>&1
-$BIN/python -m gspi.data.pool.split "$WORK/pool" "$WORK/pool64" --train 0:64 --test 224:256 >> "$WORK/run.log" 2>&1
+$BIN/python -m gspi.data.pool.split "$WORK/pool" "$WORK/pool64" $SPLIT >> "$WORK/run.log" 2>&1
 log "pool: Stage 0 reconstructions"
 $BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --workers 2 >> "$WORK/run.log" 2>&1
 $BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --summary > "$WORK/recon_summary.md" 2>&1
@@ -41,10 +50,10 @@ train_seed() {
 pids=()
 for s in $SEEDS; do train_seed "$s" & pids+=($!); done
 for p in "${pids[@]}"; do wait "$p"; done
-log "measure: Table 2's measure on the 32 held-out scenes (reconstructed conditions)"
+log "measure: Table 2's measure on the 32 held-out scenes of $HELDOUT (reconstructed conditions)"
 for s in $SEEDS; do
   out="$WORK/runs/${RECIPE}_s$s"
-  [ -f "$out/eval/scores.json" ] || $BIN/python -m gspi.stage2.evaluate_points "$out/checkpoint.pt" "$WORK/rpool64" \
-    "$out/eval" --num-steps 10 --max-points 20000 --baseline-train "$WORK/pool64" >> "$WORK/run.log" 2>&1
+  [ -f "$out/eval/scores.json" ] || $BIN/python -m gspi.stage2.evaluate_points "$out/checkpoint.pt" "$HELDOUT/rpool64" \
+    "$out/eval" --num-steps 10 --max-points 20000 --baseline-train "$HELDOUT/pool64" >> "$WORK/run.log" 2>&1
 done
 log "done"

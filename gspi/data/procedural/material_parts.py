@@ -19,12 +19,19 @@ holds beyond the benchmark's classes:
   physical F0 (titanium's 0.45 is the darkest there);
 - ``roughness_spread: s``: the part's roughness shifted by U(-s, s) (clamped as every roughness);
 - ``texture: a``: a fBm texture of amplitude a over the part's albedo and roughness (print,
-  grime, wear), at a drawn frequency.
+  grime, wear), at a drawn frequency;
+- ``look_swap: p``: with probability p a dielectric part wears the albedo pattern of another
+  dielectric class (its ``look``: a checker on a matte fabric finish, a tartan on glossy plastic)
+  while its roughness and metallic stay its own class's. In the benchmark's classes a pattern
+  names its finish (checker and stripes are glossy plastic, tiles are glazed); real prints are on
+  any finish, and a prior that learned the pattern instead of the shading guesses a finish from a
+  print (the feature-test assets: flat prints with glTF's default roughness 1.0).
 
 The recipes stay JSON (`scene.json`'s `generator.material`); `evaluate_material` reads the
-``parts`` entry and the per-part keys ``f0``, ``roughness_shift`` and ``texture``. With the
-defaults (share 0, physical F0, no spread, no texture) nothing is drawn and no key is added, so a
-pool made without `data.parts` keeps every byte (tested).
+``parts`` entry and the per-part keys ``f0``, ``roughness_shift``, ``texture`` and ``look``. With
+the defaults (share 0, physical F0, no spread, no texture, no look swap) nothing is drawn and no
+key is added, so a pool made without `data.parts` keeps every byte, and ``look_swap: 0`` keeps
+every byte of a pool made with the other keys (tested).
 """
 from __future__ import annotations
 
@@ -52,8 +59,10 @@ class PartsConfig:
     metal_f0: str = "physical"              # physical | wide (see module docstring)
     roughness_spread: float = 0.0           # per-part roughness shift U(-s, s)
     texture: float = 0.0                    # per-part fBm amplitude over albedo and roughness
+    look_swap: float = 0.0                  # share of dielectric parts wearing another class's pattern
 
-    RANGES: ClassVar[dict] = {"share": (0.0, 1.0), "roughness_spread": (0.0, 0.5), "texture": (0.0, 1.0)}
+    RANGES: ClassVar[dict] = {"share": (0.0, 1.0), "roughness_spread": (0.0, 0.5), "texture": (0.0, 1.0),
+                              "look_swap": (0.0, 1.0)}
     CHOICES: ClassVar[dict] = {"metal_f0": METAL_F0_MODES}
 
     def __post_init__(self):  # the two list-valued keys, which the strict layer does not look inside
@@ -72,8 +81,9 @@ class PartsConfig:
 
     @property
     def varies_parts(self) -> bool:
-        """True when a part's recipe gets variations (wide F0, roughness spread, texture)."""
-        return self.metal_f0 != "physical" or self.roughness_spread > 0 or self.texture > 0
+        """True when a part's recipe gets variations (wide F0, roughness spread, texture, look)."""
+        return (self.metal_f0 != "physical" or self.roughness_spread > 0 or self.texture > 0
+                or self.look_swap > 0)
 
     @property
     def is_default(self) -> bool:
@@ -110,6 +120,9 @@ def vary_part(recipe: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
     if cfg.texture > 0:
         out["texture"] = {"amplitude": _u(rng, 0.3, 1.0) * cfg.texture,
                           "frequency": _u(rng, 2.0, 10.0), "seed": int(rng.integers(0, 2**20))}
+    if cfg.look_swap > 0 and recipe["class"] not in METAL_CLASSES and rng.uniform() < cfg.look_swap:
+        others = [c for c in MATERIAL_CLASSES if c not in METAL_CLASSES and c != recipe["class"]]
+        out["look"] = sample_material(others[int(rng.integers(0, len(others)))], rng)
     return out
 
 

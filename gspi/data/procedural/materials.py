@@ -240,6 +240,8 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         metal = _pick(rim, zeros, ones)
     else:
         raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")
+    if "look" in recipe:  # data.parts.look_swap: another class's albedo on this finish's dielectric points
+        albedo = _pick(metal > 0, evaluate_material(recipe["look"], q).albedo_linear, albedo)
     if "roughness_shift" in recipe:  # data.parts variations (gspi.data.procedural.material_parts)
         rough = rough + recipe["roughness_shift"]
     if "texture" in recipe:  # albedo x (1 + a (n - 1/2)), roughness + a/2 (n - 1/2), n a fBm in [0, 1]
