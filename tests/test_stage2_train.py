@@ -213,17 +213,20 @@ def test_a_spent_cpu_budget_stops_before_the_first_step(dataset, tmp_path):
 def test_checkpoint_clock_and_run_log(dataset, tmp_path, monkeypatch):
     """stage2.train.checkpoint_minutes saves between the step-based checkpoints (0: every step),
     a run resumed from such a checkpoint equals an uninterrupted one, and every finished run
-    appends one line to stage2.train.run_log."""
+    appends one line to stage2.train.run_log, naming the commit the run started from."""
     import gspi.stage2.train as train_mod
 
-    saved_steps = []
+    saved_steps, saves = [], {"n": 0}
     real_save = train_mod.save_checkpoint
 
     def counting_save(state, cfg, out_dir):
         saved_steps.append(state.step)
+        saves["n"] += 1
         return real_save(state, cfg, out_dir)
 
     monkeypatch.setattr(train_mod, "save_checkpoint", counting_save)
+    # a checkout that moves on while a run trains: the "commit" changes with every checkpoint
+    monkeypatch.setattr(train_mod, "environment_info", lambda: {"git_commit": f"after-{saves['n']}-saves"})
     log_file = tmp_path / "runs.jsonl"
     common = ("stage2.train.checkpoint_every=1000", f"stage2.train.run_log={log_file}")
     straight, cut = tmp_path / "straight", tmp_path / "cut"
@@ -243,3 +246,4 @@ def test_checkpoint_clock_and_run_log(dataset, tmp_path, monkeypatch):
     assert [(x["steps"], x["of"], x["done"]) for x in lines] == [([0, 10], 10, True), ([0, 6], 10, False),
                                                               ([6, 10], 10, True)]
     assert lines[-1]["out"] == str(cut.resolve()) and lines[-1]["seed"] == 0
+    assert [x["commit"] for x in lines] == ["after-0-saves", "after-1-saves", "after-7-saves"]

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from eval.records.eval_folder import environment_info
 from gspi.stage2.checkpoint import (CheckpointError, ema_only, load_weights, rcw_config_dict,
                                     read_checkpoint, save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
 from gspi.stage2.config import TrainConfig, complete_stage2, stored_config
@@ -150,20 +151,20 @@ def save_checkpoint(state: TrainState, cfg: Mapping[str, Any], out_dir: Path) ->
     return save_atomic(state.state_dict(cfg), out_dir / "checkpoint.pt")
 
 
-def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, cpu_s: float) -> Path:
+def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, cpu_s: float, commit: Optional[str]) -> Path:
     """One JSON line per finished run (or chunk of a long recipe) in ``stage2.train.run_log``
-    (relative paths: the repository's), so what a cut-off session finished is on record."""
+    (relative paths: the repository's), so what a cut-off session finished is on record.
+    ``commit``: the repository's commit when the run started (the code that ran; the checkout
+    may have moved on by the time a long chunk ends)."""
     import datetime
     import json
-
-    from eval.records.eval_folder import environment_info
 
     path = Path(path)
     if not path.is_absolute():
         path = Path(__file__).resolve().parents[2] / path
     path.parent.mkdir(parents=True, exist_ok=True)
     line = {"finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "out": str(Path(out_dir).resolve()), "commit": environment_info()["git_commit"], "seed": stats["seed"],
+            "out": str(Path(out_dir).resolve()), "commit": commit, "seed": stats["seed"],
             "steps": [stats["resumed_from"], stats["steps"]], "of": stats["total_steps"],
             "done": stats["steps"] >= stats["total_steps"], "wall_s_total": stats["wall_time_s"],
             "cpu_s_this_run": round(cpu_s, 1), "final_loss": stats["final_loss"]}
@@ -295,6 +296,7 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
     budget = Budget(stop_after_minutes, stop_after_cpu_minutes)
     checkpoint_clock = CheckpointClock(train_cfg.checkpoint_minutes)
     cpu0 = time.process_time()
+    commit = environment_info()["git_commit"] if train_cfg.run_log else None  # the code this run starts from
     while state.step < end and not dist.any(budget.spent()):
         f0, inputs = dist.shard(*sample_batch(scenes, data_cfg, int(train_cfg.batch_size), state.data_rng))
         values = train_step(state, f0, inputs, cfg, alphas_cumprod, dist)
@@ -328,5 +330,5 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
              "num_train_scenes": len(scenes), "global_token_dim": encoder.feature_dim,
              "best_validation": state.best or None}
     if train_cfg.run_log:
-        append_run_log(train_cfg.run_log, out_dir, stats, cpu_s=time.process_time() - cpu0)
+        append_run_log(train_cfg.run_log, out_dir, stats, cpu_s=time.process_time() - cpu0, commit=commit)
     return stats
