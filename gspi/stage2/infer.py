@@ -29,7 +29,7 @@ from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.data import LatticeCameras, local_condition_dim, multiview_condition_from_views, srgb_top_rgb
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving
-from gspi.stage2.sampler import predict_point_pbr
+from gspi.stage2.sampler import mean_point_pbr
 
 
 @dataclass(frozen=True)
@@ -115,14 +115,12 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     t_cond = time.perf_counter() - t0
     model = model if device is None else model.to(device)
 
-    def sample_all(chunk: Optional[int]) -> list[np.ndarray]:
-        return [predict_point_pbr(model, pts.xyz, cond, feats, num_steps=cfg.num_steps, seed=cfg.seed + k,
-                                  write_chunk=chunk, guidance_scale=cfg.guidance_scale,
-                                  device=device).cpu().numpy()
-                for k in range(max(1, cfg.num_samples))]
+    def sample_all(chunk: Optional[int]) -> np.ndarray:
+        return mean_point_pbr(model, pts.xyz, cond, feats, num_samples=cfg.num_samples, seed=cfg.seed,
+                              num_steps=cfg.num_steps, write_chunk=chunk, guidance_scale=cfg.guidance_scale,
+                              device=device)
 
-    samples, chunk = run_with_chunk_halving(sample_all, cfg.write_chunk, len(pts))
-    pbr = np.mean(samples, axis=0).astype(np.float32)
+    pbr, chunk = run_with_chunk_halving(sample_all, cfg.write_chunk, len(pts))
     if sub is not None:
         pbr = nearest_fill(pts.xyz, pbr, points.xyz)
     stats = {"num_points": len(points), "num_sampled": len(pts), "num_steps": cfg.num_steps,

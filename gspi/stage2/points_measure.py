@@ -128,7 +128,7 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
     """[P, 5] PBR of every point of ``scene``: sampled on a seeded subset, 1-NN filled (every
     point when ``cfg.max_points`` is None: Table 2's measure proper). ``cfg``: a
     ``PointSampling`` or anything with its fields (``ValidationConfig``)."""
-    from gspi.stage2.sampler import predict_point_pbr
+    from gspi.stage2.sampler import mean_point_pbr
 
     rng = np.random.default_rng([cfg.seed, index])
     xyz, cond = whole_scene_inputs(scene, data_cfg, rng)
@@ -137,9 +137,7 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
         keep = np.sort(rng.choice(scene.num_points, cfg.max_points, replace=False))
     feats = scene.prior_grid()
     device = next(model.parameters()).device
-    samples = [predict_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
-                                 num_steps=cfg.num_steps, seed=cfg.seed + k, frame=scene.frame,
-                                 write_chunk=write_chunk).cpu().numpy()
-               for k in range(max(1, getattr(cfg, "num_samples", 1)))]
-    values = samples[0] if len(samples) == 1 else np.mean(samples, axis=0).astype(np.float32)
+    values = mean_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
+                            num_samples=getattr(cfg, "num_samples", 1), seed=cfg.seed, num_steps=cfg.num_steps,
+                            frame=scene.frame, write_chunk=write_chunk)
     return values if len(keep) == scene.num_points else nearest_fill(scene.xyz[keep], values, scene.xyz)

@@ -177,3 +177,14 @@ def predict_point_pbr(
     f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
                     write_chunk=write_chunk, alphas_cumprod=cosine_alphas_cumprod(num_train_timesteps))
     return pbr_from_model(f[0])
+
+
+def mean_point_pbr(model: RCWDenoiser, xyz, local_cond, global_feats: Optional[Tensor], *,
+                   num_samples: int = 1, seed: int = 0, **kwargs) -> np.ndarray:
+    """[N, 5] float32 numpy: the mean of ``num_samples`` (at least 1) ``predict_point_pbr``
+    samples with noise seeds ``seed, seed + 1, ...`` (``stage2.inference.num_samples``; the
+    paper draws one). ``kwargs`` go to ``predict_point_pbr``. gspi-run's inference and Table 2's
+    measure both average here."""
+    samples = [predict_point_pbr(model, xyz, local_cond, global_feats, seed=seed + k, **kwargs).cpu().numpy()
+               for k in range(max(1, int(num_samples)))]
+    return np.mean(samples, axis=0).astype(np.float32)
