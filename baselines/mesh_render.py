@@ -13,6 +13,7 @@ convention); textures sampled bilinearly at pixel centres, coordinates outside [
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,16 @@ class UVMesh:
     uvs: np.ndarray       # [T, 2] float64, (u, v) with v up
     faces: np.ndarray     # [F, 3] int64 indices into vertices
     face_uvs: np.ndarray  # [F, 3] int64 indices into uvs
+
+    @cached_property
+    def intersector(self):
+        """The ray caster over this mesh (gspi.data.assets.mesh_render.ray_intersector), built once
+        per mesh: every view of it casts against the same acceleration structure."""
+        import trimesh
+
+        from gspi.data.assets.mesh_render import ray_intersector
+
+        return ray_intersector(trimesh.Trimesh(self.vertices, self.faces, process=False))
 
 
 def _index(token: str, count: int, path: Path, lineno: int) -> int:
@@ -90,14 +101,11 @@ def visible_surface(mesh: UVMesh, K: np.ndarray, w2c: np.ndarray, height: int, w
         face_id: [H, W] int64, -1 where no triangle covers the pixel centre;
         bary: [H, W, 3] float64 barycentrics of the visible triangle (0 where none).
     """
-    import trimesh
-
-    from gspi.data.assets.mesh_render import closest_hits, ray_intersector
+    from gspi.data.assets.mesh_render import closest_hits
 
     dirs = pixel_rays(K, w2c, height, width, dtype=torch.float64).reshape(-1, 3).numpy()
     origins = np.broadcast_to(np.linalg.inv(w2c)[:3, 3], dirs.shape).copy()
-    intersector = ray_intersector(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False))
-    ray, tri, _, bary = closest_hits(intersector, mesh.vertices, mesh.faces, origins, dirs)
+    ray, tri, _, bary = closest_hits(mesh.intersector, mesh.vertices, mesh.faces, origins, dirs)
     face_id = np.full(height * width, -1, np.int64)
     weights = np.zeros((height * width, 3))
     face_id[ray], weights[ray] = tri, bary

@@ -51,7 +51,7 @@ def encode_albedo(albedo: Tensor, space: str) -> Tensor:
     if space == "linear":
         return srgb_to_linear(albedo.double().clamp_min(0.0), clamp=False)
     if space == "linear_gamma22":
-        return srgb_to_linear(albedo.double().clamp_min(0.0), clamp=False) ** (1.0 / 2.2)
+        return encode_albedo(albedo, "linear") ** (1.0 / 2.2)
     if space == "gamma22":
         return albedo.double().clamp_min(0.0) ** (1.0 / 2.2)
     raise ValueError(f"unknown albedo space {space!r}; allowed: srgb, linear, linear_gamma22, gamma22")
