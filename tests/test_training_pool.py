@@ -274,6 +274,7 @@ def test_part_variations_widen_metal_colour_and_roughness():
 @pytest.mark.parametrize("bad, match", [({"share": 1.5}, "data.parts.share"), ({"count": [1, 3]}, "data.parts.count"),
                                         ({"layouts": ["rings"]}, "data.parts.layouts"),
                                         ({"metal_f0": "gold"}, "data.parts.metal_f0"), ({"look_swap": 2}, "data.parts.look_swap"),
+                                        ({"matte_finish": -0.1}, "data.parts.matte_finish"),
                                         ({"sharee": 0.5}, r"unknown data config key.*data\.parts\.sharee")])
 def test_parts_config_names_the_bad_key(bad, match):
     from gspi.data.procedural.material_parts import PartsConfig
@@ -292,6 +293,36 @@ def test_look_swap_zero_keeps_the_parts_pool():
 
     recipes = pool_recipes(0, 256, [128, 64], parts=PartsConfig(**PARTS_POOL, look_swap=0.0))
     assert _recipes_sha(recipes) == PARTS_POOL_SHA256
+
+
+def test_matte_finish_zero_keeps_the_parts_pool():
+    from gspi.data.procedural.material_parts import PartsConfig
+
+    recipes = pool_recipes(0, 256, [128, 64], parts=PartsConfig(**PARTS_POOL, matte_finish=0.0))
+    assert _recipes_sha(recipes) == PARTS_POOL_SHA256
+
+
+def test_a_matte_finish_changes_only_the_roughness_of_dielectric_points():
+    """matte_finish: a dielectric part keeps its albedo and metallic point for point; its
+    dielectric points take one roughness in MATTE_ROUGHNESS, its metal trim keeps its own."""
+    import torch
+
+    from gspi.data.procedural.material_parts import MATTE_ROUGHNESS
+    from gspi.data.procedural.materials import METAL_CLASSES, evaluate_material
+
+    recipes = _parts_pool(share=0.0, matte_finish=1.0)
+    matte = [r["material"] for r in recipes if "finish_roughness" in r["material"]]
+    classes = {r["material"]["class"] for r in recipes if "finish_roughness" not in r["material"]}
+    assert classes <= set(METAL_CLASSES) and len(matte) > 40  # every dielectric part, no metal one
+    q = torch.nn.functional.normalize(torch.randn(3000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    for m in matte[:12]:
+        own = evaluate_material({k: v for k, v in m.items() if k != "finish_roughness"}, q)
+        worn = evaluate_material(m, q)
+        assert torch.equal(worn.albedo_linear, own.albedo_linear) and torch.equal(worn.metallic, own.metallic)
+        dielectric = own.metallic == 0
+        assert MATTE_ROUGHNESS[0] <= m["finish_roughness"] <= MATTE_ROUGHNESS[1]
+        assert torch.allclose(worn.roughness[dielectric], torch.tensor(m["finish_roughness"]))
+        assert torch.equal(worn.roughness[~dielectric], own.roughness[~dielectric])
 
 
 def test_a_swapped_look_changes_the_albedo_only_on_dielectric_points():

@@ -25,13 +25,19 @@ holds beyond the benchmark's classes:
   while its roughness and metallic stay its own class's. In the benchmark's classes a pattern
   names its finish (checker and stripes are glossy plastic, tiles are glazed); real prints are on
   any finish, and a prior that learned the pattern instead of the shading guesses a finish from a
-  print (the feature-test assets: flat prints with glTF's default roughness 1.0).
+  print (the feature-test assets: flat prints with glTF's default roughness 1.0);
+- ``matte_finish: p``: with probability p a dielectric part keeps its class's look but takes a
+  matte finish, a roughness drawn in ``MATTE_ROUGHNESS`` (paper, card, unglazed clay, matte paint).
+  The benchmark's classes put half their dielectric finishes below 0.25 (glossy plastic, glazed
+  ceramic); the objects users bring are mostly matte (glTF's default roughness is 1.0), and a
+  prior calibrated on the classes guesses glossy where the shading cannot tell (issue 42,
+  docs/RESULTS.md "Session 16").
 
 The recipes stay JSON (`scene.json`'s `generator.material`); `evaluate_material` reads the
-``parts`` entry and the per-part keys ``f0``, ``roughness_shift``, ``texture`` and ``look``. With
-the defaults (share 0, physical F0, no spread, no texture, no look swap) nothing is drawn and no
-key is added, so a pool made without `data.parts` keeps every byte, and ``look_swap: 0`` keeps
-every byte of a pool made with the other keys (tested).
+``parts`` entry and the per-part keys ``f0``, ``roughness_shift``, ``texture``, ``look`` and ``finish_roughness``. With
+the defaults (share 0, physical F0, no spread, no texture, no look swap, no matte finish) nothing
+is drawn and no key is added, so a pool made without `data.parts` keeps every byte, and
+``look_swap: 0`` and ``matte_finish: 0`` keep every byte of a pool made with the other keys (tested).
 """
 from __future__ import annotations
 
@@ -46,6 +52,7 @@ from gspi.strict_config import dataclass_from_dict
 
 LAYOUTS = ("bands", "cells")
 METAL_F0_MODES = ("physical", "wide")
+MATTE_ROUGHNESS = (0.7, 1.0)  # data.parts.matte_finish: the roughness range of a matte finish
 
 
 @dataclass(frozen=True)
@@ -60,9 +67,10 @@ class PartsConfig:
     roughness_spread: float = 0.0           # per-part roughness shift U(-s, s)
     texture: float = 0.0                    # per-part fBm amplitude over albedo and roughness
     look_swap: float = 0.0                  # share of dielectric parts wearing another class's pattern
+    matte_finish: float = 0.0               # share of dielectric parts given a matte finish (MATTE_ROUGHNESS)
 
     RANGES: ClassVar[dict] = {"share": (0.0, 1.0), "roughness_spread": (0.0, 0.5), "texture": (0.0, 1.0),
-                              "look_swap": (0.0, 1.0)}
+                              "look_swap": (0.0, 1.0), "matte_finish": (0.0, 1.0)}
     CHOICES: ClassVar[dict] = {"metal_f0": METAL_F0_MODES}
 
     def __post_init__(self):  # the two list-valued keys, which the strict layer does not look inside
@@ -81,9 +89,9 @@ class PartsConfig:
 
     @property
     def varies_parts(self) -> bool:
-        """True when a part's recipe gets variations (wide F0, roughness spread, texture, look)."""
+        """True when a part's recipe gets variations (wide F0, roughness spread, texture, look, finish)."""
         return (self.metal_f0 != "physical" or self.roughness_spread > 0 or self.texture > 0
-                or self.look_swap > 0)
+                or self.look_swap > 0 or self.matte_finish > 0)
 
     @property
     def is_default(self) -> bool:
@@ -123,6 +131,8 @@ def vary_part(recipe: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
     if cfg.look_swap > 0 and recipe["class"] not in METAL_CLASSES and rng.uniform() < cfg.look_swap:
         others = [c for c in MATERIAL_CLASSES if c not in METAL_CLASSES and c != recipe["class"]]
         out["look"] = sample_material(others[int(rng.integers(0, len(others)))], rng)
+    if cfg.matte_finish > 0 and recipe["class"] not in METAL_CLASSES and rng.uniform() < cfg.matte_finish:
+        out["finish_roughness"] = _u(rng, *MATTE_ROUGHNESS)
     return out
 
 
@@ -146,4 +156,4 @@ def sample_parts(primary: dict, cfg: PartsConfig, rng: np.random.Generator) -> d
                       "noise_seed": int(rng.integers(0, 2**20)), "materials": recipes}}
 
 
-__all__ = ["LAYOUTS", "PartsConfig", "part_classes", "sample_parts", "vary_part"]
+__all__ = ["LAYOUTS", "MATTE_ROUGHNESS", "PartsConfig", "part_classes", "sample_parts", "vary_part"]

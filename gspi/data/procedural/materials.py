@@ -242,6 +242,8 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")
     if "look" in recipe:  # data.parts.look_swap: another class's albedo on this finish's dielectric points
         albedo = _pick(metal > 0, evaluate_material(recipe["look"], q).albedo_linear, albedo)
+    if "finish_roughness" in recipe:  # data.parts.matte_finish: the class's look on a matte finish
+        rough = _pick(metal > 0, full(float(recipe["finish_roughness"])), rough)  # metal trim keeps its own
     if "roughness_shift" in recipe:  # data.parts variations (gspi.data.procedural.material_parts)
         rough = rough + recipe["roughness_shift"]
     if "texture" in recipe:  # albedo x (1 + a (n - 1/2)), roughness + a/2 (n - 1/2), n a fBm in [0, 1]
