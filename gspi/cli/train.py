@@ -1,7 +1,7 @@
 """gspi-train: train the Stage II denoiser, then score it on the test point clouds.
 
 Examples:
-    gspi-train data=data/small out=runs/s2_small stage2=cpu_small        # the shipped CPU model
+    gspi-train data=data/small out=runs/s2_small stage2=cpu_small        # stage2_small.pt's recipe
     gspi-train data=data/small out=runs/a2 stage2=cpu_small ablation=a2_no_view_onehot
     gspi-train data=data/tiny out=/tmp/s2 stage2=tiny                      # seconds (smoke run)
     gspi-train data=data/paper out=runs/s2 stage2.prior.encoder=dinov2 stage2.prior.dinov2.path=models/dinov2-base
