@@ -20,14 +20,15 @@ import numpy as np
 from eval.layout import read_splits, read_view_file
 
 
-def foreground_values(data_scene: Path, pred_scene: Path | None) -> np.ndarray:
-    """Roughness on the foreground pixels of every ``test`` view: GT when ``pred_scene`` is None."""
-    values = []
-    for view_dir in sorted((data_scene / "test").iterdir()):
-        mask = read_view_file(view_dir, "mask.png")[..., 0] > 0.5
-        source = view_dir if pred_scene is None else pred_scene / "test" / view_dir.name
-        values.append(read_view_file(source, "roughness.png")[..., 0][mask])
-    return np.concatenate(values)
+def view_masks(data_scene: Path) -> dict[str, np.ndarray]:
+    """The foreground mask of every ``test`` view of a dataset scene, by view folder name."""
+    return {v.name: read_view_file(v, "mask.png")[..., 0] > 0.5 for v in sorted((data_scene / "test").iterdir())}
+
+
+def foreground_values(scene_dir: Path, masks: dict[str, np.ndarray]) -> np.ndarray:
+    """Roughness on the masked pixels of ``scene_dir/test/<view>/roughness.png`` (GT or prediction)."""
+    return np.concatenate([read_view_file(scene_dir / "test" / name, "roughness.png")[..., 0][mask]
+                           for name, mask in masks.items()])
 
 
 def roughness_rows(data: Path, runs: dict[str, Path]) -> list[dict]:
@@ -36,10 +37,11 @@ def roughness_rows(data: Path, runs: dict[str, Path]) -> list[dict]:
               for name, run in runs.items()}
     rows = []
     for scene in read_splits(data)["test"]:
-        gt = foreground_values(data / scene, None)
+        masks = view_masks(data / scene)  # read once, applied to the GT and to every run
+        gt = foreground_values(data / scene, masks)
         row = {"scene": scene, "gt": (float(gt.mean()), float(gt.std()))}
         for name, run in runs.items():
-            pred = foreground_values(data / scene, run / "predictions" / scene)
+            pred = foreground_values(run / "predictions" / scene, masks)
             row[name] = (float(pred.mean()), float(pred.std()), scores[name][scene]["roughness"]["psnr"])
         rows.append(row)
     return rows

@@ -128,10 +128,11 @@ def vary_part(recipe: dict, cfg: PartsConfig, rng: np.random.Generator) -> dict:
     if cfg.texture > 0:
         out["texture"] = {"amplitude": _u(rng, 0.3, 1.0) * cfg.texture,
                           "frequency": _u(rng, 2.0, 10.0), "seed": int(rng.integers(0, 2**20))}
-    if cfg.look_swap > 0 and recipe["class"] not in METAL_CLASSES and rng.uniform() < cfg.look_swap:
+    dielectric = recipe["class"] not in METAL_CLASSES
+    if cfg.look_swap > 0 and dielectric and rng.uniform() < cfg.look_swap:
         others = [c for c in MATERIAL_CLASSES if c not in METAL_CLASSES and c != recipe["class"]]
         out["look"] = sample_material(others[int(rng.integers(0, len(others)))], rng)
-    if cfg.matte_finish > 0 and recipe["class"] not in METAL_CLASSES and rng.uniform() < cfg.matte_finish:
+    if cfg.matte_finish > 0 and dielectric and rng.uniform() < cfg.matte_finish:
         out["finish_roughness"] = _u(rng, *MATTE_ROUGHNESS)
     return out
 
