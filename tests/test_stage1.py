@@ -149,3 +149,36 @@ def test_an_asset_seen_by_few_lattice_views_is_refused():
                      pixel=np.zeros((3, 2), np.int32), rgb=np.zeros((3, 3), np.float32))
     with pytest.raises(ValueError, match="from 3 of 32"):
         check_cloud_covers_lattice(few, renders)
+
+
+def test_filters_equal_their_all_views_at_once_definition(clean):
+    """Filters (ii) and (iii) run view by view (and (iii) only on the points whose source view has
+    the view as a neighbour); the keep-masks equal the [V, P] formulation written out here,
+    for max_violations 0..3, on the surface plus points pushed off it both ways."""
+    points, renders, _ = clean
+    rng = np.random.default_rng(2)
+    idx = rng.choice(len(points), 400, replace=False)
+    moved = points.xyz[idx] * rng.uniform(0.9, 1.15, (400, 1)).astype(np.float32)
+    xyz, view = np.r_[points.xyz, moved], np.r_[points.view, points.view[idx]]
+    K, w2c, alpha = renders.K, renders.w2c, renders.alpha
+    rc, z = filters.project(xyz, K, w2c)                                      # [V, P]
+    fg = torch.nn.functional.max_pool2d(torch.from_numpy(alpha >= 0.5).float()[:, None], 3, 1, 1)
+    fg_at, inside = filters._lookup(fg[:, 0].numpy() > 0.5, rc)
+    seen = inside & (z > 0)
+    seen[view, np.arange(len(xyz))] = False
+    mask_violations = (seen & ~fg_at).sum(0)
+    surface = filters.nearest_surface_depth(renders.depth, alpha, alpha_threshold=0.5, window_px=1)
+    d_at, inside = filters._lookup(surface, rc)
+    in_front = inside & (z > 0) & np.isfinite(d_at) & (z < d_at - 3.0 * z / K[:, 0, 0][:, None])
+    nb = filters.neighbour_views(w2c, 6)
+    is_nb = np.zeros_like(in_front)
+    for col in range(6):
+        is_nb[nb[view, col], np.arange(len(xyz))] = True
+    depth_violations = (in_front & is_nb).sum(0)
+    assert depth_violations.max() >= 2 and mask_violations.max() >= 2  # the counts are exercised
+    for m in range(4):
+        np.testing.assert_array_equal(
+            filters.mask_consistency_keep(xyz, view, alpha, K, w2c, max_violations=m), mask_violations <= m)
+        np.testing.assert_array_equal(
+            filters.depth_consensus_keep(xyz, view, renders.depth, alpha, K, w2c, max_violations=m),
+            depth_violations <= m)

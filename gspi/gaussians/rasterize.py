@@ -277,8 +277,11 @@ def _rasterize_numba(
         sh = _sh_per_view(colors, n_cams, n)
     images, views = [], []
     for c in range(n_cams):
+        # shared [N, K, 3] coefficients go in as they are: selecting from their expanded [C, ...]
+        # view costs a zero-filled [1, N, K, 3] buffer and a copy per view in the backward
+        sh_view = None if sh is None else (colors if colors.dim() == 3 else sh[c])
         view = project_view(means, quats, scales, opacities, viewmats[c], Ks[c], width, height,
-                            sh=None if sh is None else sh[c], sh_degree=sh_degree if sh is not None else None,
+                            sh=sh_view, sh_degree=sh_degree if sh is not None else None,
                             near_plane=near_plane, far_plane=far_plane)
         chans = [t for t in (view.rgb, None if plain is None else plain[c], None if feats is None else feats[c])
                  if t is not None] + [view.normals]
@@ -296,16 +299,17 @@ def _rasterize_numba(
 def _render_output(img: Tensor, d_rgb: Optional[int], d_feat: Optional[int], depth_point: str,
                    meta: dict) -> RenderOutput:
     """Splits the composited [C, H, W, rgb + features + normals + (alpha, w z, median)] image."""
-    alpha = img[..., -3:-2]
-    o = (d_rgb or 0) + (d_feat or 0)
-    depth_expected = torch.where(alpha > 0, img[..., -2:-1] / torch.where(alpha > 0, alpha, 1.0), 0.0)
+    # one split, not six slices: its backward is one cat, where each slice's backward
+    # zero-fills a full-size image (6 fills of [C, H, W, F + 3] per step)
+    rgb, features, normals, alpha, w_z, depth_median = img.split([d_rgb or 0, d_feat or 0, 3, 1, 1, 1], -1)
+    depth_expected = torch.where(alpha > 0, w_z / torch.where(alpha > 0, alpha, 1.0), 0.0)
     return RenderOutput(
-        rgb=img[..., :d_rgb] if d_rgb is not None else None,
-        features=img[..., (d_rgb or 0):o] if d_feat is not None else None,
+        rgb=rgb if d_rgb is not None else None,
+        features=features if d_feat is not None else None,
         alpha=alpha,
         depth_expected=depth_expected,
-        depth_median=img[..., -1:],
-        normals=img[..., o : o + 3],
+        depth_median=depth_median,
+        normals=normals,
         depth_point=depth_point,
         meta=meta,
     )
