@@ -396,6 +396,36 @@ class TestMaskedLoss:
         expected = 1.0 - masked_ssim(pred, target, mask, background=0.0)
         assert float(masked_dssim(pred, target, mask)) == pytest.approx(expected, abs=1e-12)
 
+    def test_loss_equals_the_full_image_ssim_per_property_bit_for_bit(self):
+        """The loss crops SSIM to each mask's box and stacks the properties in one map: loss and
+        gradients equal the literal formula (one full-image ssim_map per property and view), in
+        float32, on masks inside, touching the border, tiny (no inner pixel) and scattered."""
+        from eval.metrics import composite, ssim_map
+        gen = torch.Generator().manual_seed(3)
+        shapes = (("albedo", 3), ("roughness", 1), ("metallic", 1))
+        pred = {k: torch.rand(4, 40, 36, c, generator=gen).requires_grad_() for k, c in shapes}
+        target = {k: torch.rand(4, 40, 36, c, generator=gen) for k, c in shapes}
+        mask = torch.zeros(4, 40, 36, dtype=torch.bool)
+        mask[0, 12:30, 9:25] = True
+        mask[1, :22, 20:] = True
+        mask[2, 18:20, 3:5] = True
+        mask[3] = torch.rand(40, 36, generator=gen) > 0.6
+        loss, _ = masked_material_loss(pred, target, mask, weights=WEIGHTS, ssim_lambda=0.2)
+        grads = torch.autograd.grad(loss, [pred[k] for k, _ in shapes])
+        leaves = {k: v.detach().clone().requires_grad_() for k, v in pred.items()}
+        total, r = torch.zeros(()), 5
+        for k, _ in shapes:
+            for v in range(4):
+                diff = (leaves[k][v] - target[k][v])[mask[v]]
+                inner = mask[v, r:-r, r:-r]
+                s = ssim_map(composite(leaves[k][v], mask[v], 0.0), composite(target[k][v], mask[v], 0.0))
+                dssim = 1.0 - s[inner].mean() if inner.any() else torch.zeros(())
+                total = total + WEIGHTS[k] * (0.8 * 0.5 * (diff.abs().mean() + (diff * diff).mean()) + 0.2 * dssim)
+        expected = total / (4 * sum(WEIGHTS.values()))
+        assert torch.equal(loss, expected)
+        for got, want in zip(grads, torch.autograd.grad(expected, [leaves[k] for k, _ in shapes])):
+            assert torch.equal(got, want)
+
     def test_shape_mismatch_and_empty_mask_raise(self):
         pred, target = self.maps(0.5, 0.2, 0.0), self.maps(0.6, 0.2, 0.0)
         with pytest.raises(ValueError, match="every view's mask is empty"):
