@@ -412,7 +412,9 @@ class NumbaViewProjection(torch.autograd.Function):
             grads_in[1] = np.zeros((n, 3))
         g_means, g_quats = np.empty((n, 3)), np.empty((n, 4))
         g_scales, g_opacities = np.zeros((n, scales.shape[1])), np.empty(n)
-        g_sh, g_delta = np.zeros(sh_np.shape), np.zeros((n, 2))
+        # each SH gradient is written once (no sum), so writing it in the inputs' dtype rounds as
+        # the float64 buffer's conversion did, without the [N, K, 3] float64 buffer and copy
+        g_sh, g_delta = np.zeros(sh_np.shape, sh_np.dtype), np.zeros((n, 2))
         numba.set_num_threads(threads())
         _backward(*arrays, sh_np, degree, view, k_np, center, *grads_in, has_delta,
                   g_means, g_quats, g_scales, g_opacities, g_sh, g_delta)
