@@ -1,0 +1,81 @@
+"""Per-stage times of GS-PI on one demo scene, and GS-PI vs joint IR material time, in one run.
+
+The demo's settings (conf/experiment/demo.yaml: the shipped ``recon=fast`` asset, the default
+Stage II checkpoint, 300 Stage III iterations), one scene, one thread: ``gspi-run`` runs
+``method=gspi`` and then ``method=joint_ir`` one after the other in fresh processes, and the
+times come from what the runs recorded (``predictions/<scene>/meta.json``: the StageClock of
+each stage; material time = Stage I + II + III + render for GS-PI, the optimisation for joint
+IR, as Table 1 counts them). Inside GS-PI's stages: Stage I's render / filters split
+(``stage1.json``) and Stage III's seconds per iteration (``stage3.json``).
+
+Data: ``--data`` (a ``small`` test set, e.g. ``demo_out/data`` after ``make demo``); without it
+the demo's data are generated into a temp folder first (``gspi-data preset=small seed=0
+'data.only_splits=[test]'``, ~1 min).
+
+    python -m benchmarks.bench_pipeline [--data demo_out/data] [--scene s004_superquadric_metal]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from benchmarks.common import machine
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+DEMO = ["assets=checkpoints/demo_assets", "recon=fast", "stage3.iterations=300"]  # conf/experiment/demo.yaml
+GSPI_STAGES = ("stage1", "stage2", "stage3", "render")
+
+
+def run(cmd: list[str]) -> None:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"bench_pipeline: {' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
+
+
+def method_meta(data: Path, scene: str, method: str, out: Path) -> dict:
+    """Runs one method on one scene; returns its prediction's meta.json and work folder."""
+    run([str(BIN / "gspi-run"), f"data={data}", f"out={out}", f"method={method}", f"scenes=[{scene}]",
+         "threads=1", "logger=none", *DEMO])
+    return json.loads((out / "predictions" / scene / "meta.json").read_text())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=None, help="a `small` test set (default: generate it)")
+    parser.add_argument("--scene", default="s004_superquadric_metal")
+    args = parser.parse_args()
+    print(machine())
+    print(f"load average at start: {os.getloadavg()[0]:.2f}")
+    with tempfile.TemporaryDirectory(prefix="bench_pipeline_") as tmp:
+        tmp = Path(tmp)
+        data = args.data
+        if data is None:
+            data = tmp / "data"
+            run([str(BIN / "gspi-data"), "preset=small", f"out={data}", "seed=0", "data.only_splits=[test]",
+                 "data.workers=1"])
+        gspi = method_meta(data.resolve(), args.scene, "gspi", tmp / "gspi")
+        joint = method_meta(data.resolve(), args.scene, "joint_ir", tmp / "joint_ir")
+        work = tmp / "gspi" / "work" / args.scene
+        stage1 = json.loads((work / "stage1.json").read_text())["seconds"]
+        stage3 = json.loads((work / "stage3.json").read_text())
+    stages = {k: gspi["stages"][k]["seconds"] for k in GSPI_STAGES if k in gspi["stages"]}
+    g_mat, j_mat = gspi["runtime_s"]["material"], joint["runtime_s"]["material"]
+    print(f"\n{args.scene}, demo settings, one thread; seconds")
+    print(f"  GS-PI   Stage I {stages['stage1']:.1f} (lattice render {stage1['render']:.1f}, filters "
+          f"{stage1['filters']:.1f}) | Stage II {stages['stage2']:.1f} | Stage III {stages['stage3']:.1f} "
+          f"({1e3 * stage3['seconds_per_iteration']:.1f} ms/iteration x {stage3['iterations']}) | render "
+          f"{stages['render']:.1f} | material {g_mat:.1f}")
+    print(f"  joint IR material {j_mat:.1f}")
+    print(f"  GS-PI / joint IR material time: {g_mat / j_mat:.2f}")
+    print(f"load average at end: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
