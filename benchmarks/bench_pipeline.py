@@ -40,7 +40,7 @@ def run(cmd: list[str]) -> None:
 
 
 def method_meta(data: Path, scene: str, method: str, out: Path) -> dict:
-    """Runs one method on one scene; returns its prediction's meta.json and work folder."""
+    """Runs one method on one scene (the demo's settings); returns its prediction's meta.json."""
     run([str(BIN / "gspi-run"), f"data={data}", f"out={out}", f"method={method}", f"scenes=[{scene}]",
          "threads=1", "logger=none", *DEMO])
     return json.loads((out / "predictions" / scene / "meta.json").read_text())

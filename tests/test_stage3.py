@@ -23,7 +23,7 @@ from gspi.stage3.config import Stage3Config
 from gspi.stage3.distill import distill, harmonized_albedo_targets
 from gspi.stage3.export import render_material_maps, write_scene_predictions
 from gspi.stage3.init import initialize_pbr, sh_gain
-from gspi.stage3.loss import masked_dssim, masked_material_loss
+from gspi.stage3.loss import dssim_per_property, masked_material_loss
 from gspi.stage3.targets import StagedTargets, stage_targets
 from tests.fixtures import surfel_sphere
 
@@ -389,12 +389,17 @@ class TestMaskedLoss:
         loss2, _ = masked_material_loss(changed, other_target, mask, weights=WEIGHTS, ssim_lambda=0.3)
         assert float(loss2) == pytest.approx(float(loss), abs=1e-14)
 
-    def test_masked_dssim_is_one_minus_the_evaluators_masked_ssim(self):
+    def test_dssim_per_property_is_one_minus_the_evaluators_masked_ssim(self):
         gen = torch.Generator().manual_seed(2)
         pred, target = torch.rand(2, 24, 24, 3, generator=gen, dtype=torch.float64)
+        rough = torch.rand(2, 24, 24, 1, generator=gen, dtype=torch.float64)
         mask = torch.rand(24, 24, generator=gen) > 0.4
+        dssim = dssim_per_property({"albedo": pred, "roughness": rough[0], "metallic": rough[0]},
+                                   {"albedo": target, "roughness": rough[1], "metallic": 1.0 - rough[1]}, mask)
         expected = 1.0 - masked_ssim(pred, target, mask, background=0.0)
-        assert float(masked_dssim(pred, target, mask)) == pytest.approx(expected, abs=1e-12)
+        assert float(dssim["albedo"]) == pytest.approx(expected, abs=1e-12)
+        expected = 1.0 - masked_ssim(rough[0], rough[1], mask, background=0.0)
+        assert float(dssim["roughness"]) == pytest.approx(expected, abs=1e-12)
 
     def test_loss_equals_the_full_image_ssim_per_property_bit_for_bit(self):
         """The loss crops SSIM to each mask's box and stacks the properties in one map: loss and

@@ -153,21 +153,18 @@ def rasterize_table(
     """:func:`rasterize_view` of a view whose surfel table is built (:func:`surfel_table`, or
     ``numba_projection.project_view``'s geometry columns + channels through :func:`padded_table`):
     bins the surfels by their support boxes and composites. Returns [H, W, F + 3]."""
-    if composite not in ("torch", "numba"):
-        raise ValueError(f"composite must be 'torch' or 'numba', got {composite!r}")
     with torch.no_grad():
         means2d, depths = table[:-1, COL_MEAN2D:COL_MEAN2D + 2], table[:-1, COL_ZC]
         lo, hi, valid = pixel_bounds(ray_transforms, means2d, opacities, width, height)
-        if composite == "numba":  # the same lists, binned by a counting sort (numba_tiles)
-            from gspi.gaussians.numba_tiles import bin_splats_numba
-
-            bins = bin_splats_numba(lo, hi, valid & in_range, depths, width, height, tile_size)
-        else:
-            bins = bin_splats(lo, hi, valid & in_range, depths, width, height, tile_size)
-    if composite == "numba":
+    if composite == "numba":  # the same lists binned by a counting sort, compiled compositing
         from gspi.gaussians.numba_composite import composite_view
+        from gspi.gaussians.numba_tiles import bin_splats_numba
 
+        bins = bin_splats_numba(lo, hi, valid & in_range, depths, width, height, tile_size)
         return composite_view(table, bins, lo, hi, width, height, intersection_depth)
+    if composite != "torch":
+        raise ValueError(f"composite must be 'torch' or 'numba', got {composite!r}")
+    bins = bin_splats(lo, hi, valid & in_range, depths, width, height, tile_size)
     return composite_tiles(table, bins, width, height, intersection_depth, max_elems)
 
 

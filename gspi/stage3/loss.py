@@ -56,16 +56,11 @@ def inner_ssim(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor | None:
     return s[inner]
 
 
-def masked_dssim(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:
-    """1 - masked SSIM of one [H, W, C] image pair under a [H, W] bool mask (0 if no inner pixel)."""
-    s = inner_ssim(pred, target, mask)
-    return pred.new_zeros(()) if s is None else 1.0 - s.mean()
-
-
-def _dssim_per_property(pred: Mapping[str, Tensor], target: Mapping[str, Tensor], mask: Tensor
-                        ) -> dict[str, Tensor]:
-    """masked_dssim of each property of one view, from one SSIM map of their stacked channels
-    (SSIM is per channel: the same values as one map per property, a third of the calls)."""
+def dssim_per_property(pred: Mapping[str, Tensor], target: Mapping[str, Tensor], mask: Tensor
+                       ) -> dict[str, Tensor]:
+    """1 - masked SSIM of each property of one view ([H, W, C] maps, [H, W] bool mask; 0 where the
+    mask has no inner pixel), from one SSIM map of their stacked channels (SSIM is per channel:
+    the same values as one map per property, a third of the calls)."""
     s = inner_ssim(torch.cat([pred[p] for p in PROPERTIES], -1), torch.cat([target[p] for p in PROPERTIES], -1),
                    mask)
     out, start = {}, 0
@@ -111,8 +106,8 @@ def masked_material_loss(pred: Mapping[str, Tensor], target: Mapping[str, Tensor
     terms: dict = {"views": len(views)}
     goal = {p: target[p].detach() for p in PROPERTIES}
     snapped = {p: torch.where((pred[p] - goal[p]).abs() <= snap_tolerance, goal[p], pred[p]) for p in PROPERTIES}
-    dssims = {v: _dssim_per_property({p: snapped[p][v] for p in PROPERTIES}, {p: goal[p][v] for p in PROPERTIES},
-                                     mask[v]) for v in views} if ssim_lambda > 0 else {}
+    dssims = {v: dssim_per_property({p: snapped[p][v] for p in PROPERTIES}, {p: goal[p][v] for p in PROPERTIES},
+                                    mask[v]) for v in views} if ssim_lambda > 0 else {}
     for p in PROPERTIES:
         sums = {"l1": 0.0, "l2": 0.0, "dssim": 0.0}
         for v in views:
