@@ -132,3 +132,24 @@ def test_num_samples_averages_the_single_seed_predictions(dataset, runs):  # noq
     np.testing.assert_array_equal(measured(1), samples[0])
     np.testing.assert_allclose(measured(3), np.mean(samples, axis=0), rtol=0, atol=1e-6)
     assert not np.allclose(samples[0], samples[1])  # the seeds do draw different samples
+
+
+def test_guidance_scale_reaches_the_sampler(dataset, runs):  # noqa: F811
+    """--guidance-scale s measures what predict_point_pbr samples with classifier-free guidance s
+    (gspi-run's stage2.inference.guidance_scale), and s != 1 does change the prediction."""
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.points_measure import PointSampling, subset_prediction, whole_scene_inputs
+    from gspi.stage2.sampler import predict_point_pbr
+    from gspi.stage2.splits import load_split
+
+    _, checked, _ = runs
+    model, cfg = load_stage2_checkpoint(checked / "best.pt")
+    scene = load_split({**cfg, "data_dir": str(dataset)}, "test", build_encoder(cfg["stage2"].prior))[0]
+    data_cfg = cfg["stage2"].data
+    xyz, cond = whole_scene_inputs(scene, data_cfg, np.random.default_rng([0, 0]))
+    guided = predict_point_pbr(model, xyz, cond, scene.prior_grid(), num_steps=2, seed=0, frame=scene.frame,
+                               guidance_scale=3.0).numpy()
+    measured = subset_prediction(model, scene, 0, data_cfg, PointSampling(num_steps=2, seed=0, guidance_scale=3.0))
+    np.testing.assert_array_equal(measured, guided)
+    plain = subset_prediction(model, scene, 0, data_cfg, PointSampling(num_steps=2, seed=0))
+    assert not np.allclose(plain, guided)

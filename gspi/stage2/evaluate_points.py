@@ -76,7 +76,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                         split: str = "test", num_steps: int = 50, seed: int = 0,
                         write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
                         max_points: int | None = None, baseline_train: str | Path | None = None,
-                        num_samples: int = 1) -> dict[str, Any]:
+                        num_samples: int = 1, guidance_scale: float = 1.0) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
@@ -87,11 +87,13 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     ``baseline_train``: the dataset whose train split gives the baseline's constants (default
     ``data_dir``; e.g. the model's training pool when ``data_dir`` holds only test scenes).
     ``num_samples``: DDIM samples averaged per point (gspi-run's ``stage2.inference.num_samples``).
+    ``guidance_scale``: classifier-free guidance (gspi-run's ``stage2.inference.guidance_scale``).
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
     data_cfg = cfg["stage2"].data
-    sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed, num_samples=num_samples)
+    sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed, num_samples=num_samples,
+                             guidance_scale=guidance_scale)
 
     def predict(scene: ScenePoints, index: int):
         return subset_prediction(model, scene, index, data_cfg, sampling, write_chunk=write_chunk)
@@ -99,11 +101,13 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     result = score_split(predict, cfg, data_dir, split, out_dir, baseline_train=baseline_train,
                          record={"ablation": str(cfg.get("ablation_name", "full")), **dict(source or {}),
                                  "num_steps": num_steps, "max_points": max_points, "seed": seed,
-                                 **({"num_samples": num_samples} if num_samples != 1 else {})})
+                                 **({"num_samples": num_samples} if num_samples != 1 else {}),
+                                 **({"guidance_scale": guidance_scale} if guidance_scale != 1.0 else {})})
     out_dir = Path(out_dir)
     rough, metal = result["baseline_constants"]["roughness"], result["baseline_constants"]["metallic"]
     scenes = result["scenes"]
     averaged = f", {num_samples} samples averaged" if num_samples != 1 else ""
+    averaged += f", guidance {guidance_scale:g}" if guidance_scale != 1.0 else ""
     caption = (f"Stage II on the GT point clouds of {len(scenes)} {split} scenes of {Path(data_dir).name} "
                f"({num_steps} DDIM steps, seed {seed}{averaged}); per-view masked metrics averaged over the 32 lattice "
                f"views and the scenes; PSNR capped at {PSNR_CAP_DB:.0f} dB per view; LPIPS = AlexNet v0.1. "
@@ -133,6 +137,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--num-samples", type=int, default=1,
                         help="DDIM samples averaged per point (gspi-run's stage2.inference.num_samples)")
+    parser.add_argument("--guidance-scale", type=float, default=1.0,
+                        help="classifier-free guidance (gspi-run's stage2.inference.guidance_scale; 1 = off)")
     parser.add_argument("--max-points", type=int, default=None,
                         help="per scene: a seeded subset + 1-NN fill (the validation measure); default every point")
     parser.add_argument("--baseline-train", default=None,
@@ -144,7 +150,8 @@ def main(argv: list[str] | None = None) -> None:
     model, cfg = load_stage2_checkpoint(args.checkpoint)
     evaluate_checkpoint(model, cfg, args.data, args.out, split=args.split, num_steps=args.num_steps, seed=args.seed,
                         source=checkpoint_source(args.checkpoint), max_points=args.max_points,
-                        baseline_train=args.baseline_train, num_samples=args.num_samples)
+                        baseline_train=args.baseline_train, num_samples=args.num_samples,
+                        guidance_scale=args.guidance_scale)
     print((Path(args.out) / "table.md").read_text())
 
 

@@ -42,6 +42,7 @@ class PointSampling:
     max_points: Optional[int] = None  # per scene: seeded subset + 1-NN fill; None = every point
     seed: int = 0
     num_samples: int = 1             # DDIM samples (seeds seed, seed+1, ...) averaged per point (stage2.inference.num_samples)
+    guidance_scale: float = 1.0      # classifier-free guidance (stage2.inference.guidance_scale; 1 = off)
 
 
 def scatter_to_views(values: np.ndarray, scene: ScenePoints) -> tuple[np.ndarray, np.ndarray]:
@@ -139,5 +140,6 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
     device = next(model.parameters()).device
     values = mean_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
                             num_samples=getattr(cfg, "num_samples", 1), seed=cfg.seed, num_steps=cfg.num_steps,
-                            frame=scene.frame, write_chunk=write_chunk)
+                            frame=scene.frame, write_chunk=write_chunk,
+                            guidance_scale=getattr(cfg, "guidance_scale", 1.0))
     return values if len(keep) == scene.num_points else nearest_fill(scene.xyz[keep], values, scene.xyz)
