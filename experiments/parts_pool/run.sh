@@ -14,6 +14,9 @@
 #   WORK=/work/data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
 #     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=/work/data/parts_pool [ABLATION=a1_no_global_prior SEEDS=0] \
 #     nohup setsid experiments/parts_pool/run.sh &
+#   # session 18: the same, trained on each scene under reconstructed AND exact conditions
+#   # (experiments/parts_pool/mix_conditions.py; runs/<RECIPE>_mix_s<seed>)
+#   WORK=/work/data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/parts_pool/run.sh &
 #
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed).
 # Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
@@ -29,7 +32,10 @@ SPLIT=${SPLIT:-"--train 0:64 --test 224:256"}          # their roles (gspi.data.
 HELDOUT=${HELDOUT:-$WORK}             # whose rpool64 test split (and pool64 baseline) is measured
 PARTS_EXTRA=${PARTS_EXTRA:-}          # more data.parts keys, e.g. data.parts.look_swap=0.5
 ABLATION=${ABLATION:-full}            # conf/ablation/<name>: full or a Table 2 variant (a1..a5)
+CONDITIONS=${CONDITIONS:-reconstructed}  # reconstructed (the paper) or mixed (+ the exact renders)
 RUN=$RECIPE; [ "$ABLATION" = full ] || RUN=${RECIPE}_$ABLATION   # runs/<RUN>_s<seed> (full keeps its old names)
+TRAIN_DATA=$WORK/rpool64
+[ "$CONDITIONS" = reconstructed ] || { RUN=${RUN}_mix; TRAIN_DATA=$WORK/mix64; }
 BIN=.venv/bin
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 PARTS=(data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3 $PARTS_EXTRA)
@@ -43,11 +49,16 @@ $BIN/python -m gspi.data.pool.split "$WORK/pool" "$WORK/pool64" $SPLIT >> "$WORK
 log "pool: Stage 0 reconstructions"
 $BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --workers 2 >> "$WORK/run.log" 2>&1
 $BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --summary > "$WORK/recon_summary.md" 2>&1
-log "train: $RECIPE ablation=$ABLATION seeds $SEEDS (chunks of $CHUNK_MIN min)"
+case "$CONDITIONS" in
+  reconstructed) ;;
+  mixed) $BIN/python experiments/parts_pool/mix_conditions.py "$WORK/rpool64" "$WORK/pool64" "$WORK/mix64" >> "$WORK/run.log" 2>&1 ;;
+  *) log "CONDITIONS=$CONDITIONS: expected reconstructed or mixed"; exit 2 ;;
+esac
+log "train: $RECIPE ablation=$ABLATION conditions=$CONDITIONS seeds $SEEDS (chunks of $CHUNK_MIN min)"
 train_seed() {
   local seed=$1 out="$WORK/runs/${RUN}_s$1"
   until [ -f "$out/stats.json" ] && $BIN/python -c "import json,sys; s=json.load(open('$out/stats.json')); sys.exit(0 if s.get('steps',0)>=s.get('total_steps', 2500) else 1)"; do
-    $BIN/gspi-train data="$WORK/rpool64" out="$out" stage2=$RECIPE ablation=$ABLATION seed=$seed \
+    $BIN/gspi-train data="$TRAIN_DATA" out="$out" stage2=$RECIPE ablation=$ABLATION seed=$seed \
       stage2.train.stop_after_minutes=$CHUNK_MIN >> "$WORK/train_s$seed.log" 2>&1 \
       || { log "train: seed $seed failed (see $WORK/train_s$seed.log)"; return 1; }
     log "train: seed $seed chunk ended at step $($BIN/python -c "import json; print(json.load(open('$out/stats.json'))['steps'])")"
