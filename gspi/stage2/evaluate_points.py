@@ -106,10 +106,10 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     out_dir = Path(out_dir)
     rough, metal = result["baseline_constants"]["roughness"], result["baseline_constants"]["metallic"]
     scenes = result["scenes"]
-    averaged = f", {num_samples} samples averaged" if num_samples != 1 else ""
-    averaged += f", guidance {guidance_scale:g}" if guidance_scale != 1.0 else ""
+    sampling_note = f", {num_samples} samples averaged" if num_samples != 1 else ""
+    sampling_note += f", guidance {guidance_scale:g}" if guidance_scale != 1.0 else ""
     caption = (f"Stage II on the GT point clouds of {len(scenes)} {split} scenes of {Path(data_dir).name} "
-               f"({num_steps} DDIM steps, seed {seed}{averaged}); per-view masked metrics averaged over the 32 lattice "
+               f"({num_steps} DDIM steps, seed {seed}{sampling_note}); per-view masked metrics averaged over the 32 lattice "
                f"views and the scenes; PSNR capped at {PSNR_CAP_DB:.0f} dB per view; LPIPS = AlexNet v0.1. "
                f"Baseline constants (training means): roughness {rough:.3f}, metallic {metal:.3f}.")
     (out_dir / "table.md").write_text(markdown_table(result, caption=caption))
