@@ -33,3 +33,12 @@ def test_a_scene_without_its_exact_twin_is_refused(tmp_path):
     exact = _pool(tmp_path / "pool", ["p0"])
     with pytest.raises(ValueError, match=r"pool/splits.json: no exact scene for \['p9'\]"):
         mix_view(recon, exact, tmp_path / "mix")
+
+
+def test_a_link_to_another_pool_is_refused(tmp_path):
+    recon = _pool(tmp_path / "rpool", ["p0"])
+    exact = _pool(tmp_path / "pool", ["p0"])
+    (tmp_path / "mix").mkdir()
+    (tmp_path / "mix" / "exact_p0").symlink_to(recon / "p0")  # a stale view: the wrong condition
+    with pytest.raises(FileExistsError, match=r"mix/exact_p0: exists and is not a link to .*pool/p0"):
+        mix_view(recon, exact, tmp_path / "mix")

@@ -20,22 +20,22 @@ import argparse
 import json
 from pathlib import Path
 
+from eval.layout import read_splits
+from gspi.data.pool.split import link_scene
+
 
 def mix_view(recon: Path, exact: Path, out: Path) -> dict[str, list[str]]:
     """Writes ``out`` (symlinks + splits.json) and returns its splits."""
-    names = json.loads((recon / "splits.json").read_text())["train"]
-    exact_names = set(json.loads((exact / "splits.json").read_text())["train"])
+    names = read_splits(recon).get("train", [])
+    exact_names = set(read_splits(exact).get("train", []))
     missing = [n for n in names if n not in exact_names]
     if missing:
         raise ValueError(f"{exact / 'splits.json'}: no exact scene for {missing[:3]} (the two pools must match)")
     out.mkdir(parents=True, exist_ok=True)
-    train = []
-    for name, source, link in [(n, recon / n, n) for n in names] + [(n, exact / n, f"exact_{n}") for n in names]:
-        target = out / link
-        if not target.exists():
-            target.symlink_to(source.resolve(), target_is_directory=True)
-        train.append(link)
-    splits = {"train": train, "val": [], "test": []}
+    links = {n: recon / n for n in names} | {f"exact_{n}": exact / n for n in names}
+    for link, source in links.items():
+        link_scene(out / link, source)
+    splits = {"train": list(links), "val": [], "test": []}
     (out / "splits.json").write_text(json.dumps(splits, indent=1) + "\n")
     return splits
 

@@ -44,6 +44,16 @@ def pool_scenes(pool: Path) -> dict[int, str]:
     return {int(name[1:5]): name for name in names}
 
 
+def link_scene(link: Path, target: Path) -> None:
+    """A view's scene: ``link`` -> ``target`` (absolute); an existing ``link`` must already lead there."""
+    target = target.resolve()
+    if link.is_symlink() or link.exists():
+        if link.resolve() != target:
+            raise FileExistsError(f"{link}: exists and is not a link to {target}")
+        return
+    os.symlink(target, link)
+
+
 def split_view(pool: str | Path, out: str | Path, ranges: dict[str, range]) -> dict[str, list[str]]:
     """Writes the view (symlinks + splits.json) and returns its splits."""
     pool, out = Path(pool).resolve(), Path(out)
@@ -67,12 +77,7 @@ def split_view(pool: str | Path, out: str | Path, ranges: dict[str, range]) -> d
         splits[split] = [by_index[i] for i in indices]
     out.mkdir(parents=True, exist_ok=True)
     for name in (n for names in splits.values() for n in names):
-        link = out / name
-        if link.is_symlink() or link.exists():
-            if link.resolve() != (pool / name):
-                raise FileExistsError(f"{link}: exists and is not a link to {pool / name}")
-            continue
-        os.symlink(pool / name, link)
+        link_scene(out / name, pool / name)
     (out / "splits.json").write_text(json.dumps(splits, indent=1) + "\n")
     return splits
 
