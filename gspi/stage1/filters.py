@@ -112,13 +112,13 @@ def depth_consensus_keep(xyz: np.ndarray, source_view: np.ndarray, depth: np.nda
     """
     surface = nearest_surface_depth(depth, alpha, alpha_threshold=alpha_threshold, window_px=window_px)
     neighbours = neighbour_views(w2c, num_neighbours)   # [V, n]
-    counts = np.zeros((len(w2c), len(w2c)), dtype=bool)  # counts[v, s]: view v is a neighbour of view s
-    counts[neighbours, np.arange(len(w2c))[:, None]] = True
+    neighbour_of = np.zeros((len(w2c), len(w2c)), dtype=bool)  # [v, s]: view v is a neighbour of view s
+    neighbour_of[neighbours, np.arange(len(w2c))[:, None]] = True
     violations = np.zeros(len(xyz), np.int32)
     # per view, only the points whose source view counts it among its neighbours (n of V views:
     # projecting every point into every view did V / n times the work; same bits per point)
     for v in range(len(w2c)):
-        idx = np.flatnonzero(counts[v, source_view])
+        idx = np.flatnonzero(neighbour_of[v, source_view])
         if len(idx) == 0:
             continue
         rc, z = project(xyz[idx], K[v:v + 1], w2c[v:v + 1])
