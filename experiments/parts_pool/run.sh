@@ -17,6 +17,11 @@
 #   # session 18: the same, trained on each scene under reconstructed AND exact conditions
 #   # (experiments/parts_pool/mix_conditions.py; runs/<RECIPE>_mix_s<seed>)
 #   WORK=/work/data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/parts_pool/run.sh &
+#   # session 19's default (stage2_pool224.pt): the matte pool's 224 training scenes (runs/<RECIPE>_224_s<seed>;
+#   # with CONDITIONS=mixed runs/<RECIPE>_mix224_s<seed>)
+#   WORK=/work/data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
+#     POOL_INDICES='[[0,224]]' SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=/work/data/parts_pool \
+#     nohup setsid experiments/parts_pool/run.sh &
 #
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed).
 # Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
@@ -33,9 +38,15 @@ HELDOUT=${HELDOUT:-$WORK}             # whose rpool64 test split (and pool64 bas
 PARTS_EXTRA=${PARTS_EXTRA:-}          # more data.parts keys, e.g. data.parts.look_swap=0.5
 ABLATION=${ABLATION:-full}            # conf/ablation/<name>: full or a Table 2 variant (a1..a5)
 CONDITIONS=${CONDITIONS:-reconstructed}  # reconstructed (the paper) or mixed (+ the exact renders)
+TRAIN_SCENES=${TRAIN_SCENES:-64}      # SPLIT's training scenes: names the views pool<N>, rpool<N>, mix<N>
+case " $SPLIT " in *" --train 0:$TRAIN_SCENES "*) ;;
+  *) echo "run.sh: TRAIN_SCENES=$TRAIN_SCENES but SPLIT='$SPLIT' does not train on 0:$TRAIN_SCENES" >&2; exit 2 ;; esac
 RUN=$RECIPE; [ "$ABLATION" = full ] || RUN=${RECIPE}_$ABLATION   # runs/<RUN>_s<seed> (full keeps its old names)
-TRAIN_DATA=$WORK/rpool64
-[ "$CONDITIONS" = reconstructed ] || { RUN=${RUN}_mix; TRAIN_DATA=$WORK/mix64; }
+VARIANT=""; [ "$CONDITIONS" = reconstructed ] || VARIANT=mix; [ "$TRAIN_SCENES" = 64 ] || VARIANT=$VARIANT$TRAIN_SCENES
+[ -z "$VARIANT" ] || RUN=${RUN}_$VARIANT        # _mix, _224, _mix224
+POOL_VIEW=$WORK/pool$TRAIN_SCENES; RECON_VIEW=$WORK/rpool$TRAIN_SCENES
+SUMMARY=$WORK/recon_summary.md; [ "$TRAIN_SCENES" = 64 ] || SUMMARY=$WORK/recon_summary_$TRAIN_SCENES.md
+TRAIN_DATA=$RECON_VIEW; [ "$CONDITIONS" = reconstructed ] || TRAIN_DATA=$WORK/mix$TRAIN_SCENES
 BIN=.venv/bin
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 PARTS=(data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3 $PARTS_EXTRA)
@@ -45,13 +56,17 @@ log() { echo "$(date -u +%FT%TZ) $*" | tee -a "$WORK/run.log"; }
 log "pool: generate (indices $POOL_INDICES; ${PARTS[*]})"
 $BIN/gspi-data preset=stage2_pool out="$WORK/pool" seed=0 "data.pool_indices=$POOL_INDICES" \
   data.workers=2 "${PARTS[@]}" >> "$WORK/run.log" 2>&1
-$BIN/python -m gspi.data.pool.split "$WORK/pool" "$WORK/pool64" $SPLIT >> "$WORK/run.log" 2>&1
+$BIN/python -m gspi.data.pool.split "$WORK/pool" "$POOL_VIEW" $SPLIT >> "$WORK/run.log" 2>&1
 log "pool: Stage 0 reconstructions"
-$BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --workers 2 >> "$WORK/run.log" 2>&1
-$BIN/python -m gspi.recon.reconstructed_pool "$WORK/pool64" "$WORK/rpool64" --summary > "$WORK/recon_summary.md" 2>&1
+if [ "$TRAIN_SCENES" != 64 ] && [ -d "$WORK/rpool64" ]; then   # reuse the 64-scene view's reconstructions
+  mkdir -p "$RECON_VIEW"
+  for d in "$WORK"/rpool64/p0*; do [ -e "$RECON_VIEW/$(basename "$d")" ] || ln -s "$d" "$RECON_VIEW/$(basename "$d")"; done
+fi
+$BIN/python -m gspi.recon.reconstructed_pool "$POOL_VIEW" "$RECON_VIEW" --workers 2 >> "$WORK/run.log" 2>&1
+$BIN/python -m gspi.recon.reconstructed_pool "$POOL_VIEW" "$RECON_VIEW" --summary > "$SUMMARY" 2>&1
 case "$CONDITIONS" in
   reconstructed) ;;
-  mixed) $BIN/python experiments/parts_pool/mix_conditions.py "$WORK/rpool64" "$WORK/pool64" "$WORK/mix64" >> "$WORK/run.log" 2>&1 ;;
+  mixed) $BIN/python experiments/parts_pool/mix_conditions.py "$RECON_VIEW" "$POOL_VIEW" "$WORK/mix$TRAIN_SCENES" >> "$WORK/run.log" 2>&1 ;;
   *) log "CONDITIONS=$CONDITIONS: expected reconstructed or mixed"; exit 2 ;;
 esac
 log "train: $RECIPE ablation=$ABLATION conditions=$CONDITIONS seeds $SEEDS (chunks of $CHUNK_MIN min)"
