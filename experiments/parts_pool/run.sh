@@ -23,6 +23,7 @@
 #     POOL_INDICES='[[0,224]]' SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=/work/data/parts_pool \
 #     nohup setsid experiments/parts_pool/run.sh &
 #
+# PLAN_ONLY=1 prints the run names and data it would use and stops.
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed).
 # Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
 # one thread each.
@@ -48,6 +49,10 @@ POOL_VIEW=$WORK/pool$TRAIN_SCENES; RECON_VIEW=$WORK/rpool$TRAIN_SCENES
 SUMMARY=$WORK/recon_summary.md; [ "$TRAIN_SCENES" = 64 ] || SUMMARY=$WORK/recon_summary_$TRAIN_SCENES.md
 TRAIN_DATA=$RECON_VIEW; [ "$CONDITIONS" = reconstructed ] || TRAIN_DATA=$WORK/mix$TRAIN_SCENES
 BIN=.venv/bin
+if [ -n "${PLAN_ONLY:-}" ]; then   # print what a run would train and measure, then stop
+  echo "runs: $WORK/runs/${RUN}_s<seed> for seeds $SEEDS; train data: $TRAIN_DATA; held out: $HELDOUT/rpool64"
+  exit 0
+fi
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 PARTS=(data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3 $PARTS_EXTRA)
 mkdir -p "$WORK"
