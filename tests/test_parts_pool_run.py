@@ -34,3 +34,18 @@ def test_train_scenes_must_match_the_split(tmp_path):
     out = plan(tmp_path, TRAIN_SCENES="224")  # SPLIT keeps its default --train 0:64
     assert out.returncode == 2
     assert "TRAIN_SCENES=224" in out.stderr and "0:224" in out.stderr
+
+
+def test_table2_lanes_share_the_job_list(tmp_path):
+    """table2.sh's lanes split variants x seeds between them: disjoint, and together all of it."""
+    script = SCRIPT.with_name("table2.sh")
+    lanes = []
+    for lane in range(2):
+        env = {**os.environ, "WORK": str(tmp_path), "PLAN_ONLY": "1", "LANE": str(lane), "LANES": "2",
+               "SEEDS": "0 1", "VARIANTS": "full a1_no_global_prior a2_no_view_onehot"}
+        out = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0, out.stderr
+        lanes.append({line.split(": ", 1)[1] for line in out.stdout.splitlines()})
+    assert not lanes[0] & lanes[1]
+    assert lanes[0] | lanes[1] == {f"{v} seed {s}" for v in ("full", "a1_no_global_prior", "a2_no_view_onehot")
+                                   for s in (0, 1)}
