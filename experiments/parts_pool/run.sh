@@ -27,6 +27,9 @@
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed).
 # Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
 # one thread each.
+# The body is one { ... } group, so bash reads all of it before running any: editing this file
+# while a run is in flight cannot change what that run does next.
+{
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 WORK=${WORK:-/work/data/parts_pool}
@@ -94,3 +97,5 @@ for s in $SEEDS; do
     "$out/eval" --num-steps 10 --max-points 20000 --baseline-train "$HELDOUT/pool64" >> "$WORK/run.log" 2>&1
 done
 log "done"
+exit
+}

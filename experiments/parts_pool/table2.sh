@@ -14,6 +14,9 @@
 # Costs per run (CPU-s on one thread, docs/log/stage2_runs.jsonl): Full ~1420, A1 ~270, A2 ~1200,
 # A3 ~1830, A5 ~1400 (64-scene figures; the step count, not the pool size, sets them); A4 (384
 # latents) is not in the default list: several CPU-hours per seed.
+# The body is one { ... } group, so bash reads all of it before running any: editing this file
+# while a run is in flight cannot change what that run does next.
+{
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 WORK=${WORK:-/work/data/matte_pool}
@@ -31,3 +34,5 @@ for i in "${!jobs[@]}"; do
     experiments/parts_pool/run.sh
 done
 [ -n "${PLAN_ONLY:-}" ] || echo "$(date -u +%FT%TZ) table2 lane $LANE of $LANES: done"
+exit
+}
