@@ -12,9 +12,10 @@ import pytest
 SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "parts_pool" / "run.sh"
 
 
-def plan(tmp_path, **env) -> subprocess.CompletedProcess:
+def plan(tmp_path, script: Path = SCRIPT, **env) -> subprocess.CompletedProcess:
+    """The script's PLAN_ONLY=1 output: what it would run, with nothing run."""
     full = {**os.environ, "WORK": str(tmp_path), "PLAN_ONLY": "1", **env}
-    return subprocess.run(["bash", str(SCRIPT)], env=full, capture_output=True, text=True, timeout=30)
+    return subprocess.run(["bash", str(script)], env=full, capture_output=True, text=True, timeout=30)
 
 
 @pytest.mark.parametrize("env, run, data", [
@@ -38,12 +39,10 @@ def test_train_scenes_must_match_the_split(tmp_path):
 
 def test_table2_lanes_share_the_job_list(tmp_path):
     """table2.sh's lanes split variants x seeds between them: disjoint, and together all of it."""
-    script = SCRIPT.with_name("table2.sh")
     lanes = []
     for lane in range(2):
-        env = {**os.environ, "WORK": str(tmp_path), "PLAN_ONLY": "1", "LANE": str(lane), "LANES": "2",
-               "SEEDS": "0 1", "VARIANTS": "full a1_no_global_prior a2_no_view_onehot"}
-        out = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True, timeout=30)
+        out = plan(tmp_path, SCRIPT.with_name("table2.sh"), LANE=str(lane), LANES="2", SEEDS="0 1",
+                   VARIANTS="full a1_no_global_prior a2_no_view_onehot")
         assert out.returncode == 0, out.stderr
         lanes.append({line.split(": ", 1)[1] for line in out.stdout.splitlines()})
     assert not lanes[0] & lanes[1]

@@ -67,8 +67,9 @@ $BIN/gspi-data preset=stage2_pool out="$WORK/pool" seed=0 "data.pool_indices=$PO
 $BIN/python -m gspi.data.pool.split "$WORK/pool" "$POOL_VIEW" $SPLIT >> "$WORK/run.log" 2>&1
 log "pool: Stage 0 reconstructions"
 if [ "$TRAIN_SCENES" != 64 ] && [ -d "$WORK/rpool64" ]; then   # reuse the 64-scene view's reconstructions
-  mkdir -p "$RECON_VIEW"
-  for d in "$WORK"/rpool64/p0*; do [ -e "$RECON_VIEW/$(basename "$d")" ] || ln -s "$d" "$RECON_VIEW/$(basename "$d")"; done
+  $BIN/python -c "import sys; from pathlib import Path; from gspi.data.pool.split import link_scene
+old, new = Path(sys.argv[1]), Path(sys.argv[2]); new.mkdir(parents=True, exist_ok=True)
+for d in sorted(old.glob('p0*')): link_scene(new / d.name, d)" "$WORK/rpool64" "$RECON_VIEW"
 fi
 $BIN/python -m gspi.recon.reconstructed_pool "$POOL_VIEW" "$RECON_VIEW" --workers 2 >> "$WORK/run.log" 2>&1
 $BIN/python -m gspi.recon.reconstructed_pool "$POOL_VIEW" "$RECON_VIEW" --summary > "$SUMMARY" 2>&1
