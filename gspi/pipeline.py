@@ -93,7 +93,8 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         pbr, s2 = predict_generated_points(
             stage2.model, points, renders, local_mode=data_cfg.local_condition, encoder=stage2.encoder,
             cfg=stage2.run_cfg.inference,
-            tol_pixels=float(data_cfg.visibility_tol_pixels), device=device)
+            tol_pixels=float(data_cfg.visibility_tol_pixels), pixel_features=data_cfg.pixel_features,
+            device=device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None

@@ -7,7 +7,7 @@ import torch
 
 from gspi.stage2.encoders import (AlexNetEncoder, NoPriorEncoder, build_encoder, encoder_hash,
                                   lattice_images_srgb)
-from gspi.stage2.feature_cache import cache_path, scene_prior_features
+from gspi.stage2.feature_cache import cache_path, scene_feature_maps, scene_prior_features
 from tests.stage2_fixtures import make_lattice_scene
 
 
@@ -84,6 +84,10 @@ class CountingEncoder:
         self.calls += 1
         return imgs.mean(dim=(2, 3))[:, :1, None, None].expand(-1, self.feature_dim, 5, 5).contiguous()
 
+    def encode_map(self, imgs):
+        self.calls += 1
+        return imgs[:, :1, ::4, ::4].expand(-1, self.feature_dim, -1, -1).contiguous()  # [V, D, 8, 8]
+
     def identity(self):
         return {"name": self.name, "dim": self.feature_dim}
 
@@ -132,3 +136,30 @@ def test_alexnet_scene_features_cached(scene_dir, tmp_path):
     feats = scene_prior_features(scene_dir, enc, tmp_path)
     assert feats.shape == (32, 256, 5, 5)
     assert cache_path(tmp_path, "sphere", enc).is_file()
+
+
+def test_feature_maps_are_cached_beside_the_grid(scene_dir, tmp_path):
+    """stage2.data.pixel_features: the unpooled maps get their own file; a stale one is recomputed."""
+    enc = CountingEncoder()
+    grid = scene_prior_features(scene_dir, enc, tmp_path)
+    maps = scene_feature_maps(scene_dir, enc, tmp_path)
+    path = cache_path(tmp_path, "sphere", enc, unpooled=True)
+    assert path.name == f"counting-{encoder_hash(enc)}-map.pt" and path.is_file()
+    assert maps.shape == (32, 4, 8, 8) and grid.shape == (32, 4, 5, 5) and enc.calls == 2
+    torch.testing.assert_close(scene_feature_maps(scene_dir, enc, tmp_path), maps)
+    torch.testing.assert_close(scene_prior_features(scene_dir, enc, tmp_path), grid)
+    assert enc.calls == 2  # both hits
+    entry = torch.load(path, weights_only=True)
+    torch.save({**entry, "features": entry["features"][:, :2]}, path)  # wrong width -> recomputed
+    torch.testing.assert_close(scene_feature_maps(scene_dir, enc, tmp_path), maps)
+    assert enc.calls == 3
+
+
+def test_the_grid_is_the_pooled_map():
+    """encode() pools encode_map() to 5 x 5: the pixel features and the global cells are one map."""
+    enc = build_encoder({"encoder": "alexnet"})
+    maps = enc.encode_map(images())
+    assert maps.shape == (2, 256, 13, 13)  # relu5 at 224 px
+    torch.testing.assert_close(enc.encode(images()), torch.nn.functional.adaptive_avg_pool2d(maps, 5))
+    with pytest.raises(ValueError, match="pixel_features"):
+        NoPriorEncoder().encode_map(images())

@@ -16,7 +16,7 @@ from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.stage1.extract import unproject_renders
 from gspi.stage2.data import load_scene_points, local_condition
 from gspi.stage2.encoders import build_encoder, lattice_images_srgb
-from gspi.stage2.feature_cache import scene_prior_features
+from gspi.stage2.feature_cache import scene_feature_maps, scene_prior_features
 from gspi.stage2.infer import lattice_srgb, point_conditions, prior_features
 from gspi.stage2.normalize import fit_unit_sphere, to_unit_sphere
 from tests.stage2_fixtures import make_lattice_scene
@@ -37,7 +37,8 @@ def gt_views_as_renders(root) -> LatticeRenders:
 def both_paths(tmp_path_factory):
     root = make_lattice_scene(tmp_path_factory.mktemp("parity"), "sphere", seed=3)
     encoder = build_encoder({"encoder": "alexnet"})
-    train_scene = load_scene_points(root, scene_prior_features(root, encoder, root / "cache"))
+    train_scene = load_scene_points(root, scene_prior_features(root, encoder, root / "cache"),
+                                    scene_feature_maps(root, encoder, root / "cache"))
     renders = gt_views_as_renders(root)
     points = unproject_renders(renders, alpha_threshold=0.5)
     return train_scene, points, renders, encoder
@@ -78,3 +79,18 @@ def test_unit_sphere_frame_is_the_same(both_paths):
     a = to_unit_sphere(torch.from_numpy(scene.xyz), scene.frame)
     b = to_unit_sphere(torch.as_tensor(points.xyz, dtype=torch.float64), frame)
     torch.testing.assert_close(b, a, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("mode", ["top_rgb_onehot", "top_rgb"])
+def test_pixel_features_are_the_same(both_paths, mode):
+    """stage2.data.pixel_features: the map sampled at the source pixel, from the GT views in
+    training and from the renders at inference, appended after the same base condition."""
+    scene, points, renders, encoder = both_paths
+    maps = encoder.encode_map(lattice_srgb(renders.rgb))
+    np.testing.assert_allclose(maps.numpy(), scene.feature_maps.numpy(), rtol=1e-5, atol=1e-5)
+    train = local_condition(scene, np.arange(scene.num_points), scene.xyz, mode, pixel_features=True)
+    infer = point_conditions(points, mode, renders, feature_maps=maps)
+    base = local_condition(scene, np.arange(scene.num_points), scene.xyz, mode)
+    assert train.shape == infer.shape == (scene.num_points, base.shape[1] + encoder.feature_dim)
+    np.testing.assert_array_equal(train[:, :base.shape[1]], base)
+    np.testing.assert_allclose(infer, train, rtol=1e-4, atol=1e-4)

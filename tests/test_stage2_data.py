@@ -8,7 +8,7 @@ import torch
 
 from gspi.stage2.data import (LOCAL_CONDITIONS, PointDataConfig, load_scene_points, local_condition,
                               local_subset, multiview_condition, perturb_along_rays, pixel_footprint,
-                              sample_batch, whole_scene_inputs)
+                              sample_batch, sample_pixel_features, whole_scene_inputs)
 from tests.stage2_fixtures import SIZE, make_lattice_scene
 
 
@@ -109,3 +109,36 @@ def test_whole_scene_inputs_cover_all_points(scene):
 def test_unknown_condition_is_rejected():
     with pytest.raises(ValueError, match="top_rgb_onehot"):
         PointDataConfig.from_mapping({"local_condition": "six_views"})
+
+
+@pytest.mark.parametrize("grid, image", [((13, 13), (32, 32)), ((5, 7), (24, 40)), ((16, 16), (16, 16))])
+def test_pixel_features_are_bilinear_samples_at_pixel_centres(grid, image):
+    """Oracle: torch grid_sample (align_corners=False, border padding) at each pixel's centre."""
+    gen = torch.Generator().manual_seed(1)
+    maps = torch.randn(3, 6, *grid, generator=gen)
+    rng = np.random.default_rng(0)
+    n = 200
+    view = rng.integers(3, size=n)
+    pixel = np.stack([rng.integers(image[0], size=n), rng.integers(image[1], size=n)], axis=1)
+    out = sample_pixel_features(maps, view, pixel, image)
+    xy = torch.from_numpy(np.stack([(pixel[:, 1] + 0.5) / image[1], (pixel[:, 0] + 0.5) / image[0]], 1) * 2 - 1)
+    oracle = torch.nn.functional.grid_sample(maps[torch.from_numpy(view)], xy.float()[:, None, None],
+                                             mode="bilinear", padding_mode="border", align_corners=False)
+    np.testing.assert_allclose(out, oracle[:, :, 0, 0].numpy(), rtol=1e-5, atol=1e-5)
+    if grid == image:  # one cell per pixel: the sample is the cell itself
+        np.testing.assert_array_equal(out, maps[view, :, pixel[:, 0], pixel[:, 1]].numpy())
+
+
+def test_pixel_features_extend_the_local_condition(scene):
+    maps = torch.randn(32, 8, 13, 13, generator=torch.Generator().manual_seed(2))
+    with_maps = load_scene_points(scene.root, scene.prior_grid(), maps)
+    cfg = PointDataConfig(num_points=64, pixel_features=True)
+    assert cfg.condition_width(8) == 35 + 8 and PointDataConfig().condition_width(8) == 35
+    _, inputs = sample_batch([with_maps], cfg, 2, np.random.default_rng(0))
+    assert inputs.local_cond.shape == (2, 64, 43)
+    idx = np.arange(10)
+    cond = local_condition(with_maps, idx, with_maps.xyz[idx], "top_rgb_onehot", pixel_features=True)
+    np.testing.assert_array_equal(cond[:, :35], local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot"))
+    np.testing.assert_allclose(cond[:, 35:], sample_pixel_features(maps, scene.view[idx], scene.pixel[idx], (SIZE, SIZE)))
+    with pytest.raises(ValueError, match="pixel_features needs the prior encoder's maps"):
+        local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot", pixel_features=True)

@@ -247,3 +247,35 @@ def test_checkpoint_clock_and_run_log(dataset, tmp_path, monkeypatch):
                                                               ([6, 10], 10, True)]
     assert lines[-1]["out"] == str(cut.resolve()) and lines[-1]["seed"] == 0
     assert [x["commit"] for x in lines] == ["after-0-saves", "after-1-saves", "after-7-saves"]
+
+
+def test_pixel_features_train_resume_and_infer(dataset, tmp_path):
+    """stage2.data.pixel_features end to end: the model's condition is 35 + D wide, a resumed run
+    equals an uninterrupted one, and Stage II inference on the test scene's views (as Stage I's
+    renders) builds the same width; a caller that forgets the key is refused, naming it."""
+    from eval.layout import read_splits
+    from gspi.stage1.extract import unproject_renders
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.infer import InferenceConfig, predict_generated_points
+    from tests.test_stage2_condition_parity import gt_views_as_renders
+
+    extra = ("stage2.data.pixel_features=true", "stage2.train.steps=4", "stage2.eval.enabled=false")
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    train(tiny_cfg(dataset, straight, *extra), straight)
+    train(tiny_cfg(dataset, resumed, *extra), resumed, stop_at=2)
+    train(tiny_cfg(dataset, resumed, *extra), resumed)
+    a = torch.load(straight / "checkpoint.pt", weights_only=True)
+    b = torch.load(resumed / "checkpoint.pt", weights_only=True)
+    for name, value in a["ema"].items():
+        assert torch.equal(value, b["ema"][name]), name
+    model, saved = load_stage2_checkpoint(straight / "checkpoint.pt")
+    assert saved["stage2"].data.pixel_features and model.config.local_cond_dim == 35 + 256
+    encoder = build_encoder(saved["stage2"].prior)
+    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
+    points = unproject_renders(renders, alpha_threshold=0.5)
+    cfg = InferenceConfig(num_steps=2, max_points=300)
+    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
+                                      cfg=cfg, pixel_features=True)
+    assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all() and pbr.min() >= 0 and pbr.max() <= 1
+    with pytest.raises(ValueError, match=r"291-dim local condition.*pixel_features=False\) gives 35"):
+        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg)

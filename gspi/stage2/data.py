@@ -20,6 +20,11 @@ linear RGB and PBR ground truth. From it:
   applies at inference; ``top_rgb`` (A2, 3) = Top-RGB only; ``multiview`` (A5, 128) = for each
   of the 32 lattice views, the sRGB colour at the point's projection (nearest pixel, 0 outside
   the image) and a visibility flag (inside, foreground, ``|z - depth_gt| < tol * footprint``).
+* **Pixel-aligned prior feature** (``stage2.data.pixel_features``, issue 42's named departure;
+  off in the paper's recipe): the prior encoder's unpooled map of the point's source view
+  (``encode_map``: [D, 13, 13] for AlexNet at 224 px), sampled bilinearly at the source pixel,
+  appended to the local condition (+D). It tells each point what the encoder sees around its
+  own pixel, which the 5 x 5 global cells leave to the attention to find.
 * **Targets** f0 = ``pbr_to_model([albedo (sRGB-encoded, as stored), roughness, metallic])`` in [-1, 1].
 * **Global prior**: the scene's cached [32, D, 5, 5] encoder features as [32, 25, D] tokens;
   view-dropout keeps ``train_views`` (16) random views per item, with their lattice ids.
@@ -108,6 +113,7 @@ class ScenePoints:
     cameras: LatticeCameras
     global_tokens: Optional[Tensor]  # [32, 25, D] or None (no prior)
     root: Path
+    feature_maps: Optional[Tensor] = field(default=None, repr=False)  # [32, D, g, g] (pixel_features)
     _tree: Optional[cKDTree] = field(default=None, repr=False)
     _views: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
 
@@ -140,12 +146,15 @@ class ScenePoints:
         return self._views
 
 
-def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor]) -> ScenePoints:
+def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor],
+                      feature_maps: Optional[Tensor] = None) -> ScenePoints:
     """Reads ``<scene_dir>/gt_points.npz`` and the lattice cameras.
 
     Args:
         global_features: [32, D, 5, 5] prior features (``feature_cache.scene_prior_features``)
             or None / D = 0 for no prior.
+        feature_maps: [32, D, g, g] unpooled maps (``feature_cache.scene_feature_maps``) for
+            ``stage2.data.pixel_features``, else None.
     """
     scene_dir = Path(scene_dir)
     path = scene_dir / "gt_points.npz"
@@ -162,7 +171,8 @@ def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor]) 
     return ScenePoints(
         name=scene_dir.name, xyz=xyz, view=pts["view"].astype(np.int64), pixel=pts["pixel"].astype(np.int64),
         top_rgb=srgb_top_rgb(pts["rgb"]), f0=pbr_to_model(torch.from_numpy(pbr.astype(np.float32))).numpy(),
-        frame=fit_unit_sphere(torch.from_numpy(xyz)), cameras=cams, global_tokens=tokens, root=scene_dir)
+        frame=fit_unit_sphere(torch.from_numpy(xyz)), cameras=cams, global_tokens=tokens, root=scene_dir,
+        feature_maps=feature_maps)
 
 
 def pixel_footprint(z: np.ndarray, cameras: LatticeCameras, views: np.ndarray) -> np.ndarray:
@@ -224,16 +234,48 @@ def multiview_condition_from_views(images: np.ndarray, depth: np.ndarray, cams: 
     return out.reshape(len(xyz), cams_views * 4)
 
 
+def sample_pixel_features(maps: Tensor, view: np.ndarray, pixel: np.ndarray, image_size: tuple[int, int]
+                          ) -> np.ndarray:
+    """[n, D] float32: maps [V, D, g, g] of views ``view`` [n] sampled bilinearly at the centres of
+    pixels ``pixel`` [n, 2] (row, col) of [H, W] images; the map covers the image (``align_corners
+    = False``) and clamps at its border, as ``torch.nn.functional.grid_sample(..., padding_mode=
+    "border")`` (the test's oracle; a gather of 4 cells per point instead of one grid_sample per view)."""
+    height, width = image_size
+    gh, gw = maps.shape[-2:]
+    cells = maps.permute(0, 2, 3, 1)  # [V, g, g, D]
+    view = torch.as_tensor(np.asarray(view, dtype=np.int64))
+    pix = np.asarray(pixel, dtype=np.float64)
+    y = np.clip((pix[:, 0] + 0.5) * gh / height - 0.5, 0.0, gh - 1)  # map coordinates of the centre
+    x = np.clip((pix[:, 1] + 0.5) * gw / width - 0.5, 0.0, gw - 1)
+    y0, x0 = np.floor(y).astype(np.int64), np.floor(x).astype(np.int64)
+    y1, x1 = np.minimum(y0 + 1, gh - 1), np.minimum(x0 + 1, gw - 1)
+    wy, wx = torch.from_numpy((y - y0)[:, None]).float(), torch.from_numpy((x - x0)[:, None]).float()
+    y0, y1, x0, x1 = (torch.from_numpy(a) for a in (y0, y1, x0, x1))
+    top = cells[view, y0, x0] * (1 - wx) + cells[view, y0, x1] * wx
+    bottom = cells[view, y1, x0] * (1 - wx) + cells[view, y1, x1] * wx
+    return (top * (1 - wy) + bottom * wy).float().numpy()
+
+
 def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,
-                    *, tol_pixels: float = 2.0) -> np.ndarray:
-    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, see module docstring)."""
+                    *, tol_pixels: float = 2.0, pixel_features: bool = False) -> np.ndarray:
+    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + D with ``pixel_features``;
+    see module docstring)."""
     local_condition_dim(mode)
     if mode == "top_rgb":
-        return scene.top_rgb[idx]
-    if mode == "top_rgb_onehot":
+        cond = scene.top_rgb[idx]
+    elif mode == "top_rgb_onehot":
         onehot = view_onehot(torch.from_numpy(scene.view[idx]), NUM_LATTICE_VIEWS).numpy()
-        return np.concatenate([scene.top_rgb[idx], onehot], axis=1)
-    return multiview_condition(scene, xyz_perturbed, tol_pixels=tol_pixels)
+        cond = np.concatenate([scene.top_rgb[idx], onehot], axis=1)
+    else:
+        cond = multiview_condition(scene, xyz_perturbed, tol_pixels=tol_pixels)
+    if not pixel_features:
+        return cond
+    if scene.feature_maps is None:
+        raise ValueError(f"scene {scene.name}: stage2.data.pixel_features needs the prior encoder's maps "
+                         "(gspi.stage2.splits.load_split loads them)")
+    feats = sample_pixel_features(scene.feature_maps, scene.view[idx], scene.pixel[idx],
+                                  (scene.cameras.height, scene.cameras.width))
+    return np.concatenate([cond, feats], axis=1)
 
 
 @dataclass(frozen=True)
@@ -245,6 +287,7 @@ class PointDataConfig:
     local_condition: str = "top_rgb_onehot"  # top_rgb_onehot (35) | top_rgb (A2, 3) | multiview (A5, 128)
     visibility_tol_pixels: float = 2.0  # A5 depth test tolerance, in pixel footprints
     train_views: int = 16  # view-dropout: global-prior views kept per training item
+    pixel_features: bool = False  # + the prior's map at the source pixel (issue 42; not the paper)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
@@ -252,13 +295,18 @@ class PointDataConfig:
         local_condition_dim(out.local_condition)
         return out
 
+    def condition_width(self, feature_dim: int) -> int:
+        """The local condition's width with an encoder of ``feature_dim`` channels."""
+        return local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
+
 
 def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: np.random.Generator
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(xyz_unit [n, 3], local_cond [n, C], f0 [n, 5]) of points ``idx`` with a fresh perturbation."""
     xyz = perturb_along_rays(scene.xyz[idx], scene.view[idx], scene.cameras,
                              sigma_pixels=cfg.perturb_pixels, rng=rng)
-    cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels)
+    cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
+                           pixel_features=cfg.pixel_features)
     xyz_unit = to_unit_sphere(torch.from_numpy(xyz), scene.frame).numpy()
     return xyz_unit.astype(np.float32), cond.astype(np.float32), scene.f0[idx]
 
@@ -294,4 +342,5 @@ def whole_scene_inputs(scene: ScenePoints, cfg: PointDataConfig, rng: np.random.
     """Inference/evaluation inputs of ALL points: (perturbed xyz_world [P, 3], local_cond [P, C])."""
     idx = np.arange(scene.num_points)
     xyz = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=cfg.perturb_pixels, rng=rng)
-    return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels)
+    return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
+                                pixel_features=cfg.pixel_features)

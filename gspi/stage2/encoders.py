@@ -48,7 +48,11 @@ class PriorEncoder(Protocol):
     feature_dim: int
 
     def encode(self, images: Tensor) -> Tensor:
-        """[V, 3, H, W] sRGB in [0, 1] -> [V, feature_dim, 5, 5] float32."""
+        """[V, 3, H, W] sRGB in [0, 1] -> [V, feature_dim, 5, 5] float32 (encode_map, pooled)."""
+        ...
+
+    def encode_map(self, images: Tensor) -> Tensor:
+        """[V, 3, H, W] sRGB in [0, 1] -> the unpooled [V, feature_dim, g, g] float32 map."""
         ...
 
     def identity(self) -> dict:
@@ -88,8 +92,13 @@ class AlexNetEncoder:
 
     @torch.no_grad()
     def encode(self, images: Tensor) -> Tensor:
+        return F.adaptive_avg_pool2d(self.encode_map(images), GRID_SIZE)
+
+    @torch.no_grad()
+    def encode_map(self, images: Tensor) -> Tensor:
+        """[V, 3, H, W] -> the unpooled [V, D, g, g] map (13 x 13 for relu3-5 at 224 px)."""
         x = imagenet_normalize(_check_images(images).to(self.device), self.input_size)
-        return F.adaptive_avg_pool2d(self.net(x), GRID_SIZE).float().cpu()
+        return self.net(x).float().cpu()
 
     def identity(self) -> dict:
         from eval.lpips import weights as lpips_weights
@@ -124,12 +133,16 @@ class Dinov2Encoder:
 
     @torch.no_grad()
     def encode(self, images: Tensor) -> Tensor:
+        return F.adaptive_avg_pool2d(self.encode_map(images), GRID_SIZE)
+
+    @torch.no_grad()
+    def encode_map(self, images: Tensor) -> Tensor:
+        """[V, 3, H, W] -> the patch tokens on their [V, D, g, g] grid (g = input_size / patch)."""
         x = imagenet_normalize(_check_images(images).to(self.device), self.input_size)
         hidden = self.model(pixel_values=x).last_hidden_state  # [V, 1 + g*g, D]
         g = self.input_size // self.patch_size
         patches = hidden[:, -g * g:]  # patch tokens come last (after CLS)
-        grid = patches.transpose(1, 2).reshape(len(x), self.feature_dim, g, g)
-        return F.adaptive_avg_pool2d(grid, GRID_SIZE).float().cpu()
+        return patches.transpose(1, 2).reshape(len(x), self.feature_dim, g, g).float().cpu()
 
     def identity(self) -> dict:
         config_file = self.path / "config.json"
@@ -148,6 +161,10 @@ class NoPriorEncoder:
 
     def encode(self, images: Tensor) -> Tensor:
         return torch.zeros(_check_images(images).shape[0], 0, GRID_SIZE, GRID_SIZE)
+
+    def encode_map(self, images: Tensor) -> Tensor:
+        raise ValueError("stage2.data.pixel_features samples the prior encoder's feature map: it needs "
+                         "stage2.prior.encoder alexnet or dinov2, not none (A1)")
 
     def identity(self) -> dict:
         return {"name": self.name, "version": ENCODER_CACHE_VERSION}

@@ -56,7 +56,8 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
     encoder = build_encoder(stage2.prior)
     scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder)
     try:
-        train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder)
+        train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder,
+                                  conditions=False)
     except ValueError as exc:  # e.g. a test-only dataset
         raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
                          "pass a dataset with a train split (--baseline-train, e.g. the model's training "

@@ -7,6 +7,8 @@ visibility). The conditions are built exactly as in training (docs/STAGE2.md "Co
 
 * ``top_rgb_onehot`` / ``top_rgb``: ``linear_to_srgb(clamp(rgb, 0, 1))`` (+ one-hot of v*);
 * ``multiview`` (A5): the lattice renders replace the GT views and GT depth;
+* ``pixel_features``: the encoder's unpooled map of the asset's render of the source view,
+  sampled at the source pixel (``gspi.stage2.data.sample_pixel_features``, as in training);
 * global prior: the frozen encoder on the asset's lattice renders (sRGB of clamped linear).
 
 ``max_points`` (CPU-scale knob, default None = the paper's whole cloud) samples a seeded
@@ -26,7 +28,8 @@ from eval.colorspace import linear_to_srgb
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.point_cloud import PointCloud, nearest_fill
-from gspi.stage2.data import LatticeCameras, local_condition_dim, multiview_condition_from_views, srgb_top_rgb
+from gspi.stage2.data import (LatticeCameras, local_condition_dim, multiview_condition_from_views,
+                              sample_pixel_features, srgb_top_rgb)
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving
 from gspi.stage2.sampler import mean_point_pbr
@@ -69,21 +72,28 @@ def prior_features(encoder, rgb_linear: np.ndarray) -> Optional[Tensor]:
 
 
 def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
-                     tol_pixels: float = 2.0) -> np.ndarray:
+                     tol_pixels: float = 2.0, feature_maps: Optional[Tensor] = None) -> np.ndarray:
     """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training); A5's
-    multi-view colours come from Stage I's ``renders`` (their maps and cameras)."""
+    multi-view colours come from Stage I's ``renders`` (their maps and cameras).
+    ``feature_maps`` [32, D, g, g] (``stage2.data.pixel_features``): the encoder's maps of the
+    renders, sampled at each point's source pixel and appended (+D)."""
     local_condition_dim(mode)
     top = srgb_top_rgb(points.rgb)
     if mode == "top_rgb":
-        return top
-    if mode == "top_rgb_onehot":
+        cond = top
+    elif mode == "top_rgb_onehot":
         onehot = np.eye(NUM_LATTICE_VIEWS, dtype=np.float32)[points.view]
-        return np.concatenate([top, onehot], axis=1)
-    height, width = renders.image_size
-    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
-                          width=width, height=height)
-    return multiview_condition_from_views(srgb_top_rgb(renders.rgb), renders.depth, cams,
-                                          points.xyz.astype(np.float64), tol_pixels=tol_pixels)
+        cond = np.concatenate([top, onehot], axis=1)
+    else:
+        height, width = renders.image_size
+        cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
+                              width=width, height=height)
+        cond = multiview_condition_from_views(srgb_top_rgb(renders.rgb), renders.depth, cams,
+                                              points.xyz.astype(np.float64), tol_pixels=tol_pixels)
+    if feature_maps is None:
+        return cond
+    feats = sample_pixel_features(feature_maps, points.view, points.pixel, tuple(renders.image_size))
+    return np.concatenate([cond, feats], axis=1)
 
 
 def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> Optional[np.ndarray]:
@@ -97,21 +107,29 @@ def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> 
 
 def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: LatticeRenders, *,
                              local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0,
-                             device: Optional[torch.device] = None) -> tuple[np.ndarray, dict]:
+                             pixel_features: bool = False, device: Optional[torch.device] = None
+                             ) -> tuple[np.ndarray, dict]:
     """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
     metallic) in [0, 1] + stats. ``device``: where the sampling runs (None: the model's, as before);
-    the conditions and prior features move there once, the PBR comes back as numpy."""
+    the conditions and prior features move there once, the PBR comes back as numpy.
+    ``pixel_features``: the model's ``stage2.data.pixel_features``."""
     t0 = time.perf_counter()
-    if model.config.local_cond_dim != local_condition_dim(local_mode):
+    width = local_condition_dim(local_mode) + (encoder.feature_dim if pixel_features else 0)
+    if model.config.local_cond_dim != width:
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
-                         f"stage2.data.local_condition={local_mode!r} gives {local_condition_dim(local_mode)}")
+                         f"stage2.data.local_condition={local_mode!r} (pixel_features={pixel_features}) "
+                         f"gives {width}")
     feats = prior_features(encoder, renders.rgb)
+    maps = None
+    if pixel_features:
+        with torch.no_grad():
+            maps = encoder.encode_map(lattice_srgb(renders.rgb)).float()
     if (feats is None) != (model.config.global_token_dim == 0):
         raise ValueError(f"prior encoder {getattr(encoder, 'name', encoder)!r} does not match the model "
                          f"(global_token_dim={model.config.global_token_dim})")
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
-    cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels)
+    cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels, feature_maps=maps)
     t_cond = time.perf_counter() - t0
     model = model if device is None else model.to(device)
 

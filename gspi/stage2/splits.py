@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from gspi.stage2.data import ScenePoints, load_scene_points
-from gspi.stage2.feature_cache import scene_prior_features
+from gspi.stage2.feature_cache import scene_feature_maps, scene_prior_features
 
 
 def cache_dir(cfg: Mapping[str, Any]) -> Path:
@@ -15,13 +15,17 @@ def cache_dir(cfg: Mapping[str, Any]) -> Path:
     return Path(cfg["stage2"].prior.cache_dir or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
 
 
-def load_split(cfg: Mapping[str, Any], split: str, encoder) -> list[ScenePoints]:
-    """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``."""
+def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool = True) -> list[ScenePoints]:
+    """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``; with
+    ``stage2.data.pixel_features`` also the encoder's unpooled maps, unless ``conditions`` is
+    False (scenes read for their ground truth only, e.g. the no-decomposition baseline's)."""
     from eval.layout import read_splits
 
     data_dir = Path(cfg["data_dir"])
     names = read_splits(data_dir).get(split, [])
     if not names:
         raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} is empty")
-    return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)))
+    maps = conditions and cfg["stage2"].data.pixel_features
+    return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)),
+                              scene_feature_maps(data_dir / n, encoder, cache_dir(cfg)) if maps else None)
             for n in names]

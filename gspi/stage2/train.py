@@ -26,7 +26,7 @@ from gspi.stage2.checkpoint import (CheckpointError, ema_only, load_weights, rcw
                                     read_checkpoint, save_atomic, CHECKPOINT_FORMAT, CHECKPOINT_VERSION)
 from gspi.stage2.config import TrainConfig, complete_stage2, stored_config
 from gspi.stage2.distributed import DistContext
-from gspi.stage2.data import local_condition_dim, sample_batch
+from gspi.stage2.data import sample_batch
 from gspi.stage2.encoders import build_encoder
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.loss import denoising_loss
@@ -44,7 +44,7 @@ def rcw_config(stage2, global_token_dim: int) -> RCWConfig:
     ``stage2.data`` and the encoder."""
     stage2 = complete_stage2(stage2)
     local, diffusion = stage2.data.local_condition, stage2.diffusion
-    return RCWConfig(**stage2.model, local_cond_dim=local_condition_dim(local),
+    return RCWConfig(**stage2.model, local_cond_dim=stage2.data.condition_width(global_token_dim),
                      use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim,
                      prediction=diffusion.prediction, num_train_timesteps=diffusion.num_train_timesteps)
 
