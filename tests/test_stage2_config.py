@@ -123,9 +123,11 @@ def test_gspi_run_refuses_a_time_budget_for_the_model_it_trains(key):
     check_run_config({**cfg, "stage2": {"checkpoint": None, "train": {key: None}}})
 
 
-@pytest.mark.parametrize("name, preset", [("stage2_pool_trunc_snr", "cpu_pool_trunc_snr"),
-                                          ("stage2_pool_recon", "cpu_pool_recon")])
-def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset):
+@pytest.mark.parametrize("name, preset, steps", [("stage2_pool_trunc_snr", "cpu_pool_trunc_snr", 2500),
+                                                 ("stage2_pool_recon", "cpu_pool_recon", 2500),
+                                                 ("stage2_pool224", "cpu_pool224", 2500),
+                                                 ("stage2_pool224_5k", "cpu_pool224_5k", 5000)])
+def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps):
     """checkpoints/<name>.pt loads, is under 20 MB, is what conf/stage2/<preset>.yaml trains (the
     truncated-SNR weight, the recipe's steps and sizes) and is the file its json card hashes."""
     import hashlib
@@ -146,6 +148,6 @@ def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset):
     assert recipe.stage2.checkpoint == f"checkpoints/{name}.pt"
     stage2 = cfg["stage2"]
     assert stage2.diffusion.min_snr_floor == 1.0 and stage2.diffusion.prediction == "x0"
-    assert stage2.train.steps == recipe.stage2.train.steps == 2500
+    assert stage2.train.steps == recipe.stage2.train.steps == steps
     assert stage2.model == {k: recipe.stage2.model[k] for k in stage2.model}
     assert not model.training and sum(p.numel() for p in model.parameters()) == card["parameters"] == 349141
