@@ -108,7 +108,8 @@ def main(argv: list[str] | None = None) -> None:
                 cells.append(f"{m:+.2f} [{lo:+.2f}, {hi:+.2f}]")
             print(f"| {name} | {label} | " + " | ".join(cells) + " |")
     if args.reference:
-        print(f"\nPaired avg, model - {args.reference} (scenes paired, seeds matched where both have them):\n")
+        print(f"\nPaired avg, model - {args.reference} (scenes paired; each (scene, seed) of a model against "
+              f"{args.reference}'s mean over its seeds on that scene):\n")
         ref = models[args.reference]
         ref_by_scene = {}
         for (s, _), r in ref.items():
