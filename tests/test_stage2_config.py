@@ -123,11 +123,17 @@ def test_gspi_run_refuses_a_time_budget_for_the_model_it_trains(key):
     check_run_config({**cfg, "stage2": {"checkpoint": None, "train": {key: None}}})
 
 
-@pytest.mark.parametrize("name, preset, steps", [("stage2_pool_trunc_snr", "cpu_pool_trunc_snr", 2500),
-                                                 ("stage2_pool_recon", "cpu_pool_recon", 2500),
-                                                 ("stage2_pool224", "cpu_pool224", 2500),
-                                                 ("stage2_pool224_5k", "cpu_pool224_5k", 5000)])
-def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps):
+XS_PARAMETERS = 349141  # Table 2's XS model with the 35-dim local condition
+PIXEL_PARAMETERS = XS_PARAMETERS + 256 * 48  # + 256 pixel-feature inputs x the point stream width (point_dim 48)
+
+
+@pytest.mark.parametrize("name, preset, steps, parameters", [
+    ("stage2_pool_trunc_snr", "cpu_pool_trunc_snr", 2500, XS_PARAMETERS),
+    ("stage2_pool_recon", "cpu_pool_recon", 2500, XS_PARAMETERS),
+    ("stage2_pool224", "cpu_pool224", 2500, XS_PARAMETERS),
+    ("stage2_pool224_5k", "cpu_pool224_5k", 5000, XS_PARAMETERS),
+    ("stage2_pool224_pixel", "cpu_pool224_pixel", 2500, PIXEL_PARAMETERS)])
+def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps, parameters):
     """checkpoints/<name>.pt loads, is under 20 MB, is what conf/stage2/<preset>.yaml trains (the
     truncated-SNR weight, the recipe's steps and sizes) and is the file its json card hashes."""
     import hashlib
@@ -150,4 +156,5 @@ def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps):
     assert stage2.diffusion.min_snr_floor == 1.0 and stage2.diffusion.prediction == "x0"
     assert stage2.train.steps == recipe.stage2.train.steps == steps
     assert stage2.model == {k: recipe.stage2.model[k] for k in stage2.model}
-    assert not model.training and sum(p.numel() for p in model.parameters()) == card["parameters"] == 349141
+    assert stage2.data.pixel_features == recipe.stage2.data.pixel_features == (parameters != XS_PARAMETERS)
+    assert not model.training and sum(p.numel() for p in model.parameters()) == card["parameters"] == parameters
