@@ -24,11 +24,21 @@ def plan(tmp_path, script: Path = SCRIPT, **env) -> subprocess.CompletedProcess:
     ({"SPLIT": "--train 0:224", "TRAIN_SCENES": "224"}, "runs/cpu_parts_pool_224_s<seed>", "rpool224"),
     ({"SPLIT": "--train 0:224", "TRAIN_SCENES": "224", "CONDITIONS": "mixed", "ABLATION": "a2_no_view_onehot"},
      "runs/cpu_parts_pool_a2_no_view_onehot_mix224_s<seed>", "mix224"),
+    ({"SPLIT": "--train 0:224", "TRAIN_SCENES": "224", "TAG": "pixel", "TRAIN_EXTRA": "stage2.data.pixel_features=true"},
+     "runs/cpu_parts_pool_pixel_224_s<seed>", "rpool224"),
 ])
 def test_run_and_view_names(tmp_path, env, run, data):
     out = plan(tmp_path, **env)
     assert out.returncode == 0, out.stderr
     assert f"{tmp_path}/{run} " in out.stdout and f"train data: {tmp_path}/{data};" in out.stdout, out.stdout
+
+
+def test_train_extra_needs_a_tag_and_is_passed_on(tmp_path):
+    out = plan(tmp_path, TRAIN_EXTRA="stage2.data.pixel_features=true")
+    assert out.returncode == 2 and "needs a TAG" in out.stderr
+    out = plan(tmp_path, TRAIN_EXTRA="stage2.data.pixel_features=true", TAG="pixel", ABLATION="a2_no_view_onehot")
+    assert out.returncode == 0 and "runs/cpu_parts_pool_a2_no_view_onehot_pixel_s<seed>" in out.stdout
+    assert "train extra: stage2.data.pixel_features=true" in out.stdout
 
 
 def test_train_scenes_must_match_the_split(tmp_path):
@@ -48,3 +58,12 @@ def test_table2_lanes_share_the_job_list(tmp_path):
     assert not lanes[0] & lanes[1]
     assert lanes[0] | lanes[1] == {f"{v} seed {s}" for v in ("full", "a1_no_global_prior", "a2_no_view_onehot")
                                    for s in (0, 1)}
+
+
+def test_table2_passes_a_departure_to_every_variant_but_a1(tmp_path):
+    """TAG / TRAIN_EXTRA reach run.sh for each variant; A1 (no encoder) drops pixel_features."""
+    out = plan(tmp_path, SCRIPT.with_name("table2.sh"), SEEDS="0", VARIANTS="full a1_no_global_prior",
+               TAG="pixel", TRAIN_EXTRA="stage2.data.pixel_features=true")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines() == ["lane 0: full seed 0 [pixel: stage2.data.pixel_features=true]",
+                                       "lane 0: a1_no_global_prior seed 0"]

@@ -17,7 +17,8 @@
 #   # session 18: the same, trained on each scene under reconstructed AND exact conditions
 #   # (experiments/parts_pool/mix_conditions.py; runs/<RECIPE>_mix_s<seed>)
 #   WORK=/work/data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/parts_pool/run.sh &
-#   # session 19's default (stage2_pool224.pt): the matte pool's 224 training scenes (runs/<RECIPE>_224_s<seed>;
+#   # session 20's default (stage2_pool224_pixel.pt): the same with TAG=pixel TRAIN_EXTRA=stage2.data.pixel_features=true
+#   # (runs/<RECIPE>_pixel_224_s<seed>); session 19's default (stage2_pool224.pt): the matte pool's 224 training scenes (runs/<RECIPE>_224_s<seed>;
 #   # with CONDITIONS=mixed runs/<RECIPE>_mix224_s<seed>)
 #   WORK=/work/data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
 #     POOL_INDICES='[[0,224]]' SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=/work/data/parts_pool \
@@ -42,10 +43,15 @@ HELDOUT=${HELDOUT:-$WORK}             # whose rpool64 test split (and pool64 bas
 PARTS_EXTRA=${PARTS_EXTRA:-}          # more data.parts keys, e.g. data.parts.look_swap=0.5
 ABLATION=${ABLATION:-full}            # conf/ablation/<name>: full or a Table 2 variant (a1..a5)
 CONDITIONS=${CONDITIONS:-reconstructed}  # reconstructed (the paper) or mixed (+ the exact renders)
+TRAIN_EXTRA=${TRAIN_EXTRA:-}          # more gspi-train overrides, e.g. stage2.data.pixel_features=true
+TAG=${TAG:-}                          # names TRAIN_EXTRA's departure in the run names (required with it)
 TRAIN_SCENES=${TRAIN_SCENES:-64}      # SPLIT's training scenes: names the views pool<N>, rpool<N>, mix<N>
 case " $SPLIT " in *" --train 0:$TRAIN_SCENES "*) ;;
   *) echo "run.sh: TRAIN_SCENES=$TRAIN_SCENES but SPLIT='$SPLIT' does not train on 0:$TRAIN_SCENES" >&2; exit 2 ;; esac
+if [ -n "$TRAIN_EXTRA" ] && [ -z "$TAG" ]; then
+  echo "run.sh: TRAIN_EXTRA='$TRAIN_EXTRA' needs a TAG that names it in the run folders" >&2; exit 2; fi
 RUN=$RECIPE; [ "$ABLATION" = full ] || RUN=${RECIPE}_$ABLATION   # runs/<RUN>_s<seed> (full keeps its old names)
+[ -z "$TAG" ] || RUN=${RUN}_$TAG                # e.g. _pixel (session 20's default: TAG=pixel TRAIN_EXTRA=stage2.data.pixel_features=true)
 VARIANT=""; [ "$CONDITIONS" = reconstructed ] || VARIANT=mix; [ "$TRAIN_SCENES" = 64 ] || VARIANT=$VARIANT$TRAIN_SCENES
 [ -z "$VARIANT" ] || RUN=${RUN}_$VARIANT        # _mix, _224, _mix224
 POOL_VIEW=$WORK/pool$TRAIN_SCENES; RECON_VIEW=$WORK/rpool$TRAIN_SCENES
@@ -53,7 +59,7 @@ SUMMARY=$WORK/recon_summary.md; [ "$TRAIN_SCENES" = 64 ] || SUMMARY=$WORK/recon_
 TRAIN_DATA=$RECON_VIEW; [ "$CONDITIONS" = reconstructed ] || TRAIN_DATA=$WORK/mix$TRAIN_SCENES
 BIN=.venv/bin
 if [ -n "${PLAN_ONLY:-}" ]; then   # print what a run would train and measure, then stop
-  echo "runs: $WORK/runs/${RUN}_s<seed> for seeds $SEEDS; train data: $TRAIN_DATA; held out: $HELDOUT/rpool64"
+  echo "runs: $WORK/runs/${RUN}_s<seed> for seeds $SEEDS; train data: $TRAIN_DATA; held out: $HELDOUT/rpool64; train extra: ${TRAIN_EXTRA:-none}"
   exit 0
 fi
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
@@ -83,7 +89,7 @@ train_seed() {
   local seed=$1 out="$WORK/runs/${RUN}_s$1"
   until [ -f "$out/stats.json" ] && $BIN/python -c "import json,sys; s=json.load(open('$out/stats.json')); sys.exit(0 if s.get('steps',0)>=s.get('total_steps', 2500) else 1)"; do
     $BIN/gspi-train data="$TRAIN_DATA" out="$out" stage2=$RECIPE ablation=$ABLATION seed=$seed \
-      stage2.train.stop_after_minutes=$CHUNK_MIN >> "$WORK/train_s$seed.log" 2>&1 \
+      stage2.train.stop_after_minutes=$CHUNK_MIN $TRAIN_EXTRA >> "$WORK/train_s$seed.log" 2>&1 \
       || { log "train: seed $seed failed (see $WORK/train_s$seed.log)"; return 1; }
     log "train: seed $seed chunk ended at step $($BIN/python -c "import json; print(json.load(open('$out/stats.json'))['steps'])")"
   done

@@ -8,6 +8,8 @@
 #   LANE=0 LANES=2 nohup setsid experiments/parts_pool/table2.sh > table2_lane0.out 2>&1 &
 #   LANE=1 LANES=2 nohup setsid experiments/parts_pool/table2.sh > table2_lane1.out 2>&1 &
 #   PLAN_ONLY=1 experiments/parts_pool/table2.sh     # the job list and each job's lane, then stop
+#   TAG=pixel TRAIN_EXTRA=stage2.data.pixel_features=true LANE=0 LANES=2 ... # with today's default's
+#     departure (run.sh passes TRAIN_EXTRA to every training but A1's and names the runs <recipe>_<variant>_pixel_224)
 #
 # Then the table: python experiments/parts_pool/summary.py --pool $HELDOUT/rpool64 \
 #   full=$WORK/runs/cpu_parts_pool_224_s0/eval ... a1=$WORK/runs/cpu_parts_pool_a1_no_global_prior_224_s0/eval ... --reference full
@@ -24,11 +26,20 @@ HELDOUT=${HELDOUT:-/work/data/parts_pool}
 SEEDS=${SEEDS:-"0 1 2"}
 VARIANTS=${VARIANTS:-"full a2_no_view_onehot a5_multiview_injection a1_no_global_prior a3_npts_1024"}
 LANE=${LANE:-0}; LANES=${LANES:-1}
+TAG_ALL=${TAG:-}; EXTRA_ALL=${TRAIN_EXTRA:-}   # a recipe departure for every variant (run.sh's TAG / TRAIN_EXTRA)
 jobs=(); for s in $SEEDS; do for v in $VARIANTS; do jobs+=("$v $s"); done; done
 for i in "${!jobs[@]}"; do
   [ $((i % LANES)) = "$LANE" ] || continue
   read -r variant seed <<< "${jobs[$i]}"
-  if [ -n "${PLAN_ONLY:-}" ]; then echo "lane $LANE: $variant seed $seed"; continue; fi
+  # A1 has no prior encoder, so no map to sample either (the config refuses pixel_features
+  # without one): A1 drops that override, and with nothing else left it is the untagged run
+  tag=$TAG_ALL; extra=$EXTRA_ALL
+  if [ "$variant" = a1_no_global_prior ]; then
+    extra=$(for w in $EXTRA_ALL; do case $w in stage2.data.pixel_features=*) ;; *) printf '%s ' "$w" ;; esac; done)
+    extra=${extra% }; [ -n "$extra" ] || tag=
+  fi
+  if [ -n "${PLAN_ONLY:-}" ]; then echo "lane $LANE: $variant seed $seed${tag:+ [$tag: $extra]}"; continue; fi
+  TAG=$tag TRAIN_EXTRA=$extra \
   WORK=$WORK RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 POOL_INDICES='[[0,224]]' \
     SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=$HELDOUT ABLATION=$variant SEEDS=$seed \
     experiments/parts_pool/run.sh
