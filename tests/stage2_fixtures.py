@@ -71,3 +71,18 @@ def tiny_cfg(dataset: Path, out: Path, *extra: str) -> dict:
     cfg = compose_cfg([f"data_dir={dataset}", f"out={out}", "stage2=tiny",
                        "stage2.prior.alexnet.input_size=64", *extra])
     return OmegaConf.to_container(cfg, resolve=True)
+
+
+def gt_views_as_renders(root):
+    """The scene's 32 lattice views in the form Stage I renders them (alpha = the GT mask): a
+    ``LatticeRenders`` whose conditions must equal the training path's (condition parity)."""
+    from eval.layout import read_scene, read_view_file
+    from gspi.gaussians.lattice_render import LatticeRenders
+
+    scene = read_scene(root)
+    views = scene.split_views("train")
+    dirs = [scene.view_dir("train", v.id) for v in views]
+    return LatticeRenders(rgb=np.stack([read_view_file(d, "rgb.exr") for d in dirs]).astype(np.float32),
+                          alpha=np.stack([read_view_file(d, "mask.png")[..., 0] for d in dirs]).astype(np.float32),
+                          depth=np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs]).astype(np.float32),
+                          K=np.stack([v.K for v in views]), w2c=np.stack([v.w2c for v in views]))

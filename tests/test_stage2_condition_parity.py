@@ -11,26 +11,13 @@ import numpy as np
 import pytest
 import torch
 
-from eval.layout import read_scene, read_view_file
-from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.stage1.extract import unproject_renders
 from gspi.stage2.data import load_scene_points, local_condition
 from gspi.stage2.encoders import build_encoder, lattice_images_srgb
 from gspi.stage2.feature_cache import scene_feature_maps, scene_prior_features
 from gspi.stage2.infer import lattice_srgb, point_conditions, prior_features
 from gspi.stage2.normalize import fit_unit_sphere, to_unit_sphere
-from tests.stage2_fixtures import make_lattice_scene
-
-
-def gt_views_as_renders(root) -> LatticeRenders:
-    """The scene's 32 lattice views in the form Stage I renders them (alpha = the GT mask)."""
-    scene = read_scene(root)
-    views = scene.split_views("train")
-    dirs = [scene.view_dir("train", v.id) for v in views]
-    return LatticeRenders(rgb=np.stack([read_view_file(d, "rgb.exr") for d in dirs]).astype(np.float32),
-                          alpha=np.stack([read_view_file(d, "mask.png")[..., 0] for d in dirs]).astype(np.float32),
-                          depth=np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs]).astype(np.float32),
-                          K=np.stack([v.K for v in views]), w2c=np.stack([v.w2c for v in views]))
+from tests.stage2_fixtures import gt_views_as_renders, make_lattice_scene
 
 
 @pytest.fixture(scope="module")

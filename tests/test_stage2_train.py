@@ -257,7 +257,7 @@ def test_pixel_features_train_resume_and_infer(dataset, tmp_path):
     from gspi.stage1.extract import unproject_renders
     from gspi.stage2.encoders import build_encoder
     from gspi.stage2.infer import InferenceConfig, predict_generated_points
-    from tests.test_stage2_condition_parity import gt_views_as_renders
+    from tests.stage2_fixtures import gt_views_as_renders
 
     extra = ("stage2.data.pixel_features=true", "stage2.train.steps=4", "stage2.eval.enabled=false")
     straight, resumed = tmp_path / "straight", tmp_path / "resumed"
