@@ -41,6 +41,12 @@ ALEXNET_LAYERS = {"relu3": (3, 384), "relu4": (4, 256), "relu5": (5, 256)}  # na
 ENCODER_CACHE_VERSION = 1  # bump when an encoder's preprocessing changes (invalidates caches)
 
 
+def pool_grid(maps: Tensor) -> Tensor:
+    """[V, D, g, g] unpooled encoder maps -> the [V, D, 5, 5] global prior grid (every encoder's
+    ``encode`` is this of its ``encode_map``)."""
+    return F.adaptive_avg_pool2d(maps, GRID_SIZE)
+
+
 class PriorEncoder(Protocol):
     """A frozen image encoder producing the 5 x 5 global prior grid of each view."""
 
@@ -92,7 +98,7 @@ class AlexNetEncoder:
 
     @torch.no_grad()
     def encode(self, images: Tensor) -> Tensor:
-        return F.adaptive_avg_pool2d(self.encode_map(images), GRID_SIZE)
+        return pool_grid(self.encode_map(images))
 
     @torch.no_grad()
     def encode_map(self, images: Tensor) -> Tensor:
@@ -133,7 +139,7 @@ class Dinov2Encoder:
 
     @torch.no_grad()
     def encode(self, images: Tensor) -> Tensor:
-        return F.adaptive_avg_pool2d(self.encode_map(images), GRID_SIZE)
+        return pool_grid(self.encode_map(images))
 
     @torch.no_grad()
     def encode_map(self, images: Tensor) -> Tensor:

@@ -28,8 +28,9 @@ from eval.colorspace import linear_to_srgb
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.point_cloud import PointCloud, nearest_fill
-from gspi.stage2.data import (LatticeCameras, local_condition_dim, multiview_condition_from_views,
-                              sample_pixel_features, srgb_top_rgb)
+from gspi.stage2.data import (LatticeCameras, PointDataConfig, local_condition_dim,
+                              multiview_condition_from_views, sample_pixel_features, srgb_top_rgb)
+from gspi.stage2.encoders import pool_grid
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving
 from gspi.stage2.sampler import mean_point_pbr
@@ -61,14 +62,16 @@ def lattice_srgb(rgb_linear: Tensor | np.ndarray) -> Tensor:
     return linear_to_srgb(rgb.clamp(0.0, 1.0)).permute(0, 3, 1, 2).contiguous()
 
 
-def prior_features(encoder, rgb_linear: np.ndarray) -> Optional[Tensor]:
-    """[32, D, 5, 5] global-prior features of the asset's lattice renders, None without a prior."""
+def prior_features(encoder, rgb_linear: np.ndarray, *, unpooled: bool = False) -> Optional[Tensor]:
+    """[32, D, 5, 5] global-prior features of the asset's lattice renders, None without a prior;
+    ``unpooled``: the [32, D, g, g] maps they pool (``stage2.data.pixel_features``)."""
     if encoder.feature_dim == 0:
         return None
     if len(rgb_linear) != NUM_LATTICE_VIEWS:
         raise ValueError(f"the global prior needs the {NUM_LATTICE_VIEWS} lattice renders, got {len(rgb_linear)}")
     with torch.no_grad():
-        return encoder.encode(lattice_srgb(rgb_linear)).float()
+        images = lattice_srgb(rgb_linear)
+        return (encoder.encode_map(images) if unpooled else encoder.encode(images)).float()
 
 
 def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
@@ -114,16 +117,15 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     the conditions and prior features move there once, the PBR comes back as numpy.
     ``pixel_features``: the model's ``stage2.data.pixel_features``."""
     t0 = time.perf_counter()
-    width = local_condition_dim(local_mode) + (encoder.feature_dim if pixel_features else 0)
+    width = PointDataConfig(local_condition=local_mode, pixel_features=pixel_features).condition_width(
+        encoder.feature_dim)
     if model.config.local_cond_dim != width:
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
                          f"stage2.data.local_condition={local_mode!r} (pixel_features={pixel_features}) "
                          f"gives {width}")
-    feats = prior_features(encoder, renders.rgb)
-    maps = None
-    if pixel_features:
-        with torch.no_grad():
-            maps = encoder.encode_map(lattice_srgb(renders.rgb)).float()
+    # with pixel features the encoder runs once: the grid is the pooled map, as encode() computes it
+    maps = prior_features(encoder, renders.rgb, unpooled=True) if pixel_features else None
+    feats = pool_grid(maps) if maps is not None else prior_features(encoder, renders.rgb)
     if (feats is None) != (model.config.global_token_dim == 0):
         raise ValueError(f"prior encoder {getattr(encoder, 'name', encoder)!r} does not match the model "
                          f"(global_token_dim={model.config.global_token_dim})")
