@@ -94,6 +94,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
             stage2.model, points, renders, local_mode=data_cfg.local_condition, encoder=stage2.encoder,
             cfg=stage2.run_cfg.inference,
             tol_pixels=float(data_cfg.visibility_tol_pixels), pixel_features=data_cfg.pixel_features,
+            pixel_feature_spread=data_cfg.pixel_feature_spread,
             device=device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 

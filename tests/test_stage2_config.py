@@ -52,6 +52,7 @@ def test_a_missing_key_gets_its_default_and_a_set_one_is_kept():
     ({"prior": {"alexnet": {"layer": "fc7"}}}, "relu5"),
     ({"data": {"local_condition": "depth"}}, r"local_condition='depth'"),
     ({"data": {"pixel_features": True}, "prior": {"encoder": "none"}}, r"pixel_features .*not none"),
+    ({"data": {"pixel_feature_spread": True}, "prior": {"encoder": "none"}}, r"pixel_feature_spread .*not none"),
     ({"model": {"local_cond_dim": 3}}, r"stage2\.model\.local_cond_dim is derived"),
     ({"model": {"latent_dim": 100, "num_heads": 8}}, "not divisible"),
     ({"model": {"num_blocks": 2.5}}, r"stage2\.model\.num_blocks=2\.5"),

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from gspi.stage2.data import (LOCAL_CONDITIONS, PointDataConfig, load_scene_points, local_condition,
-                              local_subset, multiview_condition, perturb_along_rays, pixel_footprint,
-                              sample_batch, sample_pixel_features, whole_scene_inputs)
+from gspi.stage2.data import (LOCAL_CONDITIONS, PointDataConfig, feature_spread_over_views, load_scene_points,
+                              local_condition, local_subset, multiview_condition, perturb_along_rays,
+                              pixel_footprint, project_to_views, sample_batch, sample_pixel_features,
+                              whole_scene_inputs)
 from tests.stage2_fixtures import SIZE, make_lattice_scene
 
 
@@ -142,3 +143,63 @@ def test_pixel_features_extend_the_local_condition(scene):
     np.testing.assert_allclose(cond[:, 35:], sample_pixel_features(maps, scene.view[idx], scene.pixel[idx], (SIZE, SIZE)))
     with pytest.raises(ValueError, match="pixel_features needs the prior encoder's maps"):
         local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot", pixel_features=True)
+
+
+def spread_oracle(maps: torch.Tensor, depth: np.ndarray, cams, xyz: np.ndarray, tol: float) -> np.ndarray:
+    """Point by point and view by view: the depth test written out, the map sampled with
+    torch's grid_sample at the pixel's centre, numpy's (population) std over the views that pass."""
+    height, width = depth.shape[1:]
+    out = np.zeros((len(xyz), maps.shape[1]), dtype=np.float32)
+    for i, p in enumerate(xyz):
+        seen = []
+        for v in range(len(depth)):
+            uv, z = cams.project(p[None], np.array([v]))
+            col, row = int(np.floor(uv[0, 0])), int(np.floor(uv[0, 1]))
+            if not (z[0] > 0 and 0 <= col < width and 0 <= row < height):
+                continue
+            d = depth[v, row, col]
+            if not (d > 0 and abs(d - z[0]) < tol * z[0] / cams.K[v, 0, 0]):
+                continue
+            xy = torch.tensor([[[[(col + 0.5) / width * 2 - 1, (row + 0.5) / height * 2 - 1]]]], dtype=torch.float32)
+            seen.append(torch.nn.functional.grid_sample(maps[v:v + 1], xy, mode="bilinear", padding_mode="border",
+                                                        align_corners=False)[0, :, 0, 0].numpy())
+        if len(seen) >= 2:
+            out[i] = np.std(np.stack(seen), axis=0)
+    return out
+
+
+def test_feature_spread_is_the_std_over_the_views_that_see_a_point(scene):
+    maps = torch.randn(32, 5, 13, 13, generator=torch.Generator().manual_seed(3))
+    _, depth = scene.lattice_views()
+    xyz = scene.xyz[np.random.default_rng(0).choice(scene.num_points, 60, replace=False)]
+    out = feature_spread_over_views(maps, depth, scene.cameras, xyz, tol_pixels=2.0, chunk=16)
+    np.testing.assert_allclose(out, spread_oracle(maps, depth, scene.cameras, xyz, 2.0), rtol=1e-4, atol=1e-5)
+    assert (out > 0).all(axis=1).mean() > 0.9  # the lattice sees most points from several views
+    constant = feature_spread_over_views(torch.full((32, 5, 13, 13), 2.5), depth, scene.cameras, xyz, tol_pixels=2.0)
+    np.testing.assert_array_equal(constant, 0.0)  # every view alike: no spread
+    uniform = torch.ones(32, 5, 13, 13) * torch.arange(32.0)[:, None, None, None]  # view v's map is v everywhere
+    spread = feature_spread_over_views(uniform, depth, scene.cameras, xyz, tol_pixels=2.0)
+    _, _, _, visible = project_to_views(scene.cameras, depth, xyz, tol_pixels=2.0)
+    expect = np.array([np.std(np.flatnonzero(visible[:, i])) if visible[:, i].sum() >= 2 else 0.0
+                       for i in range(len(xyz))])
+    np.testing.assert_allclose(spread, np.repeat(expect[:, None], 5, axis=1), rtol=1e-5, atol=1e-5)
+
+
+def test_feature_spread_extends_the_local_condition(scene):
+    maps = torch.randn(32, 8, 13, 13, generator=torch.Generator().manual_seed(2))
+    with_maps = load_scene_points(scene.root, scene.prior_grid(), maps)
+    cfg = PointDataConfig(num_points=64, pixel_features=True, pixel_feature_spread=True)
+    assert cfg.condition_width(8) == 35 + 8 + 8 and cfg.needs_feature_maps
+    assert PointDataConfig(pixel_feature_spread=True).condition_width(8) == 43
+    _, inputs = sample_batch([with_maps], cfg, 2, np.random.default_rng(0))
+    assert inputs.local_cond.shape == (2, 64, 51)
+    idx = np.arange(10)
+    cond = local_condition(with_maps, idx, with_maps.xyz[idx], "top_rgb_onehot", pixel_features=True,
+                           pixel_feature_spread=True)
+    np.testing.assert_array_equal(cond[:, :43], local_condition(with_maps, idx, with_maps.xyz[idx], "top_rgb_onehot",
+                                                                pixel_features=True))
+    _, depth = scene.lattice_views()
+    np.testing.assert_allclose(cond[:, 43:], feature_spread_over_views(maps, depth, scene.cameras, scene.xyz[idx],
+                                                                       tol_pixels=2.0))
+    with pytest.raises(ValueError, match="pixel_feature_spread needs the prior encoder's maps"):
+        local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot", pixel_feature_spread=True)

@@ -117,8 +117,9 @@ class Stage2Config:
         if self.data.local_condition not in LOCAL_CONDITIONS:
             raise ValueError(f"stage2.data.local_condition={self.data.local_condition!r}: must be "
                              f"one of {sorted(LOCAL_CONDITIONS)}")
-        if self.data.pixel_features and self.prior.encoder == "none":
-            raise ValueError("stage2.data.pixel_features samples the prior encoder's map: it needs "
+        if self.data.needs_feature_maps and self.prior.encoder == "none":
+            key = "pixel_features" if self.data.pixel_features else "pixel_feature_spread"
+            raise ValueError(f"stage2.data.{key} samples the prior encoder's map: it needs "
                              "stage2.prior.encoder alexnet or dinov2, not none (A1)")
         self.model = model_sizes(self.model)
 

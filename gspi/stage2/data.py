@@ -25,6 +25,10 @@ linear RGB and PBR ground truth. From it:
   (``encode_map``: [D, 13, 13] for AlexNet at 224 px), sampled bilinearly at the source pixel,
   appended to the local condition (+D). It tells each point what the encoder sees around its
   own pixel, which the 5 x 5 global cells leave to the attention to find.
+* **Its spread over views** (``stage2.data.pixel_feature_spread``, issue 42's named departure,
+  session 21): per channel, the standard deviation of that map sampled at the point's pixel in
+  every lattice view that sees it (A5's depth test), appended (+D). A matte surface looks alike
+  from every view, a mirror-like one does not.
 * **Targets** f0 = ``pbr_to_model([albedo (sRGB-encoded, as stored), roughness, metallic])`` in [-1, 1].
 * **Global prior**: the scene's cached [32, D, 5, 5] encoder features as [32, 25, D] tokens;
   view-dropout keeps ``train_views`` (16) random views per item, with their lattice ids.
@@ -209,29 +213,61 @@ def multiview_condition(scene: ScenePoints, xyz: np.ndarray, *, tol_pixels: floa
     return multiview_condition_from_views(images, depth, scene.cameras, xyz, tol_pixels=tol_pixels, chunk=chunk)
 
 
+def project_to_views(cams: LatticeCameras, depth: np.ndarray, xyz: np.ndarray, *, tol_pixels: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points xyz [n, 3] in every view of ``cams`` with depth maps ``depth`` [V, H, W]: (row, col)
+    [V, n] of the nearest pixel (0 outside the image), ``inside`` [V, n] (in front, in the image)
+    and ``visible`` [V, n] (inside, depth > 0, ``|z - depth| < tol_pixels * z / f_x``)."""
+    num_views = len(depth)
+    views = np.broadcast_to(np.arange(num_views)[:, None], (num_views, len(xyz)))
+    uv, z = cams.project(xyz[None], views)
+    col, row = np.floor(uv[..., 0]).astype(np.int64), np.floor(uv[..., 1]).astype(np.int64)
+    inside = (z > 0) & (col >= 0) & (col < cams.width) & (row >= 0) & (row < cams.height)
+    col, row = np.where(inside, col, 0), np.where(inside, row, 0)
+    d_map = depth[views, row, col]
+    visible = inside & (d_map > 0) & (np.abs(d_map - z) < tol_pixels * pixel_footprint(z, cams, views))
+    return row, col, inside, visible
+
+
 def multiview_condition_from_views(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
                                    *, tol_pixels: float, chunk: int = 65536) -> np.ndarray:
     """A5 condition [n, V * 4] from lattice images [V, H, W, 3] (sRGB) and depths [V, H, W].
 
     Per view: the colour at the point's projection (nearest pixel; 0 outside the image) and a
-    visibility flag (inside, depth > 0, ``|z - depth| < tol_pixels * z / f_x``). Training
-    passes the GT views and depth, inference (``gspi.stage2.infer``) the asset's renders.
+    visibility flag (``project_to_views``). Training passes the GT views and GT depth, inference
+    (``gspi.stage2.infer``) the asset's renders.
     """
-    cams_views = len(images)
-    out = np.zeros((len(xyz), cams_views, 4), dtype=np.float32)
-    views = np.arange(cams_views)[:, None]
+    num_views = len(images)
+    out = np.zeros((len(xyz), num_views, 4), dtype=np.float32)
+    views = np.arange(num_views)[:, None]
     for s in range(0, len(xyz), chunk):
-        pts = xyz[None, s:s + chunk]  # [1, n, 3]
-        uv, z = cams.project(pts, np.broadcast_to(views, (cams_views, pts.shape[1])))
-        col, row = np.floor(uv[..., 0]).astype(np.int64), np.floor(uv[..., 1]).astype(np.int64)
-        inside = (z > 0) & (col >= 0) & (col < cams.width) & (row >= 0) & (row < cams.height)
-        col, row = np.where(inside, col, 0), np.where(inside, row, 0)
-        d_gt = depth[views, row, col]
-        tol = tol_pixels * pixel_footprint(z, cams, np.broadcast_to(views, z.shape))
-        visible = inside & (d_gt > 0) & (np.abs(d_gt - z) < tol)
+        row, col, inside, visible = project_to_views(cams, depth, xyz[s:s + chunk], tol_pixels=tol_pixels)
         rgb = images[views, row, col] * inside[..., None]  # [V, n, 3]
         out[s:s + chunk] = np.concatenate([rgb, visible[..., None]], axis=-1).transpose(1, 0, 2)
-    return out.reshape(len(xyz), cams_views * 4)
+    return out.reshape(len(xyz), num_views * 4)
+
+
+def feature_spread_over_views(maps: Tensor, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray, *,
+                         tol_pixels: float, chunk: int = 4096) -> np.ndarray:
+    """[n, D] float32: per channel, the standard deviation over the views that see each point
+    (``project_to_views``) of the encoder maps [V, D, g, g] sampled at its pixel in each view
+    (``sample_pixel_features``); 0 where fewer than two views see it. A matte surface looks
+    alike from every view, a mirror-like one does not: the spread is what a single view cannot
+    tell (``stage2.data.pixel_feature_spread``, issue 42)."""
+    num_views, dim = maps.shape[:2]
+    out = np.zeros((len(xyz), dim), dtype=np.float32)
+    for s in range(0, len(xyz), chunk):
+        row, col, _, visible = project_to_views(cams, depth, xyz[s:s + chunk], tol_pixels=tol_pixels)
+        m = row.shape[1]
+        feats = sample_pixel_features(maps, np.repeat(np.arange(num_views), m),
+                                      np.stack([row.ravel(), col.ravel()], axis=1),
+                                      (cams.height, cams.width)).reshape(num_views, m, dim)
+        w = visible[..., None].astype(np.float32)  # [V, m, 1]
+        count = w.sum(0)
+        mean = (feats * w).sum(0) / np.maximum(count, 1.0)
+        var = (np.square(feats - mean) * w).sum(0) / np.maximum(count, 1.0)
+        out[s:s + chunk] = np.where(count >= 2, np.sqrt(var), 0.0)
+    return out
 
 
 def sample_pixel_features(maps: Tensor, view: np.ndarray, pixel: np.ndarray, image_size: tuple[int, int]
@@ -257,9 +293,10 @@ def sample_pixel_features(maps: Tensor, view: np.ndarray, pixel: np.ndarray, ima
 
 
 def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,
-                    *, tol_pixels: float = 2.0, pixel_features: bool = False) -> np.ndarray:
-    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + D with ``pixel_features``;
-    see module docstring)."""
+                    *, tol_pixels: float = 2.0, pixel_features: bool = False,
+                    pixel_feature_spread: bool = False) -> np.ndarray:
+    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + D with ``pixel_features``,
+    + D with ``pixel_feature_spread``; see module docstring)."""
     local_condition_dim(mode)
     if mode == "top_rgb":
         cond = scene.top_rgb[idx]
@@ -268,14 +305,21 @@ def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarr
         cond = np.concatenate([scene.top_rgb[idx], onehot], axis=1)
     else:
         cond = multiview_condition(scene, xyz_perturbed, tol_pixels=tol_pixels)
-    if not pixel_features:
+    if not (pixel_features or pixel_feature_spread):
         return cond
     if scene.feature_maps is None:
-        raise ValueError(f"scene {scene.name}: stage2.data.pixel_features needs the prior encoder's maps "
+        key = "pixel_features" if pixel_features else "pixel_feature_spread"
+        raise ValueError(f"scene {scene.name}: stage2.data.{key} needs the prior encoder's maps "
                          "(gspi.stage2.splits.load_split loads them)")
-    feats = sample_pixel_features(scene.feature_maps, scene.view[idx], scene.pixel[idx],
-                                  (scene.cameras.height, scene.cameras.width))
-    return np.concatenate([cond, feats], axis=1)
+    parts = [cond]
+    if pixel_features:
+        parts.append(sample_pixel_features(scene.feature_maps, scene.view[idx], scene.pixel[idx],
+                                           (scene.cameras.height, scene.cameras.width)))
+    if pixel_feature_spread:
+        _, depth = scene.lattice_views()
+        parts.append(feature_spread_over_views(scene.feature_maps, depth, scene.cameras, xyz_perturbed,
+                                               tol_pixels=tol_pixels))
+    return np.concatenate(parts, axis=1)
 
 
 @dataclass(frozen=True)
@@ -288,6 +332,7 @@ class PointDataConfig:
     visibility_tol_pixels: float = 2.0  # A5 depth test tolerance, in pixel footprints
     train_views: int = 16  # view-dropout: global-prior views kept per training item
     pixel_features: bool = False  # + the prior's map at the source pixel (issue 42; not the paper)
+    pixel_feature_spread: bool = False  # + its spread over the views that see the point (issue 42; not the paper)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
@@ -297,7 +342,13 @@ class PointDataConfig:
 
     def condition_width(self, feature_dim: int) -> int:
         """The local condition's width with an encoder of ``feature_dim`` channels."""
-        return local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
+        return (local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
+                + (feature_dim if self.pixel_feature_spread else 0))
+
+    @property
+    def needs_feature_maps(self) -> bool:
+        """Whether the local condition samples the prior encoder's unpooled maps."""
+        return self.pixel_features or self.pixel_feature_spread
 
 
 def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: np.random.Generator
@@ -306,7 +357,7 @@ def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: n
     xyz = perturb_along_rays(scene.xyz[idx], scene.view[idx], scene.cameras,
                              sigma_pixels=cfg.perturb_pixels, rng=rng)
     cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
-                           pixel_features=cfg.pixel_features)
+                           pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread)
     xyz_unit = to_unit_sphere(torch.from_numpy(xyz), scene.frame).numpy()
     return xyz_unit.astype(np.float32), cond.astype(np.float32), scene.f0[idx]
 
@@ -343,4 +394,4 @@ def whole_scene_inputs(scene: ScenePoints, cfg: PointDataConfig, rng: np.random.
     idx = np.arange(scene.num_points)
     xyz = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=cfg.perturb_pixels, rng=rng)
     return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
-                                pixel_features=cfg.pixel_features)
+                                pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread)

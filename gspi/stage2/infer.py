@@ -9,6 +9,8 @@ visibility). The conditions are built exactly as in training (docs/STAGE2.md "Co
 * ``multiview`` (A5): the lattice renders replace the GT views and GT depth;
 * ``pixel_features``: the encoder's unpooled map of the asset's render of the source view,
   sampled at the source pixel (``gspi.stage2.data.sample_pixel_features``, as in training);
+* ``pixel_feature_spread``: that map's spread over the renders that see the point, A5's
+  visibility on the renders' depth (``gspi.stage2.data.feature_spread_over_views``);
 * global prior: the frozen encoder on the asset's lattice renders (sRGB of clamped linear).
 
 ``max_points`` (CPU-scale knob, default None = the paper's whole cloud) samples a seeded
@@ -28,7 +30,7 @@ from eval.colorspace import linear_to_srgb
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.point_cloud import PointCloud, nearest_fill
-from gspi.stage2.data import (LatticeCameras, PointDataConfig, local_condition_dim,
+from gspi.stage2.data import (LatticeCameras, PointDataConfig, feature_spread_over_views, local_condition_dim,
                               multiview_condition_from_views, sample_pixel_features, srgb_top_rgb)
 from gspi.stage2.encoders import pool_grid
 from gspi.stage2.model import RCWDenoiser
@@ -75,12 +77,17 @@ def prior_features(encoder, rgb_linear: np.ndarray, *, unpooled: bool = False) -
 
 
 def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
-                     tol_pixels: float = 2.0, feature_maps: Optional[Tensor] = None) -> np.ndarray:
+                     tol_pixels: float = 2.0, feature_maps: Optional[Tensor] = None,
+                     pixel_features: bool = True, pixel_feature_spread: bool = False) -> np.ndarray:
     """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training); A5's
     multi-view colours come from Stage I's ``renders`` (their maps and cameras).
-    ``feature_maps`` [32, D, g, g] (``stage2.data.pixel_features``): the encoder's maps of the
-    renders, sampled at each point's source pixel and appended (+D)."""
+    ``feature_maps`` [32, D, g, g]: the encoder's maps of the renders; with ``pixel_features``
+    sampled at each point's source pixel and appended (+D), with ``pixel_feature_spread`` their
+    spread over the renders that see the point appended (+D), in that order as in training."""
     local_condition_dim(mode)
+    height, width = renders.image_size
+    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
+                          width=width, height=height)
     top = srgb_top_rgb(points.rgb)
     if mode == "top_rgb":
         cond = top
@@ -88,15 +95,17 @@ def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
         onehot = np.eye(NUM_LATTICE_VIEWS, dtype=np.float32)[points.view]
         cond = np.concatenate([top, onehot], axis=1)
     else:
-        height, width = renders.image_size
-        cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
-                              width=width, height=height)
         cond = multiview_condition_from_views(srgb_top_rgb(renders.rgb), renders.depth, cams,
                                               points.xyz.astype(np.float64), tol_pixels=tol_pixels)
     if feature_maps is None:
         return cond
-    feats = sample_pixel_features(feature_maps, points.view, points.pixel, tuple(renders.image_size))
-    return np.concatenate([cond, feats], axis=1)
+    parts = [cond]
+    if pixel_features:
+        parts.append(sample_pixel_features(feature_maps, points.view, points.pixel, (height, width)))
+    if pixel_feature_spread:
+        parts.append(feature_spread_over_views(feature_maps, np.asarray(renders.depth), cams,
+                                               points.xyz.astype(np.float64), tol_pixels=tol_pixels))
+    return np.concatenate(parts, axis=1)
 
 
 def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> Optional[np.ndarray]:
@@ -110,28 +119,31 @@ def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> 
 
 def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: LatticeRenders, *,
                              local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0,
-                             pixel_features: bool = False, device: Optional[torch.device] = None
-                             ) -> tuple[np.ndarray, dict]:
+                             pixel_features: bool = False, pixel_feature_spread: bool = False,
+                             device: Optional[torch.device] = None) -> tuple[np.ndarray, dict]:
     """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
     metallic) in [0, 1] + stats. ``device``: where the sampling runs (None: the model's, as before);
     the conditions and prior features move there once, the PBR comes back as numpy.
-    ``pixel_features``: the model's ``stage2.data.pixel_features``."""
+    ``pixel_features`` / ``pixel_feature_spread``: the model's ``stage2.data`` keys of those names."""
     t0 = time.perf_counter()
-    width = PointDataConfig(local_condition=local_mode, pixel_features=pixel_features).condition_width(
-        encoder.feature_dim)
+    data = PointDataConfig(local_condition=local_mode, pixel_features=pixel_features,
+                           pixel_feature_spread=pixel_feature_spread)
+    width = data.condition_width(encoder.feature_dim)
     if model.config.local_cond_dim != width:
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
-                         f"stage2.data.local_condition={local_mode!r} (pixel_features={pixel_features}) "
+                         f"stage2.data.local_condition={local_mode!r} (pixel_features={pixel_features}, "
+                         f"pixel_feature_spread={pixel_feature_spread}) "
                          f"gives {width}")
     # with pixel features the encoder runs once: the grid is the pooled map, as encode() computes it
-    maps = prior_features(encoder, renders.rgb, unpooled=True) if pixel_features else None
+    maps = prior_features(encoder, renders.rgb, unpooled=True) if data.needs_feature_maps else None
     feats = pool_grid(maps) if maps is not None else prior_features(encoder, renders.rgb)
     if (feats is None) != (model.config.global_token_dim == 0):
         raise ValueError(f"prior encoder {getattr(encoder, 'name', encoder)!r} does not match the model "
                          f"(global_token_dim={model.config.global_token_dim})")
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
-    cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels, feature_maps=maps)
+    cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels, feature_maps=maps,
+                            pixel_features=pixel_features, pixel_feature_spread=pixel_feature_spread)
     t_cond = time.perf_counter() - t0
     model = model if device is None else model.to(device)
 

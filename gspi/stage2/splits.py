@@ -17,7 +17,7 @@ def cache_dir(cfg: Mapping[str, Any]) -> Path:
 
 def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool = True) -> list[ScenePoints]:
     """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``; with
-    ``stage2.data.pixel_features`` also the encoder's unpooled maps, unless ``conditions`` is
+    ``stage2.data.pixel_features`` / ``pixel_feature_spread`` also the encoder's unpooled maps, unless ``conditions`` is
     False (scenes read for their ground truth only, e.g. the no-decomposition baseline's)."""
     from eval.layout import read_splits
 
@@ -25,7 +25,7 @@ def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool 
     names = read_splits(data_dir).get(split, [])
     if not names:
         raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} is empty")
-    maps = conditions and cfg["stage2"].data.pixel_features
+    maps = conditions and cfg["stage2"].data.needs_feature_maps
     return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)),
                               scene_feature_maps(data_dir / n, encoder, cache_dir(cfg)) if maps else None)
             for n in names]
