@@ -259,14 +259,15 @@ def feature_spread_over_views(maps: Tensor, depth: np.ndarray, cams: LatticeCame
     for s in range(0, len(xyz), chunk):
         row, col, _, visible = project_to_views(cams, depth, xyz[s:s + chunk], tol_pixels=tol_pixels)
         m = row.shape[1]
-        feats = sample_pixel_features(maps, np.repeat(np.arange(num_views), m),
-                                      np.stack([row.ravel(), col.ravel()], axis=1),
-                                      (cams.height, cams.width)).reshape(num_views, m, dim)
-        w = visible[..., None].astype(np.float32)  # [V, m, 1]
-        count = w.sum(0)
-        mean = (feats * w).sum(0) / np.maximum(count, 1.0)
-        var = (np.square(feats - mean) * w).sum(0) / np.maximum(count, 1.0)
-        out[s:s + chunk] = np.where(count >= 2, np.sqrt(var), 0.0)
+        v_idx, p_idx = np.nonzero(visible)  # only the (view, point) pairs that see each other
+        feats = torch.from_numpy(sample_pixel_features(maps, v_idx, np.stack([row[v_idx, p_idx], col[v_idx, p_idx]], 1),
+                                                       (cams.height, cams.width))).double()
+        points = torch.from_numpy(p_idx)
+        count = torch.bincount(points, minlength=m).double()[:, None]
+        mean = torch.zeros(m, dim, dtype=torch.float64).index_add_(0, points, feats) / count.clamp(min=1)
+        var = torch.zeros(m, dim, dtype=torch.float64).index_add_(0, points, (feats - mean[points]) ** 2)
+        std = (var / count.clamp(min=1)).sqrt()
+        out[s:s + chunk] = torch.where(count >= 2, std, torch.zeros(())).float().numpy()
     return out
 
 
