@@ -133,7 +133,8 @@ PIXEL_PARAMETERS = XS_PARAMETERS + 256 * 48  # + 256 pixel-feature inputs x the 
     ("stage2_pool_recon", "cpu_pool_recon", 2500, XS_PARAMETERS),
     ("stage2_pool224", "cpu_pool224", 2500, XS_PARAMETERS),
     ("stage2_pool224_5k", "cpu_pool224_5k", 5000, XS_PARAMETERS),
-    ("stage2_pool224_pixel", "cpu_pool224_pixel", 2500, PIXEL_PARAMETERS)])
+    ("stage2_pool224_pixel", "cpu_pool224_pixel", 2500, PIXEL_PARAMETERS),
+    ("stage2_pool224_pixel_5k", "cpu_pool224_pixel_5k", 5000, PIXEL_PARAMETERS)])
 def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps, parameters):
     """checkpoints/<name>.pt loads, is under 20 MB, is what conf/stage2/<preset>.yaml trains (the
     truncated-SNR weight, the recipe's steps and sizes) and is the file its json card hashes."""

@@ -1,7 +1,7 @@
 """The Stage II model of a run: a given checkpoint, or one trained once per config and reused.
 
 ``stage2.checkpoint=<path>`` loads it (relative paths are tried against the working
-directory, then the repository root, so the shipped ``checkpoints/stage2_pool224_pixel.pt`` works
+directory, then the repository root, so the shipped ``checkpoints/stage2_pool224_pixel_5k.pt`` works
 from anywhere). ``stage2.checkpoint=null`` trains ``gspi-train``'s recipe on the dataset's
 training split into ``<cache>/stage2/<hash>/`` (hash of the Stage II config, the training
 scenes and the seed), resuming a partial run, under a file lock so that the parallel jobs of
