@@ -1,6 +1,7 @@
 """Issue 42's held-out table: Stage II models on the multi-part pool's held-out scenes.
 
-Reads ``scores.json`` folders of ``gspi.stage2.evaluate_points`` (one per model and seed), groups
+Reads ``scores.json`` folders of ``gspi.stage2.evaluate_points`` (one per model and seed; or the
+copies run.sh commits as ``docs/log/heldout/<run>.json``, which outlive the run folders), groups
 the scenes by what the pool made of them (``scene.json``: multi-part or one class; the metal
 class by name) and prints, per model, the mean over seeds of the per-seed scene means, the seed
 spread, metal-class metallic and metal IoU, multi-part roughness, and the paired differences to
@@ -41,9 +42,10 @@ def scene_groups(pool: Path, scenes: list[str]) -> dict[str, set[str]]:
     return groups
 
 
-def units(folder: Path, key: str = "stage2") -> tuple[dict, dict, int]:
-    """({(scene, seed): {channel: psnr, "avg": ...}}, {scene: metal IoU}, seed) of one folder."""
-    data = json.loads((folder / "scores.json").read_text())
+def units(source: Path, key: str = "stage2") -> tuple[dict, dict, int]:
+    """({(scene, seed): {channel: psnr, "avg": ...}}, {scene: metal IoU}, seed) of one scores folder,
+    or of a ``scores.json`` kept under docs/log/heldout/ (run.sh copies each run's there)."""
+    data = json.loads((source if source.suffix == ".json" else source / "scores.json").read_text())
     seed = data.get("train_seed")
     out = {}
     for scene, ch in data["per_scene"][key].items():
@@ -55,7 +57,8 @@ def units(folder: Path, key: str = "stage2") -> tuple[dict, dict, int]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("models", nargs="+", help="NAME=SCORES_FOLDER (repeat a name for its seeds)")
+    parser.add_argument("models", nargs="+",
+                        help="NAME=SCORES_FOLDER or NAME=SCORES.json (repeat a name for its seeds)")
     parser.add_argument("--pool", type=Path, required=True, help="the scored dataset (scene.json per scene)")
     parser.add_argument("--reference", default=None, help="also: paired difference to this model (avg)")
     args = parser.parse_args(argv)
