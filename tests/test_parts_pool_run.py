@@ -67,3 +67,13 @@ def test_table2_passes_a_departure_to_every_variant_but_a1(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines() == ["lane 0: full seed 0 [pixel: stage2.data.pixel_features=true]",
                                        "lane 0: a1_no_global_prior seed 0"]
+
+
+def test_empty_seeds_build_the_data_and_train_nothing(tmp_path):
+    """SEEDS="" rebuilds the pool and its reconstructions only (a lost data folder's rebuild);
+    unset SEEDS trains the two default seeds."""
+    assert "for seeds none (pool and reconstructions only);" in plan(tmp_path, SEEDS="").stdout
+    env = {k: v for k, v in os.environ.items() if k != "SEEDS"}
+    out = subprocess.run(["bash", str(SCRIPT)], env={**env, "WORK": str(tmp_path), "PLAN_ONLY": "1"},
+                         capture_output=True, text=True, timeout=30)
+    assert "for seeds 0 1;" in out.stdout, out.stdout

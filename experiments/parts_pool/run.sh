@@ -35,7 +35,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 WORK=${WORK:-/work/data/parts_pool}
-SEEDS=${SEEDS:-"0 1"}
+SEEDS=${SEEDS-"0 1"}                  # SEEDS="" builds the pool and its reconstructions, trains nothing
 CHUNK_MIN=${CHUNK_MIN:-40}            # one gspi-train invocation (a chunk); checkpoints every 10 min inside
 RECIPE=${RECIPE:-cpu_parts_pool}
 POOL_INDICES=${POOL_INDICES:-'[[0,64],[224,256]]'}   # pool scenes generated (train, held out)
@@ -60,7 +60,7 @@ SUMMARY=$WORK/recon_summary.md; [ "$TRAIN_SCENES" = 64 ] || SUMMARY=$WORK/recon_
 TRAIN_DATA=$RECON_VIEW; [ "$CONDITIONS" = reconstructed ] || TRAIN_DATA=$WORK/mix$TRAIN_SCENES
 BIN=.venv/bin
 if [ -n "${PLAN_ONLY:-}" ]; then   # print what a run would train and measure, then stop
-  echo "runs: $WORK/runs/${RUN}_s<seed> for seeds $SEEDS; train data: $TRAIN_DATA; held out: $HELDOUT/rpool64; train extra: ${TRAIN_EXTRA:-none}"
+  echo "runs: $WORK/runs/${RUN}_s<seed> for seeds ${SEEDS:-none (pool and reconstructions only)}; train data: $TRAIN_DATA; held out: $HELDOUT/rpool64; train extra: ${TRAIN_EXTRA:-none}"
   exit 0
 fi
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
