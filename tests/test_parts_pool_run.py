@@ -13,8 +13,10 @@ SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "parts_pool" / "r
 
 
 def plan(tmp_path, script: Path = SCRIPT, **env) -> subprocess.CompletedProcess:
-    """The script's PLAN_ONLY=1 output: what it would run, with nothing run."""
+    """The script's PLAN_ONLY=1 output: what it would run, with nothing run (a None in `env`
+    unsets that variable)."""
     full = {**os.environ, "WORK": str(tmp_path), "PLAN_ONLY": "1", **env}
+    full = {k: v for k, v in full.items() if v is not None}
     return subprocess.run(["bash", str(script)], env=full, capture_output=True, text=True, timeout=30)
 
 
@@ -73,7 +75,5 @@ def test_empty_seeds_build_the_data_and_train_nothing(tmp_path):
     """SEEDS="" rebuilds the pool and its reconstructions only (a lost data folder's rebuild);
     unset SEEDS trains the two default seeds."""
     assert "for seeds none (pool and reconstructions only);" in plan(tmp_path, SEEDS="").stdout
-    env = {k: v for k, v in os.environ.items() if k != "SEEDS"}
-    out = subprocess.run(["bash", str(SCRIPT)], env={**env, "WORK": str(tmp_path), "PLAN_ONLY": "1"},
-                         capture_output=True, text=True, timeout=30)
+    out = plan(tmp_path, SEEDS=None)
     assert "for seeds 0 1;" in out.stdout, out.stdout

@@ -175,8 +175,9 @@ def test_two_class_material_splits_the_object_between_its_classes():
 # full-precision hashes differed: the recipes go through torch ops (sRGB decoding, patterns) whose
 # CPU kernels differ by an ulp between SIMD paths (ATEN_CPU_CAPABILITY=default vs avx2: 141 of the
 # recipes' floats differ, by <= 5e-16 absolute; two full-precision hashes, one rounded).
-# The code did not change (ceed0fd, green on the Xeon, gives the new full-precision hash here), and the
-# parts pool rebuilt here scores no decomposition on its held-out scenes as before, to the digit. The defaults must keep every recipe.
+# The code did not change (ceed0fd, green on the Xeon, gives the new full-precision hash here),
+# and the parts pool rebuilt here scores no decomposition on its held-out scenes as before, to
+# the digit. The defaults must keep every recipe.
 POOL_RECIPES_SHA256 = {0.0: "0c13ccf78962447e50ca558091fe077a95deb27ebf573504e3ef66f4a64d260b",
                        0.5: "aed9ff5a8f12721d11bfbc00885d33b3b3d77f94986435d36be64a9a3895b7f7"}
 
