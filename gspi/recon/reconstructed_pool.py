@@ -94,7 +94,11 @@ def reconstruct_pool_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any]
     cpu0 = time.process_time()
     scene = read_scene(scene_dir)
     views = load_scene_views(scene, LATTICE_SPLIT)
-    gaussians, record = reconstruct_scene(scene, recon_cfg, train_split=LATTICE_SPLIT, views=views)
+    # a scene with held-out views (e.g. a probe's pool copy with data.num_test_views) also scores
+    # them: evaluation only, the asset is the same bytes (tests/test_reconstructed_pool.py)
+    eval_split = "test" if scene.views.get("test") else None
+    gaussians, record = reconstruct_scene(scene, recon_cfg, train_split=LATTICE_SPLIT, views=views,
+                                          eval_split=eval_split)
     asset_rgb = render_lattice(gaussians, image_size=(scene.height, scene.width)).rgb
     gt_rgb = views.images.numpy()  # the exact lattice renders Stage 0 was fitted to
     write_asset_conditions(scene_dir, asset_rgb, dst)

@@ -77,7 +77,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                         split: str = "test", num_steps: int = 50, seed: int = 0,
                         write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
                         max_points: int | None = None, baseline_train: str | Path | None = None,
-                        num_samples: int = 1, guidance_scale: float = 1.0) -> dict[str, Any]:
+                        num_samples: int = 1, guidance_scale: float = 1.0, patch_points: int | None = None,
+                        patch_coverage: float = 2.0) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
@@ -89,12 +90,13 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     ``data_dir``; e.g. the model's training pool when ``data_dir`` holds only test scenes).
     ``num_samples``: DDIM samples averaged per point (gspi-run's ``stage2.inference.num_samples``).
     ``guidance_scale``: classifier-free guidance (gspi-run's ``stage2.inference.guidance_scale``).
+    ``patch_points`` / ``patch_coverage``: k-NN patch inference (``stage2.inference.patch_points``).
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
     data_cfg = cfg["stage2"].data
     sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed, num_samples=num_samples,
-                             guidance_scale=guidance_scale)
+                             guidance_scale=guidance_scale, patch_points=patch_points, patch_coverage=patch_coverage)
 
     def predict(scene: ScenePoints, index: int):
         return subset_prediction(model, scene, index, data_cfg, sampling, write_chunk=write_chunk)
@@ -103,12 +105,15 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                          record={"ablation": str(cfg.get("ablation_name", "full")), **dict(source or {}),
                                  "num_steps": num_steps, "max_points": max_points, "seed": seed,
                                  **({"num_samples": num_samples} if num_samples != 1 else {}),
-                                 **({"guidance_scale": guidance_scale} if guidance_scale != 1.0 else {})})
+                                 **({"guidance_scale": guidance_scale} if guidance_scale != 1.0 else {}),
+                                 **({"patch_points": patch_points, "patch_coverage": patch_coverage}
+                                    if patch_points else {})})
     out_dir = Path(out_dir)
     rough, metal = result["baseline_constants"]["roughness"], result["baseline_constants"]["metallic"]
     scenes = result["scenes"]
     sampling_note = f", {num_samples} samples averaged" if num_samples != 1 else ""
     sampling_note += f", guidance {guidance_scale:g}" if guidance_scale != 1.0 else ""
+    sampling_note += f", {patch_points}-point patches x{patch_coverage:g}" if patch_points else ""
     caption = (f"Stage II on the GT point clouds of {len(scenes)} {split} scenes of {Path(data_dir).name} "
                f"({num_steps} DDIM steps, seed {seed}{sampling_note}); per-view masked metrics averaged over the 32 lattice "
                f"views and the scenes; PSNR capped at {PSNR_CAP_DB:.0f} dB per view; LPIPS = AlexNet v0.1. "
@@ -140,6 +145,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="DDIM samples averaged per point (gspi-run's stage2.inference.num_samples)")
     parser.add_argument("--guidance-scale", type=float, default=1.0,
                         help="classifier-free guidance (gspi-run's stage2.inference.guidance_scale; 1 = off)")
+    parser.add_argument("--patch-points", type=int, default=None,
+                        help="k-NN patches of this many points, blended (stage2.inference.patch_points); default the whole cloud")
+    parser.add_argument("--patch-coverage", type=float, default=2.0, help="patches per point on average")
     parser.add_argument("--max-points", type=int, default=None,
                         help="per scene: a seeded subset + 1-NN fill (the validation measure); default every point")
     parser.add_argument("--baseline-train", default=None,
@@ -152,7 +160,8 @@ def main(argv: list[str] | None = None) -> None:
     evaluate_checkpoint(model, cfg, args.data, args.out, split=args.split, num_steps=args.num_steps, seed=args.seed,
                         source=checkpoint_source(args.checkpoint), max_points=args.max_points,
                         baseline_train=args.baseline_train, num_samples=args.num_samples,
-                        guidance_scale=args.guidance_scale)
+                        guidance_scale=args.guidance_scale, patch_points=args.patch_points,
+                        patch_coverage=args.patch_coverage)
     print((Path(args.out) / "table.md").read_text())
 
 

@@ -46,6 +46,8 @@ class InferenceConfig:
     guidance_scale: float = 1.0  # classifier-free guidance (1 = off, the paper)
     num_samples: int = 1  # DDIM samples averaged per point (1 = the paper)
     max_points: Optional[int] = None  # None = whole cloud (paper); else seeded subset + 1-NN fill
+    patch_points: Optional[int] = None  # None = whole cloud at once (paper); else k-NN patches (gspi.stage2.patches)
+    patch_coverage: float = 2.0  # patches per point on average (patch_points only)
     write_chunk: Optional[int] = 32768  # points per Write chunk (memory bound)
     seed: int = 0
 
@@ -150,6 +152,7 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     def sample_all(chunk: Optional[int]) -> np.ndarray:
         return mean_point_pbr(model, pts.xyz, cond, feats, num_samples=cfg.num_samples, seed=cfg.seed,
                               num_steps=cfg.num_steps, write_chunk=chunk, guidance_scale=cfg.guidance_scale,
+                              patch_points=cfg.patch_points, patch_coverage=cfg.patch_coverage,
                               device=device)
 
     pbr, chunk = run_with_chunk_halving(sample_all, cfg.write_chunk, len(pts))
@@ -157,6 +160,7 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
         pbr = nearest_fill(pts.xyz, pbr, points.xyz)
     stats = {"num_points": len(points), "num_sampled": len(pts), "num_steps": cfg.num_steps,
              "num_samples": max(1, cfg.num_samples), "guidance_scale": cfg.guidance_scale,
+             **({"patch_points": cfg.patch_points, "patch_coverage": cfg.patch_coverage} if cfg.patch_points else {}),
              "seconds_conditions": round(t_cond, 3), "seconds": round(time.perf_counter() - t0, 3)}
     if chunk != cfg.write_chunk:  # shrunk after running out of GPU memory
         stats["write_chunk"] = chunk

@@ -43,6 +43,8 @@ class PointSampling:
     seed: int = 0
     num_samples: int = 1             # DDIM samples (seeds seed, seed+1, ...) averaged per point (stage2.inference.num_samples)
     guidance_scale: float = 1.0      # classifier-free guidance (stage2.inference.guidance_scale; 1 = off)
+    patch_points: Optional[int] = None  # k-NN patches of this many points (stage2.inference.patch_points); None = whole cloud
+    patch_coverage: float = 2.0      # patches per point on average (stage2.inference.patch_coverage)
 
 
 def scatter_to_views(values: np.ndarray, scene: ScenePoints) -> tuple[np.ndarray, np.ndarray]:
@@ -141,5 +143,7 @@ def subset_prediction(model, scene: ScenePoints, index: int, data_cfg: PointData
     values = mean_point_pbr(model, xyz[keep], cond[keep], None if feats is None else feats.to(device),
                             num_samples=getattr(cfg, "num_samples", 1), seed=cfg.seed, num_steps=cfg.num_steps,
                             frame=scene.frame, write_chunk=write_chunk,
-                            guidance_scale=getattr(cfg, "guidance_scale", 1.0))
+                            guidance_scale=getattr(cfg, "guidance_scale", 1.0),
+                            patch_points=getattr(cfg, "patch_points", None),
+                            patch_coverage=getattr(cfg, "patch_coverage", 2.0))
     return values if len(keep) == scene.num_points else nearest_fill(scene.xyz[keep], values, scene.xyz)

@@ -24,6 +24,7 @@ from torch import Tensor
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.model import DenoiserOutput, RCWDenoiser
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_from_model, to_unit_sphere
+from gspi.stage2.patches import blend_patches, blend_weights, cover_patches, patch_batches
 from gspi.stage2.schedule import cosine_alphas_cumprod, ddim_timesteps, eps_from_f0, f0_from_eps
 
 FEATURE_DIM = 5
@@ -150,6 +151,9 @@ def predict_point_pbr(
     guidance_scale: float = 1.0,
     num_train_timesteps: int = 1000,
     device: Optional[torch.device] = None,
+    patch_points: Optional[int] = None,
+    patch_coverage: float = 2.0,
+    patch_batch: Optional[int] = 64,
 ) -> Tensor:
     """DDIM-samples PBR features for the ENTIRE cloud at once (paper: N_test = N, no view-dropout).
 
@@ -160,6 +164,9 @@ def predict_point_pbr(
         frame: unit-sphere frame; None fits it on ``xyz`` (what Stage I inference has).
         device: where the DDIM loop runs (the frame and the noise are made on the CPU first, so
             a device changes no draw); None = the CPU, as before. The result is on ``device``.
+        patch_points: None = the whole cloud at once (the paper); else overlapping k-NN patches
+            of that many points, ``patch_coverage`` patches per point on average, sampled
+            ``patch_batch`` at a time and blended (``gspi.stage2.patches``, issue 52).
     Returns:
         [N, 5] float32 in [0, 1]: albedo (sRGB-encoded) RGB, roughness, metallic.
     """
@@ -174,9 +181,24 @@ def predict_point_pbr(
     if device is not None:
         inputs = inputs.to(device)
     generator = torch.Generator().manual_seed(int(seed))
-    f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
-                    write_chunk=write_chunk, alphas_cumprod=cosine_alphas_cumprod(num_train_timesteps))
-    return pbr_from_model(f[0])
+    alphas = cosine_alphas_cumprod(num_train_timesteps)
+    if patch_points is None:
+        f = ddim_sample(model.eval(), inputs, num_steps, generator, guidance_scale=guidance_scale,
+                        write_chunk=write_chunk, alphas_cumprod=alphas)
+        return pbr_from_model(f[0])
+    patches, centres = cover_patches(xyz.numpy(), int(patch_points), coverage=patch_coverage, seed=int(seed))
+    values = []
+    for sl in patch_batches(patches, patch_batch):
+        idx = torch.from_numpy(patches[sl]).to(inputs.xyz.device)
+        b = len(idx)
+        part = Stage2Inputs(xyz=inputs.xyz[0][idx], local_cond=inputs.local_cond[0][idx],
+                            global_tokens=None if inputs.global_tokens is None
+                            else inputs.global_tokens.expand(b, *inputs.global_tokens.shape[1:]))
+        f = ddim_sample(model.eval(), part, num_steps, generator, guidance_scale=guidance_scale,
+                        write_chunk=write_chunk, alphas_cumprod=alphas)
+        values.append(pbr_from_model(f).cpu())
+    pbr = blend_patches(torch.cat(values), patches, blend_weights(xyz.numpy(), patches, centres), len(xyz))
+    return pbr if device is None else pbr.to(device)
 
 
 def mean_point_pbr(model: RCWDenoiser, xyz, local_cond, global_feats: Optional[Tensor], *,

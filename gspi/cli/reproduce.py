@@ -1,0 +1,108 @@
+"""gspi-reproduce: one paper table, from nothing to its committed scores and table, by one command.
+
+    gspi-reproduce table=2 scale=cpu                  # rerun until it prints "done"
+    gspi-reproduce table=2 scale=smoke                # the same steps at toy size (minutes; the test suite runs it)
+    gspi-reproduce table=2 scale=cpu dry_run=true     # the steps left, with their commands
+    gspi-reproduce table=2 scale=cpu seeds=[0,1] variants=[full] recon=fast_view   # any key of the table's config
+    gspi-reproduce table=1 scale=cpu                  # Table 1 (the demo's sweep); table=3 the same for Table 3
+
+The table's config is conf/reproduce/table<N>_<scale>.yaml; ``data_root`` (default ``data`` under
+the repository, or $GSPI_DATA_ROOT) holds what is not committed. Every step is skipped when its
+output exists and resumes where it stopped, so a recipe longer than one session is the same
+command run again (gspi/reproduce/plan.py). Ctrl-C loses nothing that finished.
+"""
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+from eval.errors import EXIT_STATED, StatedError, one_line
+
+log = logging.getLogger("gspi-reproduce")
+REPO = Path(__file__).resolve().parents[2]
+ROOT_KEYS = ("data_root", "dry_run", "only")
+
+
+class ReproduceError(StatedError, ValueError):
+    """A bad gspi-reproduce call: names the key and what is expected."""
+
+
+def available() -> list[str]:
+    from eval.config import CONF_DIR
+
+    return sorted(p.stem for p in (Path(CONF_DIR) / "reproduce").glob("table*_*.yaml"))
+
+
+def compose(argv: list[str]):
+    """(table config, root config) of ``table=N scale=S [key=value ...]``."""
+    from hydra import compose as hydra_compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
+
+    from eval.config import CONF_DIR
+
+    pairs = {}
+    for arg in argv:
+        if "=" not in arg:
+            raise ReproduceError(f"{arg!r}: expected key=value (e.g. table=2 scale=cpu)")
+        key, value = arg.split("=", 1)
+        pairs.setdefault(key, []).append(value)
+    table, scale = pairs.pop("table", [None])[-1], pairs.pop("scale", [None])[-1]
+    name = f"table{table}_{scale}"
+    if table is None or scale is None or name not in available():
+        raise ReproduceError(f"table={table} scale={scale}: no conf/reproduce/{name}.yaml; known: "
+                             + ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in available()))
+    overrides = [f"{k if k in ROOT_KEYS else 'reproduce.' + k}={v}" for k, vs in pairs.items() for v in vs]
+    try:
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            cfg = hydra_compose("gspi_reproduce", overrides=[f"reproduce={name}", *overrides])
+        return OmegaConf.to_container(cfg.reproduce, resolve=True), cfg
+    except (HydraException, OmegaConfBaseException, YAMLError) as exc:
+        raise ReproduceError(f"{name}: {one_line(exc)} (keys: conf/reproduce/{name}.yaml)") from exc
+
+
+def plan(argv: list[str]):
+    """The steps of a call, and its root config."""
+    from gspi.reproduce.sweep_tables import sweep_table_steps
+    from gspi.reproduce.table2 import table2_steps
+
+    cfg, root_cfg = compose(argv)
+    build = table2_steps if int(cfg["table"]) == 2 else sweep_table_steps
+    return build(cfg, root=REPO), cfg, root_cfg
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gspi.reproduce.plan import StepFailed, run_plan
+
+    argv = sys.argv[1:] if argv is None else argv
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    prog = "gspi-reproduce"
+    try:
+        steps, cfg, root_cfg = plan(argv)
+        work = (REPO / cfg["work"]).resolve()
+        only = list(root_cfg.only or [])
+        ran = run_plan(steps, work / "reproduce.log", only=only, dry_run=bool(root_cfg.dry_run),
+                       lanes=int(cfg.get("lanes", 1)))
+    except (StatedError, StepFailed) as exc:
+        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
+        return EXIT_STATED if isinstance(exc, StatedError) else 1
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; what finished is kept, rerun the same command to continue", file=sys.stderr)
+        return 130
+    if root_cfg.dry_run:
+        print(f"{len(ran)} step(s) to do" if ran else "done: nothing left to do")
+        return 0
+    tables = REPO / cfg["tables_dir"]
+    print(f"done: table {cfg['table']} at scale {cfg['scale']}: {tables}/table{cfg['table']}.md")
+    return 0
+
+
+def entry() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

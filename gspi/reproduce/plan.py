@@ -1,0 +1,155 @@
+"""A reproduction as a list of steps, each a product command with the output that marks it done.
+
+``gspi-reproduce`` (gspi/cli/reproduce.py) turns a table's config into ``Step``s and runs them in
+order. A step is skipped when its ``done`` file exists, so rerunning the same command after an
+interruption continues the work; a step whose command is cut off writes no ``done`` and is run
+again (every command it runs resumes itself: gspi-data keeps finished scenes, the pool
+reconstruction finished assets, gspi-train its ``checkpoint.pt``). A step may need several calls
+of its command (a training run in chunks of ``stage2.train.stop_after_minutes``): ``repeat_until``
+says when it is done. Each command is logged before it runs, so the log reads as the commands a
+person would type.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Step:
+    """One step: ``command`` (argv) or ``action`` (in-process), finished when ``done`` exists."""
+
+    name: str
+    done: Path
+    command: Optional[Sequence[str]] = None
+    action: Optional[Callable[[], None]] = None
+    repeat_until: Optional[Callable[[], bool]] = None  # None: one successful call finishes the step
+    after: Optional[Callable[[], None]] = None  # runs once the command is done (e.g. writes ``done``)
+    env: dict = field(default_factory=dict)
+    max_calls: int = 1000
+    lane_group: Optional[str] = None  # consecutive steps with a group run as lanes: groups side by side
+    marker: bool = True  # ``done`` is a marker this module writes (with the command), not the step's output
+
+    def is_done(self) -> bool:
+        """Done; a marker left by another command is an error (the work folder holds other data)."""
+        if not self.done.exists():
+            return False
+        if self.marker and self.command is not None:
+            recorded = self.done.read_text().split(" ", 1)[-1].strip()
+            if recorded != self.marker_text():
+                raise StepFailed(f"step {self.name} was done by another command ({recorded}), not "
+                                 f"{self.marker_text()}: a config key changed under the same work folder; "
+                                 f"delete {self.done.parent.parent} or set another work folder")
+        return True
+
+    aliases: dict = field(default_factory=dict)  # path -> label in ``marker_text`` (e.g. the work folder -> <work>)
+
+    def describe(self) -> str:
+        return shlex.join(map(str, self.command)) if self.command else f"({self.name}: in-process)"
+
+    def marker_text(self) -> str:
+        """The command as recorded in the marker: the program by name, paths by their labels, so a
+        moved work folder or another checkout still recognises its own steps."""
+        if self.command is None:
+            return self.describe()
+        argv = [str(a) for a in self.command]
+        head = ["python"] if argv[0] == sys.executable else [Path(argv[0]).name]
+        text = shlex.join(head + argv[1:])
+        for path, label in sorted(self.aliases.items(), key=lambda kv: -len(kv[0])):
+            text = text.replace(str(path), label)
+        return text
+
+
+class StepFailed(RuntimeError):
+    """A step's command exited non-zero: the message names the step, the command and its log."""
+
+
+def run_step(step: Step, log_file: Path) -> None:
+    """Runs ``step`` until it is done (its ``done`` file written by the command, ``after`` or here)."""
+    calls = 0
+    while True:
+        calls += 1
+        if step.command is not None:
+            log.info("%s: %s", step.name, step.describe())
+            with open(log_file, "a") as fh:
+                fh.write(f"\n$ {step.describe()}\n")
+                fh.flush()
+                proc = subprocess.run(list(map(str, step.command)), stdout=fh, stderr=subprocess.STDOUT,
+                                      env={**os.environ, **step.env})
+            if proc.returncode != 0:
+                raise StepFailed(f"step {step.name} failed (exit {proc.returncode}): {step.describe()} "
+                                 f"(its output: {log_file})")
+        if step.action is not None:
+            log.info("%s", step.name)
+            step.action()
+        if step.repeat_until is None or step.repeat_until():
+            break
+        if calls >= step.max_calls:
+            raise StepFailed(f"step {step.name}: not done after {calls} calls of {step.describe()}")
+    if step.after is not None:
+        step.after()
+    if not step.done.exists():
+        step.done.parent.mkdir(parents=True, exist_ok=True)
+        step.done.write_text(f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {step.marker_text()}\n")
+
+
+def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[str]] = None,
+             dry_run: bool = False, lanes: int = 1) -> list[str]:
+    """Runs the steps not yet done, in order; returns the names of those it ran (or would run).
+    ``only``: prefixes of step names to run (the others are left as they are). ``lanes``: how
+    many ``lane_group``s of a block run side by side."""
+    todo = [s for s in steps if not s.is_done() and (not only or any(s.name.startswith(p) for p in only))]
+    for step in steps:
+        state = "done" if step.done.exists() else ("to do" if step in todo else "skipped (only=)")
+        log.info("[%s] %s", state, step.name)
+    if dry_run:
+        for step in todo:
+            print(f"{step.name}: {step.describe()}")
+        return [s.name for s in todo]
+    log_file.parent.mkdir(parents=True, exist_ok=True)
+    for block in blocks(todo):
+        if len(block) == 1 or lanes <= 1:
+            for group in block:
+                run_group(group, log_file)
+            continue
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(lanes) as pool:  # each lane waits on its own subprocess
+            for future in [pool.submit(run_group, group, log_file) for group in block]:
+                future.result()
+    return [s.name for s in todo]
+
+
+def run_group(group: Sequence[Step], log_file: Path) -> None:
+    for step in group:
+        t0 = time.perf_counter()
+        run_step(step, log_file)
+        log.info("%s: done in %.0f s", step.name, time.perf_counter() - t0)
+
+
+def blocks(steps: Sequence[Step]) -> list[list[list[Step]]]:
+    """Consecutive steps as blocks of groups: a step without ``lane_group`` is a block of its own;
+    a run of grouped steps is one block whose groups may run side by side."""
+    out: list[list[list[Step]]] = []
+    for step in steps:
+        if step.lane_group is None or not out or out[-1][0][0].lane_group is None:
+            out.append([[step]] if step.lane_group is None else [])
+            if step.lane_group is None:
+                continue
+        groups = out[-1]
+        for group in groups:
+            if group[0].lane_group == step.lane_group:
+                group.append(step)
+                break
+        else:
+            groups.append([step])
+    return out

@@ -1,0 +1,131 @@
+"""Table 2 at a named scale as steps (``gspi.reproduce.plan``): training pool -> held-out pool ->
+Stage 0 reconstructions of both -> one Stage II training per (variant, seed), in chunks ->
+Table 2's measure on the held-out scenes, its scores committed -> the table (gspi-table).
+
+Config: conf/reproduce/table2_<scale>.yaml (its comments name every key). A (variant, seed)
+whose scores are committed (``scores_dir``, or a file ``scores_from`` names) needs nothing
+else, and the data steps run only while some run still needs them.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any, Mapping
+
+from gspi.reproduce.plan import Step
+from gspi.reproduce.portable import write_portable_scores
+
+BIN = Path(sys.executable).parent
+
+
+def tool(name: str) -> str:
+    """A gspi console script of this environment (the one running gspi-reproduce)."""
+    return str(BIN / name)
+
+
+def python_module(module: str) -> list[str]:
+    return [sys.executable, "-m", module]
+
+
+def run_name(variant: str, seed: int) -> str:
+    return f"{variant}_s{seed}"
+
+
+def training_done(run_dir: Path) -> bool:
+    """gspi-train wrote stats.json with every step of the recipe taken."""
+    stats = run_dir / "stats.json"
+    if not stats.is_file():
+        return False
+    s = json.loads(stats.read_text())
+    return int(s.get("steps", 0)) >= int(s.get("total_steps", 1 << 30))
+
+
+def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
+    """Generate both pools, their dataset views and their Stage 0 reconstructions."""
+    done = work / ".done"
+    recon = cfg["recon"]
+    tp, hp = cfg["train_pool"], cfg["heldout_pool"]
+    train_range = ":".join(map(str, tp["indices"][0]))
+    data = lambda out, indices, keys: [  # noqa: E731
+        tool("gspi-data"), "preset=stage2_pool", f"out={out}", "seed=0",
+        f"data.pool_indices={json.dumps(indices).replace(' ', '')}", f"data.workers={cfg['workers']}", *keys]
+    split = lambda pool, view, *ranges: [*python_module("gspi.data.pool.split"), str(pool), str(view), *ranges]  # noqa: E731
+    reconstruct = lambda src, out: [*python_module("gspi.recon.reconstructed_pool"), str(src), str(out),  # noqa: E731
+                                    *cfg["recon_overrides"], "--recon", recon, "--workers", str(cfg["workers"])]
+    heldout_indices = [list(hp["train"]), list(hp["test"])]
+    return [
+        Step("data: training pool", done / "train_pool", data(work / "train_pool", list(map(list, tp["indices"])),
+                                                                tp["keys"])),
+        Step("data: training view", done / "train_view", split(work / "train_pool", work / "train_view",
+                                                                 "--train", train_range)),
+        Step("data: held-out pool", done / "heldout_pool", data(work / "heldout_pool", heldout_indices, hp["keys"])),
+        Step("data: held-out views", done / "heldout_views",
+             split(work / "heldout_pool", work / "heldout_test", "--test", ":".join(map(str, hp["test"])))),
+        Step("data: baseline view", done / "baseline_view",
+             split(work / "heldout_pool", work / "baseline_train", "--train", ":".join(map(str, hp["train"])))),
+        Step(f"stage 0: training pool (recon={recon})", done / f"recon_train_{recon}",
+             reconstruct(work / "train_view", work / f"rtrain_{recon}")),
+        Step(f"stage 0: held-out scenes (recon={recon})", done / f"recon_heldout_{recon}",
+             reconstruct(work / "heldout_test", work / f"rheldout_{recon}")),
+    ]
+
+
+def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path) -> list[Step]:
+    """Train one (variant, seed) in chunks, then measure it and commit its scores."""
+    recon = cfg["recon"]
+    name = run_name(variant, seed)
+    run_dir = work / "runs" / name
+    train = [tool("gspi-train"), f"data={work / f'rtrain_{recon}'}", f"out={run_dir}", f"stage2={cfg['stage2']}",
+             f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
+             *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
+    m = cfg["measure"]
+    measure = [*python_module("gspi.stage2.evaluate_points"), str(run_dir / "checkpoint.pt"),
+               str(work / f"rheldout_{recon}"), str(run_dir / "eval"), "--num-steps", str(m["num_steps"]),
+               "--baseline-train", str(work / "baseline_train")]
+    if m.get("max_points"):
+        measure += ["--max-points", str(m["max_points"])]
+    if m.get("patch_points"):
+        measure += ["--patch-points", str(m["patch_points"])]
+    commit = lambda: write_portable_scores(run_dir / "eval" / "scores.json", scores,  # noqa: E731
+                                           data_label=m["data_label"], roots={"<work>": work})
+    return [
+        Step(f"train: {name}", work / ".done" / f"train_{name}", train,
+             repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name),
+        Step(f"measure: {name}", scores, measure, after=commit, env={"OMP_NUM_THREADS": "1"}, lane_group=name,
+             marker=False),
+    ]
+
+
+def table_step(cfg: Mapping[str, Any], scores_dir: Path, tables_dir: Path) -> Step:
+    """gspi-table over the committed scores: Table 2 (md, tex, csv), Δ vs Full with bootstrap CIs."""
+    return Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
+                                                 "table=table2"])
+
+
+def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
+    """Every step of Table 2 at ``cfg``'s scale; ``root``: the repository (committed paths)."""
+    work = (root / cfg["work"]).resolve()
+    scores_dir, tables_dir = root / cfg["scores_dir"], root / cfg["tables_dir"]
+    adopt_committed_scores(cfg, root, scores_dir)
+    runs = []
+    for seed in cfg["seeds"]:
+        for variant in cfg["variants"]:
+            scores = scores_dir / run_name(variant, seed) / "scores.json"
+            if not scores.is_file():
+                runs += run_steps(cfg, work, variant, seed, scores)
+    steps = (pool_steps(cfg, work) if runs else []) + runs
+    table = table_step(cfg, scores_dir, tables_dir)
+    table.done.unlink(missing_ok=True)  # the table is rebuilt from whatever scores exist, every call
+    for step in steps:
+        step.aliases = {str(work): "<work>"}
+    return steps + [table]
+
+
+def adopt_committed_scores(cfg: Mapping[str, Any], root: Path, scores_dir: Path) -> None:
+    """Scores committed before this command existed (``scores_from``) take their run's place."""
+    for key, path in (cfg.get("scores_from") or {}).items():
+        variant, seed = key.rsplit("_s", 1)
+        dst = scores_dir / run_name(variant, int(seed)) / "scores.json"
+        if not dst.is_file():
+            write_portable_scores(root / path, dst, data_label=cfg["measure"]["data_label"], roots={})

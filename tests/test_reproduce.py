@@ -1,0 +1,146 @@
+"""gspi-reproduce (issue 53): one command per table, every step skipped when done, resumable.
+
+The steps' logic on toy steps (markers, lanes, a changed command under the same work folder),
+the committed scores made portable, the Table 2 plan on the committed scores, one-line errors,
+and Table 2 at ``scale=smoke`` end to end: a table with bootstrap CIs, then a rerun that has
+nothing left to do; an interrupted training resumed gives the scores of an uninterrupted run."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gspi.cli import reproduce as cli
+from gspi.reproduce.plan import Step, StepFailed, blocks, run_plan
+from gspi.reproduce.portable import portable, portable_path
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def touch_command(path: Path) -> list[str]:
+    return [sys.executable, "-c", f"import pathlib; pathlib.Path({str(path)!r}).write_text('x')"]
+
+
+def test_steps_run_once_and_are_skipped_when_done(tmp_path):
+    out = tmp_path / "a.txt"
+    step = lambda: Step("make a", tmp_path / ".done" / "a", touch_command(out))  # noqa: E731
+    assert run_plan([step()], tmp_path / "log") == ["make a"]
+    assert out.read_text() == "x"
+    out.unlink()
+    assert run_plan([step()], tmp_path / "log") == []  # done: not run again
+    assert not out.exists()
+    assert "$ " in (tmp_path / "log").read_text()
+
+
+def test_a_changed_command_under_the_same_work_folder_is_refused(tmp_path):
+    run_plan([Step("make a", tmp_path / ".done" / "a", touch_command(tmp_path / "a"))], tmp_path / "log")
+    with pytest.raises(StepFailed, match="was done by another command"):
+        run_plan([Step("make a", tmp_path / ".done" / "a", touch_command(tmp_path / "b"))], tmp_path / "log")
+
+
+def test_the_marker_names_programs_and_labelled_paths_not_this_machine(tmp_path):
+    step = Step("s", tmp_path / "m", [sys.executable, "-m", "x", str(tmp_path / "work" / "f")],
+                aliases={str(tmp_path / "work"): "<work>"})
+    assert step.marker_text() == "python -m x <work>/f"
+
+
+def test_a_failed_step_names_itself_and_its_log_and_leaves_no_marker(tmp_path):
+    step = Step("boom", tmp_path / ".done" / "boom", [sys.executable, "-c", "raise SystemExit(3)"])
+    with pytest.raises(StepFailed, match=r"step boom failed \(exit 3\).*its output"):
+        run_plan([step], tmp_path / "log")
+    assert not step.done.exists()
+
+
+def test_a_step_repeats_until_done(tmp_path):
+    counter = tmp_path / "n"
+    bump = [sys.executable, "-c", f"import pathlib; p = pathlib.Path({str(counter)!r}); "
+            "p.write_text(str(int(p.read_text()) + 1 if p.exists() else 1))"]
+    step = Step("chunks", tmp_path / ".done" / "c", bump, repeat_until=lambda: int(counter.read_text()) >= 3)
+    run_plan([step], tmp_path / "log")
+    assert counter.read_text() == "3"
+
+
+def test_lane_groups_form_blocks_and_run_side_by_side(tmp_path):
+    s = lambda name, group=None: Step(name, tmp_path / ".done" / name, touch_command(tmp_path / name),  # noqa: E731
+                                      lane_group=group)
+    steps = [s("data"), s("t0", "r0"), s("m0", "r0"), s("t1", "r1"), s("m1", "r1"), s("table")]
+    shape = [[[x.name for x in g] for g in block] for block in blocks(steps)]
+    assert shape == [[["data"]], [["t0", "m0"], ["t1", "m1"]], [["table"]]]
+    assert run_plan(steps, tmp_path / "log", lanes=2) == ["data", "t0", "m0", "t1", "m1", "table"]
+    assert all((tmp_path / n).exists() for n in ("data", "t0", "m0", "t1", "m1", "table"))
+
+
+def test_committed_scores_name_no_absolute_path(tmp_path):
+    roots = {"<work>": tmp_path / "w"}
+    assert portable_path(str(tmp_path / "w" / "runs" / "ckpt.pt"), roots) == "<work>/runs/ckpt.pt"
+    assert portable_path("/somewhere/else/data/x", roots) == "<elsewhere>/data/x"
+    assert portable({"a": ["/x/y/z", "rel", 3]}, {}) == {"a": ["<elsewhere>/y/z", "rel", 3]}
+
+
+def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeypatch):
+    """Table 2 at scale=cpu on a fresh clone: the committed scores stand for their runs (no
+    training, no data for them); the other (variant, seed) pairs are planned."""
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    steps, cfg, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu"])
+    scores = ROOT / cfg["scores_dir"]
+    committed = {p.parent.name for p in scores.glob("*/scores.json")}
+    assert {"full_s0", "full_s1", "a1_no_global_prior_s0"} <= committed
+    trained = {s.name.split(": ", 1)[1] for s in steps if s.name.startswith("train: ")}
+    assert trained.isdisjoint(committed) and "full_s2" in trained
+    assert steps[-1].name == "table"
+    for p in scores.glob("*/scores.json"):
+        text = p.read_text()
+        assert "/work/" not in text and json.loads(text)["data"] == cfg["measure"]["data_label"], p
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["table=9", "scale=cpu"], "no conf/reproduce/table9_cpu.yaml; known: table=1 scale=cpu"),
+    (["table=2"], "table=2 scale=None"),
+    (["table=2", "scale=smoke", "seedz=[1]"], "table2_smoke"),
+    (["table2"], "expected key=value"),
+])
+def test_a_bad_call_is_one_line_and_exit_2(argv, message, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and err[0].startswith("gspi-reproduce: error:")
+
+
+def reproduce(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.run([str(BIN / "gspi-reproduce"), *args], cwd=cwd, env=env, capture_output=True, text=True)
+
+
+def test_table2_smoke_end_to_end_gives_a_table_with_cis_and_then_nothing_to_do(tmp_path):
+    proc = reproduce("table=2", "scale=smoke", f"data_root={tmp_path}")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    table = (tmp_path / "reproduce" / "table2_smoke" / "tables" / "table2.md").read_text()
+    assert "Ours (Full)" in table and "A1: w/o global semantic prior" in table
+    assert "| 4 |" in table and "[" in table.split("A1:")[1].split("\n")[0]  # 2 scenes x 2 seeds, a CI
+    again = reproduce("table=2", "scale=smoke", f"data_root={tmp_path}", "dry_run=true")
+    assert again.returncode == 0 and "1 step(s) to do" in again.stdout  # only the table, rebuilt each call
+
+
+@pytest.mark.slow
+def test_an_interrupted_training_resumes_to_the_uninterrupted_scores(tmp_path):
+    """The same smoke table twice: straight through, and with Full's training stopped half-way
+    (stage2.train.stop_at, as a cut-off chunk leaves it) before the command is run again."""
+    keys = ["table=2", "scale=smoke", "variants=[full]", "seeds=[0]", "train_overrides=['stage2.train.steps=6','stage2.data.num_points=32']"]
+    straight = reproduce(*keys, f"data_root={tmp_path / 'a'}")
+    assert straight.returncode == 0, straight.stderr[-3000:]
+    first = reproduce(*keys, f"data_root={tmp_path / 'b'}", "only=[data,stage]")
+    assert first.returncode == 0, first.stderr[-3000:]
+    work = tmp_path / "b" / "reproduce" / "table2_smoke"
+    cut = subprocess.run([str(BIN / "gspi-train"), f"data={work / 'rtrain_tiny'}", f"out={work / 'runs' / 'full_s0'}",
+                          "stage2=tiny", "ablation=full", "seed=0", "stage2.train.steps=6",
+                          "stage2.data.num_points=32", "stage2.train.stop_at=3"], capture_output=True, text=True)
+    assert cut.returncode == 0, cut.stderr[-3000:]
+    resumed = reproduce(*keys, f"data_root={tmp_path / 'b'}")
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    a, b = (json.loads((tmp_path / r / "reproduce" / "table2_smoke" / "scores" / "full_s0" / "scores.json").read_text())
+            for r in ("a", "b"))
+    assert a["per_scene"] == b["per_scene"]
