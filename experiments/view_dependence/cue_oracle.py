@@ -1,0 +1,127 @@
+"""Issue 52's third probe: is metal (and gloss) separable point by point, from what conditions?
+
+A per-point regressor (the learnability ladder's R1: an MLP on the local condition, Top-RGB +
+source-view one-hot) with and without the per-point cross-view statistic
+(``gspi.stage2.view_statistics``: brightest minus median view, spread, the highlight's tint),
+trained on half of a dataset's scenes and scored on the other half (two folds by scene, seeded),
+on the conditions of one or more versions of the same scenes: the exact renders (GT) and Stage 0
+reconstructions (``gspi.recon.reconstructed_pool`` folders). Per fold and version it reports the
+held-out points' metallic IoU at 0.5 (all scenes with metal, and the multi-part ones alone) and
+the roughness PSNR against the training mean's. Writes a JSON (committed: docs/log/probes/) and
+prints markdown.
+
+    python -m experiments.view_dependence.cue_oracle exact=HELDOUT32 fast=RHELD_FAST fast_view=RHELD_VIEW \
+        --out docs/log/probes/cue_oracle.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from eval.layout import read_splits
+
+POINTS_PER_SCENE = 3000
+FEATURE_SETS = {"R1": ("top_rgb", "onehot"), "R1 + cross-view": ("top_rgb", "onehot", "cross_view")}
+
+
+def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
+    """A seeded subset of the scene's GT points with their conditions and targets."""
+    from gspi.stage2.data import read_lattice_cameras, srgb_top_rgb
+    from gspi.stage2.view_statistics import cross_view_radiance
+    from experiments.view_dependence.stage0_probe import lattice_images
+
+    with np.load(scene_dir / "gt_points.npz") as npz:
+        pts = {k: npz[k] for k in npz.files}
+    keep = np.random.default_rng(seed).choice(len(pts["xyz"]), min(POINTS_PER_SCENE, len(pts["xyz"])), replace=False)
+    _, cams = read_lattice_cameras(scene_dir)
+    images, depth = lattice_images(scene_dir)
+    xyz = pts["xyz"][keep].astype(np.float64)
+    stats = cross_view_radiance(images, depth, cams, xyz)
+    gen = json.loads((scene_dir / "scene.json").read_text()).get("generator", {})
+    return {"top_rgb": srgb_top_rgb(pts["rgb"][keep]), "onehot": np.eye(32, dtype=np.float32)[pts["view"][keep]],
+            "cross_view": np.concatenate([np.log1p(np.maximum(stats[:, :2], 0)), stats[:, 2:]], axis=1),
+            "roughness": pts["roughness"][keep].astype(np.float32), "metallic": pts["metallic"][keep].astype(np.float32),
+            "multi_part": np.full(len(keep), "parts" in gen.get("material", {}))}
+
+
+def fit_mlp(x: np.ndarray, y: np.ndarray, *, seed: int = 0, steps: int = 1500) -> nn.Module:
+    """A 2-layer MLP regressing y [n, 2] in [0, 1] (sigmoid head), Adam, full-batch-ish minibatches."""
+    torch.manual_seed(seed)
+    model = nn.Sequential(nn.Linear(x.shape[1], 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, y.shape[1]))
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    xt, yt = torch.from_numpy(x).float(), torch.from_numpy(y).float()
+    gen = torch.Generator().manual_seed(seed)
+    for _ in range(steps):
+        idx = torch.randint(len(xt), (2048,), generator=gen)
+        loss = ((torch.sigmoid(model(xt[idx])) - yt[idx]) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return model
+
+
+def metal_iou(pred: np.ndarray, gt: np.ndarray) -> float | None:
+    p, g = pred > 0.5, gt > 0.5
+    union = np.count_nonzero(p | g)
+    return None if union == 0 else float(np.count_nonzero(p & g) / union)
+
+
+def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    return float(10 * np.log10(1.0 / max(np.mean((pred - gt) ** 2), 1e-12)))
+
+
+def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]]) -> dict:
+    """Per feature set: held-out metallic IoU (all, multi-part), roughness PSNR (model, constant)."""
+    out = {}
+    for fs_name, keys in FEATURE_SETS.items():
+        rows = []
+        for train, test in folds:
+            cat = lambda names, k: np.concatenate([version[n][k] for n in names])  # noqa: E731
+            x_tr = np.concatenate([cat(train, k) for k in keys], axis=1)
+            y_tr = np.stack([cat(train, "roughness"), cat(train, "metallic")], axis=1)
+            model = fit_mlp(x_tr, y_tr)
+            with torch.no_grad():
+                pred = torch.sigmoid(model(torch.from_numpy(np.concatenate([cat(test, k) for k in keys], axis=1)).float())).numpy()
+            rough, metal, multi = cat(test, "roughness"), cat(test, "metallic"), cat(test, "multi_part")
+            rows.append({"metal_iou": metal_iou(pred[:, 1], metal),
+                         "metal_iou_multi_part": metal_iou(pred[multi, 1], metal[multi]),
+                         "roughness_psnr": psnr(pred[:, 0], rough),
+                         "roughness_psnr_constant": psnr(np.full_like(rough, y_tr[:, 0].mean()), rough)})
+        out[fs_name] = {k: float(np.mean([r[k] for r in rows if r[k] is not None])) for k in rows[0]}
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("versions", nargs="+", help="NAME=FOLDER: the same scenes under one set of conditions")
+    parser.add_argument("--out", type=Path)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    versions = {k: Path(v) for k, v in (a.split("=", 1) for a in args.versions)}
+    first = next(iter(versions.values()))
+    names = [n for s in ("train", "val", "test") for n in read_splits(first).get(s, [])]
+    order = np.random.default_rng(args.seed).permutation(len(names))
+    half = [sorted(names[i] for i in order[: len(names) // 2]), sorted(names[i] for i in order[len(names) // 2:])]
+    folds = [(half[0], half[1]), (half[1], half[0])]
+    result = {"scenes": names, "folds": folds, "points_per_scene": POINTS_PER_SCENE, "versions": {}}
+    lines = ["| conditions | features | metal IoU | metal IoU (multi-part) | roughness PSNR | constant |", "|---|---|---|---|---|---|"]
+    for vname, folder in versions.items():
+        arrays = {n: scene_arrays(folder / n, args.seed) for n in names}
+        result["versions"][vname] = evaluate(arrays, folds)
+        for fs, r in result["versions"][vname].items():
+            lines.append(f"| {vname} | {fs} | {r['metal_iou']:.2f} | {r['metal_iou_multi_part']:.2f} | "
+                         f"{r['roughness_psnr']:.2f} | {r['roughness_psnr_constant']:.2f} |")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=1) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
