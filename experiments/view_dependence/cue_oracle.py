@@ -76,7 +76,8 @@ def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
 
 
 def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]]) -> dict:
-    """Per feature set: held-out metallic IoU (all, multi-part), roughness PSNR (model, constant)."""
+    """``version``: {scene: arrays} holding every scene the folds name."""
+    # per feature set: held-out metallic IoU (all, multi-part), roughness PSNR (model, constant)
     out = {}
     for fs_name, keys in FEATURE_SETS.items():
         rows = []
@@ -98,21 +99,29 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]])
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("versions", nargs="+", help="NAME=FOLDER: the same scenes under one set of conditions")
+    parser.add_argument("versions", nargs="+",
+                        help="NAME=FOLDER (two folds by scene) or NAME=TRAIN_FOLDER,TEST_FOLDER: one set of conditions")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    versions = {k: Path(v) for k, v in (a.split("=", 1) for a in args.versions)}
-    first = next(iter(versions.values()))
-    names = [n for s in ("train", "val", "test") for n in read_splits(first).get(s, [])]
-    order = np.random.default_rng(args.seed).permutation(len(names))
-    half = [sorted(names[i] for i in order[: len(names) // 2]), sorted(names[i] for i in order[len(names) // 2:])]
-    folds = [(half[0], half[1]), (half[1], half[0])]
-    result = {"scenes": names, "folds": folds, "points_per_scene": POINTS_PER_SCENE, "versions": {}}
+    versions = {k: [Path(p) for p in v.split(",")] for k, v in (a.split("=", 1) for a in args.versions)}
+    scenes = lambda folder: [n for s in ("train", "val", "test") for n in read_splits(folder).get(s, [])]  # noqa: E731
+    result = {"points_per_scene": POINTS_PER_SCENE, "versions": {}, "folds": {}}
     lines = ["| conditions | features | metal IoU | metal IoU (multi-part) | roughness PSNR | constant |", "|---|---|---|---|---|---|"]
-    for vname, folder in versions.items():
-        arrays = {n: scene_arrays(folder / n, args.seed) for n in names}
+    for vname, folders in versions.items():
+        if len(folders) == 1:  # two folds by scene, seeded
+            names = scenes(folders[0])
+            order = np.random.default_rng(args.seed).permutation(len(names))
+            half = [sorted(names[i] for i in order[: len(names) // 2]), sorted(names[i] for i in order[len(names) // 2:])]
+            folds = [(half[0], half[1]), (half[1], half[0])]
+            arrays = {n: scene_arrays(folders[0] / n, args.seed) for n in names}
+        else:  # train on one dataset's scenes, score on the other's
+            train, test = scenes(folders[0]), scenes(folders[1])
+            folds = [(train, test)]
+            arrays = {**{n: scene_arrays(folders[0] / n, args.seed) for n in train},
+                      **{n: scene_arrays(folders[1] / n, args.seed) for n in test}}
+        result["folds"][vname] = folds
         result["versions"][vname] = evaluate(arrays, folds)
         for fs, r in result["versions"][vname].items():
             lines.append(f"| {vname} | {fs} | {r['metal_iou']:.2f} | {r['metal_iou_multi_part']:.2f} | "

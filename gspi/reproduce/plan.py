@@ -22,6 +22,10 @@ from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 log = logging.getLogger(__name__)
+# arguments that change how fast a command runs, not what it writes: left out of the markers, so a
+# rerun with another worker count or chunk length continues the same work
+SPEED_ONLY = ("data.workers=", "stage2.train.stop_after_minutes=")
+SPEED_ONLY_FLAGS = ("--workers",)  # followed by their value
 
 
 @dataclass
@@ -38,27 +42,15 @@ class Step:
     max_calls: int = 1000
     lane_group: Optional[str] = None  # consecutive steps with a group run as lanes: groups side by side
     marker: bool = True  # ``done`` is a marker this module writes (with the command), not the step's output
-
-    def is_done(self) -> bool:
-        """Done; a marker left by another command is an error (the work folder holds other data)."""
-        if not self.done.exists():
-            return False
-        if self.marker and self.command is not None:
-            recorded = self.done.read_text().split(" ", 1)[-1].strip()
-            if recorded != self.marker_text():
-                raise StepFailed(f"step {self.name} was done by another command ({recorded}), not "
-                                 f"{self.marker_text()}: a config key changed under the same work folder; "
-                                 f"delete {self.done.parent.parent} or set another work folder")
-        return True
-
     aliases: dict = field(default_factory=dict)  # path -> label in ``marker_text`` (e.g. the work folder -> <work>)
 
     def describe(self) -> str:
         return shlex.join(map(str, self.command)) if self.command else f"({self.name}: in-process)"
 
     def marker_text(self) -> str:
-        """The command as recorded in the marker: the program by name, paths by their labels, so a
-        moved work folder or another checkout still recognises its own steps."""
+        """The command as recorded in the marker: the program by name, paths by their labels and no
+        ``SPEED_ONLY`` argument, so a moved work folder, another checkout or another worker count
+        still recognises its own steps."""
         if self.command is None:
             return self.describe()
         argv = [str(a) for a in self.command]
@@ -66,7 +58,33 @@ class Step:
         text = shlex.join(head + argv[1:])
         for path, label in sorted(self.aliases.items(), key=lambda kv: -len(kv[0])):
             text = text.replace(str(path), label)
-        return text
+        return without_speed_only(text)
+
+    def is_done(self) -> bool:
+        """Done; a marker left by another command is an error (the work folder holds other data)."""
+        if not self.done.exists():
+            return False
+        if self.marker and self.command is not None:
+            recorded = without_speed_only(self.done.read_text().split(" ", 1)[-1].strip())
+            if recorded != self.marker_text():
+                raise StepFailed(f"step {self.name} was done by another command ({recorded}), not "
+                                 f"{self.marker_text()}: a config key changed under the same work folder; "
+                                 f"delete {self.done.parent.parent} or set another work folder")
+        return True
+
+
+def without_speed_only(command: str) -> str:
+    """``command`` (shell words) without the ``SPEED_ONLY`` arguments."""
+    kept, skip = [], False
+    for arg in shlex.split(command):
+        if skip or arg.startswith(SPEED_ONLY):
+            skip = False
+            continue
+        if arg in SPEED_ONLY_FLAGS:
+            skip = True
+            continue
+        kept.append(arg)
+    return shlex.join(kept)
 
 
 class StepFailed(RuntimeError):

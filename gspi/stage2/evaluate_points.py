@@ -55,14 +55,17 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
     stage2 = cfg["stage2"]
     encoder = build_encoder(stage2.prior)
     scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder)
-    try:
-        train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder,
-                                  conditions=False)
-    except ValueError as exc:  # e.g. a test-only dataset
-        raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
-                         "pass a dataset with a train split (--baseline-train, e.g. the model's training "
-                         "data)") from exc
-    rough, metal = training_constants(train_scenes)
+    if baseline_train is not None and Path(baseline_train).suffix == ".json":
+        rough, metal = recorded_constants(Path(baseline_train))
+    else:
+        try:
+            train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder,
+                                      conditions=False)
+        except ValueError as exc:  # e.g. a test-only dataset
+            raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
+                             "pass a dataset with a train split (--baseline-train, e.g. the model's training "
+                             "data, or a scores.json that recorded them)") from exc
+        rough, metal = training_constants(train_scenes)
     result = evaluate_scenes(scenes, lambda s: predict(s, scenes.index(s)), lambda s: baseline_prediction(s, rough, metal))
     result.update(train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
                   split=split, scenes=[s.name for s in scenes], baseline_constants={"roughness": rough, "metallic": metal},
@@ -71,6 +74,17 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
                   **dict(record))
     write_points_scores(out_dir, result)  # eval.records.points_scores: the format's one writer
     return result
+
+
+def recorded_constants(scores: Path) -> tuple[float, float]:
+    """The baseline's (roughness, metallic) recorded in an earlier ``scores.json`` (the same
+    training means, without the training data at hand)."""
+    from eval.records.points_scores import read_points_scores
+
+    c = read_points_scores(scores).get("baseline_constants") or {}
+    if "roughness" not in c or "metallic" not in c:
+        raise ValueError(f"{scores}: records no baseline_constants (roughness, metallic)")
+    return float(c["roughness"]), float(c["metallic"])
 
 
 def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out_dir: str | Path, *,
@@ -151,7 +165,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--max-points", type=int, default=None,
                         help="per scene: a seeded subset + 1-NN fill (the validation measure); default every point")
     parser.add_argument("--baseline-train", default=None,
-                        help="dataset whose train split gives the baseline's constants (default: DATA)")
+                        help="dataset whose train split gives the baseline's constants (default: DATA), "
+                             "or a scores.json whose recorded constants to reuse")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
