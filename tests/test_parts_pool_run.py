@@ -49,28 +49,6 @@ def test_train_scenes_must_match_the_split(tmp_path):
     assert "TRAIN_SCENES=224" in out.stderr and "0:224" in out.stderr
 
 
-def test_table2_lanes_share_the_job_list(tmp_path):
-    """table2.sh's lanes split variants x seeds between them: disjoint, and together all of it."""
-    lanes = []
-    for lane in range(2):
-        out = plan(tmp_path, SCRIPT.with_name("table2.sh"), LANE=str(lane), LANES="2", SEEDS="0 1",
-                   VARIANTS="full a1_no_global_prior a2_no_view_onehot")
-        assert out.returncode == 0, out.stderr
-        lanes.append({line.split(": ", 1)[1] for line in out.stdout.splitlines()})
-    assert not lanes[0] & lanes[1]
-    assert lanes[0] | lanes[1] == {f"{v} seed {s}" for v in ("full", "a1_no_global_prior", "a2_no_view_onehot")
-                                   for s in (0, 1)}
-
-
-def test_table2_passes_a_departure_to_every_variant_but_a1(tmp_path):
-    """TAG / TRAIN_EXTRA reach run.sh for each variant; A1 (no encoder) drops pixel_features."""
-    out = plan(tmp_path, SCRIPT.with_name("table2.sh"), SEEDS="0", VARIANTS="full a1_no_global_prior",
-               TAG="pixel", TRAIN_EXTRA="stage2.data.pixel_features=true")
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.splitlines() == ["lane 0: full seed 0 [pixel: stage2.data.pixel_features=true]",
-                                       "lane 0: a1_no_global_prior seed 0"]
-
-
 def test_empty_seeds_build_the_data_and_train_nothing(tmp_path):
     """SEEDS="" rebuilds the pool and its reconstructions only (a lost data folder's rebuild);
     unset SEEDS trains the two default seeds."""

@@ -98,6 +98,18 @@ def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeyp
         assert "/work/" not in text and json.loads(text)["data"] == cfg["measure"]["data_label"], p
 
 
+def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
+    """A1 has no prior encoder, so no map to sample: its trainings turn the recipe's
+    pixel_features off (variant_overrides), every other variant keeps the recipe."""
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    steps, _, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", "seeds=[5]",
+                            "variants=[full,a1_no_global_prior]"])
+    train = {s.name: list(map(str, s.command)) for s in steps if s.name.startswith("train: ")}
+    assert "stage2.data.pixel_features=false" in train["train: a1_no_global_prior_s5"]
+    assert not any("pixel_features" in a for a in train["train: full_s5"])
+    assert "stage2=cpu_pool224_pixel_5k" in train["train: full_s5"]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["table=9", "scale=cpu"], "no conf/reproduce/table9_cpu.yaml; known: table=1 scale=cpu"),
     (["table=2"], "table=2 scale=None"),

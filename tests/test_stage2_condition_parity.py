@@ -97,3 +97,17 @@ def test_pixel_feature_spread_is_the_same(both_paths):
     # float32 vs float64 positions: a visibility test at its threshold may flip for a few points
     close = np.isclose(infer, train, rtol=1e-4, atol=1e-4).all(axis=1)
     assert close.mean() > 0.99
+
+
+def test_cross_view_radiance_is_the_same(both_paths):
+    """stage2.data.cross_view_radiance (issue 52): from the GT lattice views and depth in training,
+    from the renders' linear radiance and depth at inference, appended after the base condition."""
+    scene, points, renders, _ = both_paths
+    idx = np.arange(scene.num_points)
+    train = local_condition(scene, idx, scene.xyz, "top_rgb_onehot", cross_view_radiance=True)
+    infer = point_conditions(points, "top_rgb_onehot", renders, cross_view_radiance=True)
+    assert train.shape == infer.shape == (scene.num_points, 35 + 5)
+    np.testing.assert_allclose(infer[:, :35], train[:, :35], atol=1e-6)
+    differ = np.abs(infer[:, 35:] - train[:, 35:]).max(axis=1) > 1e-4  # float32 positions: a visibility may flip
+    assert differ.mean() < 2e-3
+    assert np.abs(train[:, 35:]).max() > 0  # the fixture's views differ: the statistic is not all zero

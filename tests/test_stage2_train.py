@@ -305,3 +305,28 @@ def test_pixel_feature_spread_trains_and_infers(dataset, tmp_path):
     with pytest.raises(ValueError, match=r"547-dim local condition.*pixel_feature_spread=False\) gives 291"):
         predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg,
                                  pixel_features=True)
+
+
+def test_cross_view_radiance_trains_and_infers(dataset, tmp_path):
+    """stage2.data.cross_view_radiance (issue 52): the model's condition is 35 + 5 wide, and
+    Stage II inference on the test scene's views as Stage I's renders builds that width."""
+    from eval.layout import read_splits
+    from gspi.stage1.extract import unproject_renders
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.infer import InferenceConfig, predict_generated_points
+    from tests.stage2_fixtures import gt_views_as_renders
+
+    out = tmp_path / "radiance"
+    train(tiny_cfg(dataset, out, "stage2.data.cross_view_radiance=true", "stage2.train.steps=2",
+                   "stage2.eval.enabled=false"), out)
+    model, saved = load_stage2_checkpoint(out / "checkpoint.pt")
+    assert saved["stage2"].data.cross_view_radiance and model.config.local_cond_dim == 35 + 5
+    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
+    points = unproject_renders(renders, alpha_threshold=0.5)
+    encoder = build_encoder(saved["stage2"].prior)
+    cfg = InferenceConfig(num_steps=2, max_points=300)
+    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
+                                      cfg=cfg, cross_view_radiance=True)
+    assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all()
+    with pytest.raises(ValueError, match=r"40-dim local condition.*cross_view_radiance=False.*gives 35"):
+        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg)

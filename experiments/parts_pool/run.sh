@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 42: the multi-part training pool, its Stage 0 reconstructions, the trainings of a Stage II
+# A study driver (issue 42; Table 2 itself is `gspi-reproduce table=2 scale=cpu`, docs/REPRODUCE.md): the multi-part training pool, its Stage 0 reconstructions, the trainings of a Stage II
 # recipe (2 seeds) and Table 2's measure on the held-out pool scenes. Every step is resumable:
 # rerun this script after a cut-off session and it continues where it stopped (complete.json,
 # reconstructed.json, the training's checkpoint.pt, scores.json mark what is done).

@@ -32,7 +32,7 @@ FEATURE_SETS = {"R1": ("top_rgb", "onehot"), "R1 + cross-view": ("top_rgb", "one
 def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     """A seeded subset of the scene's GT points with their conditions and targets."""
     from gspi.stage2.data import read_lattice_cameras, srgb_top_rgb
-    from gspi.stage2.view_statistics import cross_view_radiance
+    from gspi.stage2.view_statistics import condition_features, cross_view_radiance
     from experiments.view_dependence.stage0_probe import lattice_images
 
     with np.load(scene_dir / "gt_points.npz") as npz:
@@ -44,7 +44,7 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     stats = cross_view_radiance(images, depth, cams, xyz)
     gen = json.loads((scene_dir / "scene.json").read_text()).get("generator", {})
     return {"top_rgb": srgb_top_rgb(pts["rgb"][keep]), "onehot": np.eye(32, dtype=np.float32)[pts["view"][keep]],
-            "cross_view": np.concatenate([np.log1p(np.maximum(stats[:, :2], 0)), stats[:, 2:]], axis=1),
+            "cross_view": condition_features(stats),
             "roughness": pts["roughness"][keep].astype(np.float32), "metallic": pts["metallic"][keep].astype(np.float32),
             "multi_part": np.full(len(keep), "parts" in gen.get("material", {}))}
 

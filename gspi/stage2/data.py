@@ -29,6 +29,11 @@ linear RGB and PBR ground truth. From it:
   session 21): per channel, the standard deviation of that map sampled at the point's pixel in
   every lattice view that sees it (A5's depth test), appended (+D). A matte surface looks alike
   from every view, a mirror-like one does not.
+* **Cross-view radiance** (``stage2.data.cross_view_radiance``, issue 52's named departure): per
+  point, over the lattice views that see it (A5's depth test), the brightest view's luminance
+  minus the median, the luminance's spread and the highlight's tint (``gspi.stage2.view_statistics``,
+  5 values), read from the linear lattice images: what a glossy or metal surface shows and a
+  single view cannot tell.
 * **Targets** f0 = ``pbr_to_model([albedo (sRGB-encoded, as stored), roughness, metallic])`` in [-1, 1].
 * **Global prior**: the scene's cached [32, D, 5, 5] encoder features as [32, 25, D] tokens;
   view-dropout keeps ``train_views`` (16) random views per item, with their lattice ids.
@@ -45,7 +50,9 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.lattice_cameras import LatticeCameras, pixel_footprint, project_to_views  # noqa: F401 (re-exported)
 from gspi.data.lattice import NUM_LATTICE_VIEWS
+from gspi.stage2.view_statistics import FIELDS as RADIANCE_FIELDS, radiance_condition
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_to_model, to_unit_sphere, view_onehot
 
 LOCAL_CONDITIONS = {"top_rgb_onehot": 35, "top_rgb": 3, "multiview": 128}  # name -> width
@@ -62,31 +69,6 @@ def srgb_top_rgb(rgb_linear: np.ndarray) -> np.ndarray:
     from eval.colorspace import linear_to_srgb
 
     return linear_to_srgb(torch.from_numpy(np.asarray(rgb_linear, dtype=np.float32))).numpy()
-
-
-@dataclass
-class LatticeCameras:
-    """The scene's 32 lattice cameras (its ``train`` split, in lattice order)."""
-
-    K: np.ndarray  # [V, 3, 3] float64 pixel intrinsics
-    w2c: np.ndarray  # [V, 4, 4] float64 OpenCV world -> camera
-    width: int
-    height: int
-
-    @property
-    def centers(self) -> np.ndarray:  # [V, 3] world camera centres
-        R, t = self.w2c[:, :3, :3], self.w2c[:, :3, 3]
-        return -np.einsum("vji,vj->vi", R, t)
-
-    def project(self, xyz: np.ndarray, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Points [..., 3] in cameras ``views`` [...] -> pixel (u, v) [..., 2] and depth z [...]."""
-        R, t = self.w2c[views, :3, :3], self.w2c[views, :3, 3]
-        cam = np.einsum("...ij,...j->...i", R, xyz) + t
-        z = cam[..., 2]
-        K = self.K[views]
-        u = K[..., 0, 0] * cam[..., 0] / z + K[..., 0, 2]
-        v = K[..., 1, 1] * cam[..., 1] / z + K[..., 1, 2]
-        return np.stack([u, v], axis=-1), z
 
 
 def read_lattice_cameras(scene_dir: str | Path):
@@ -120,6 +102,7 @@ class ScenePoints:
     feature_maps: Optional[Tensor] = field(default=None, repr=False)  # [32, D, g, g] (pixel_features)
     _tree: Optional[cKDTree] = field(default=None, repr=False)
     _views: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
+    _linear: Optional[np.ndarray] = field(default=None, repr=False)
 
     @property
     def num_points(self) -> int:
@@ -148,6 +131,17 @@ class ScenePoints:
             depth = np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs])
             self._views = (rgb, depth)
         return self._views
+
+
+    def lattice_linear(self) -> np.ndarray:
+        """[V, H, W, 3] float32 linear radiance of the lattice views (``rgb.exr``), loaded once."""
+        if self._linear is None:
+            from eval.layout import read_scene, read_view_file
+
+            scene = read_scene(self.root)
+            self._linear = np.stack([read_view_file(scene.view_dir("train", v.id), "rgb.exr")
+                                     for v in scene.split_views("train")]).astype(np.float32)
+        return self._linear
 
 
 def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor],
@@ -179,11 +173,6 @@ def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor],
         feature_maps=feature_maps)
 
 
-def pixel_footprint(z: np.ndarray, cameras: LatticeCameras, views: np.ndarray) -> np.ndarray:
-    """[...] world width of one pixel at camera depth z of views ``views`` (``z / f_x``)."""
-    return z / cameras.K[views, 0, 0]
-
-
 def perturb_along_rays(xyz: np.ndarray, views: np.ndarray, cameras: LatticeCameras, *,
                        sigma_pixels: float, rng: np.random.Generator) -> np.ndarray:
     """Moves points [n, 3] along their source-view rays by N(0, (sigma_pixels * footprint)^2)."""
@@ -211,22 +200,6 @@ def multiview_condition(scene: ScenePoints, xyz: np.ndarray, *, tol_pixels: floa
     """A5 condition [n, 32 * 4]: per lattice view (view-major) sRGB at the projection + visibility."""
     images, depth = scene.lattice_views()
     return multiview_condition_from_views(images, depth, scene.cameras, xyz, tol_pixels=tol_pixels, chunk=chunk)
-
-
-def project_to_views(cams: LatticeCameras, depth: np.ndarray, xyz: np.ndarray, *, tol_pixels: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Points xyz [n, 3] in every view of ``cams`` with depth maps ``depth`` [V, H, W]: (row, col)
-    [V, n] of the nearest pixel (0 outside the image), ``inside`` [V, n] (in front, in the image)
-    and ``visible`` [V, n] (inside, depth > 0, ``|z - depth| < tol_pixels * z / f_x``)."""
-    num_views = len(depth)
-    views = np.broadcast_to(np.arange(num_views)[:, None], (num_views, len(xyz)))
-    uv, z = cams.project(xyz[None], views)
-    col, row = np.floor(uv[..., 0]).astype(np.int64), np.floor(uv[..., 1]).astype(np.int64)
-    inside = (z > 0) & (col >= 0) & (col < cams.width) & (row >= 0) & (row < cams.height)
-    col, row = np.where(inside, col, 0), np.where(inside, row, 0)
-    d_map = depth[views, row, col]
-    visible = inside & (d_map > 0) & (np.abs(d_map - z) < tol_pixels * pixel_footprint(z, cams, views))
-    return row, col, inside, visible
 
 
 def multiview_condition_from_views(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
@@ -295,9 +268,9 @@ def sample_pixel_features(maps: Tensor, view: np.ndarray, pixel: np.ndarray, ima
 
 def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,
                     *, tol_pixels: float = 2.0, pixel_features: bool = False,
-                    pixel_feature_spread: bool = False) -> np.ndarray:
+                    pixel_feature_spread: bool = False, cross_view_radiance: bool = False) -> np.ndarray:
     """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + D with ``pixel_features``,
-    + D with ``pixel_feature_spread``; see module docstring)."""
+    + D with ``pixel_feature_spread``, + 5 with ``cross_view_radiance``; see module docstring)."""
     local_condition_dim(mode)
     if mode == "top_rgb":
         cond = scene.top_rgb[idx]
@@ -306,6 +279,10 @@ def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarr
         cond = np.concatenate([scene.top_rgb[idx], onehot], axis=1)
     else:
         cond = multiview_condition(scene, xyz_perturbed, tol_pixels=tol_pixels)
+    if cross_view_radiance:
+        _, depth = scene.lattice_views()
+        cond = np.concatenate([cond, radiance_condition(scene.lattice_linear(), depth, scene.cameras, xyz_perturbed,
+                                                        tol_pixels=tol_pixels)], axis=1)
     if not (pixel_features or pixel_feature_spread):
         return cond
     if scene.feature_maps is None:
@@ -334,6 +311,7 @@ class PointDataConfig:
     train_views: int = 16  # view-dropout: global-prior views kept per training item
     pixel_features: bool = False  # + the prior's map at the source pixel (issue 42; not the paper)
     pixel_feature_spread: bool = False  # + its spread over the views that see the point (issue 42; not the paper)
+    cross_view_radiance: bool = False  # + the point's radiance over the views that see it, 5 values (issue 52; not the paper)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
@@ -344,7 +322,8 @@ class PointDataConfig:
     def condition_width(self, feature_dim: int) -> int:
         """The local condition's width with an encoder of ``feature_dim`` channels."""
         return (local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
-                + (feature_dim if self.pixel_feature_spread else 0))
+                + (feature_dim if self.pixel_feature_spread else 0)
+                + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0))
 
     @property
     def needs_feature_maps(self) -> bool:
@@ -358,7 +337,8 @@ def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: n
     xyz = perturb_along_rays(scene.xyz[idx], scene.view[idx], scene.cameras,
                              sigma_pixels=cfg.perturb_pixels, rng=rng)
     cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
-                           pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread)
+                           pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread,
+                           cross_view_radiance=cfg.cross_view_radiance)
     xyz_unit = to_unit_sphere(torch.from_numpy(xyz), scene.frame).numpy()
     return xyz_unit.astype(np.float32), cond.astype(np.float32), scene.f0[idx]
 
@@ -395,4 +375,5 @@ def whole_scene_inputs(scene: ScenePoints, cfg: PointDataConfig, rng: np.random.
     idx = np.arange(scene.num_points)
     xyz = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=cfg.perturb_pixels, rng=rng)
     return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
-                                pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread)
+                                pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread,
+                                cross_view_radiance=cfg.cross_view_radiance)

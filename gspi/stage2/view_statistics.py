@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gspi.stage2.data import LatticeCameras, project_to_views
+from gspi.stage2.lattice_cameras import LatticeCameras, project_to_views
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 FIELDS = ("peak_gain", "spread", "tint_r", "tint_g", "tint_b")
@@ -49,6 +49,12 @@ def radiance_statistics(colours: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def condition_features(stats: np.ndarray) -> np.ndarray:
+    """[n, 5] the statistic as a Stage II condition (``stage2.data.cross_view_radiance``): gain and
+    spread as log(1 + x) (radiance has no upper bound; a highlight is 1-3 above its surface), tint as is."""
+    return np.concatenate([np.log1p(np.maximum(stats[:, :2], 0.0)), stats[:, 2:]], axis=1).astype(np.float32)
+
+
 def cross_view_radiance(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray, *,
                         tol_pixels: float = 2.0, chunk: int = 16384) -> np.ndarray:
     """[n, 5] ``FIELDS`` per point xyz [n, 3] from linear renders [V, H, W, 3] and depths [V, H, W]."""
@@ -58,3 +64,10 @@ def cross_view_radiance(images: np.ndarray, depth: np.ndarray, cams: LatticeCame
         row, col, _, visible = project_to_views(cams, depth, xyz[s:s + chunk], tol_pixels=tol_pixels)
         out[s:s + chunk] = radiance_statistics(images[views, row, col].astype(np.float64), visible)
     return out
+
+
+def radiance_condition(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray, *,
+                       tol_pixels: float = 2.0) -> np.ndarray:
+    """[n, 5] ``condition_features(cross_view_radiance(...))``: Stage II's condition, the same in
+    training (GT lattice images and depth) and at inference (the asset's renders and their depth)."""
+    return condition_features(cross_view_radiance(images, depth, cams, xyz, tol_pixels=tol_pixels))
