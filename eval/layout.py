@@ -270,6 +270,16 @@ def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
     return out
 
 
+def merge_splits(out_dir: str | Path, added: dict[str, list[str]]) -> dict[str, list[str]]:
+    """Add scene names to `<out>/splits.json` (created if missing); returns the result."""
+    path = Path(out_dir) / "splits.json"
+    splits = read_splits(out_dir) if path.is_file() else {"train": [], "val": [], "test": []}
+    for split, names in added.items():
+        splits[split] = sorted(set(splits.get(split, [])) | set(names))
+    write_json_atomic(path, splits)
+    return splits
+
+
 def read_view_file(view_dir: Path, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read one per-view file of the layout as float32 HxWxC (see VIEW_FILES); ``shape`` (H, W),
     when given, is checked from the file's header before its pixels are decoded."""
