@@ -258,6 +258,17 @@ def _view_entry(v: View) -> dict:
     return entry
 
 
+def scene_dir_in(data_dir: str | Path, name: str) -> Path | None:
+    """The folder of scene ``name`` given a dataset folder (``<data>/<name>/``) or that one scene's
+    own folder (``gspi-run data=<scene folder>`` names its scene after the folder); None if neither."""
+    data_dir = Path(data_dir)
+    if (data_dir / name / "scene.json").is_file():
+        return data_dir / name
+    if data_dir.name == name and (data_dir / "scene.json").is_file():
+        return data_dir
+    return None
+
+
 def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
     """`<dataset>/splits.json` = {"train": [scene names], "val": [...], "test": [...]}."""
     path = Path(dataset_dir) / "splits.json"

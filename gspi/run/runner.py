@@ -32,7 +32,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from eval.layout import LayoutError, Scene, read_meta, read_scene, read_splits, write_meta
+from eval.layout import LayoutError, Scene, read_meta, read_scene, read_splits, scene_dir_in, write_meta
 from eval.atomic import write_json_atomic
 from eval.errors import MissingInputError, StatedError, one_line
 from eval.records import run_points
@@ -87,8 +87,7 @@ def seed_everything(seed: int) -> None:
 def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, Any], out: Path,
               cfg_hash: str, cache_root: Path, num_scenes: int, progress: bool = False) -> dict:
     """Predicts one scene into ``out/predictions/<name>`` and writes its meta.json."""
-    scene = read_scene(data_dir if data_dir.name == name and (data_dir / "scene.json").is_file()
-                       else data_dir / name)
+    scene = read_scene(scene_dir_in(data_dir, name) or data_dir / name)
     split = view_split(cfg)
     pred_scene, work = out / "predictions" / name, out / "work" / name
     if scene_done(pred_scene, cfg_hash, scene, split):
@@ -353,7 +352,7 @@ def write_figures(cfg: Mapping[str, Any], data_dir: Path, out: Path, names: list
 
     protocol = OmegaConf.create(cfg["eval"])
     for name in names:
-        scene_dir = data_dir if (data_dir / "scene.json").is_file() else data_dir / name
+        scene_dir = scene_dir_in(data_dir, name) or data_dir / name
         try:
             path = scene_figure(read_scene(scene_dir), out / "predictions" / name, out / "figures" / f"{name}.png",
                                 protocol, split=view_split(cfg))
