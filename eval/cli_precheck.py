@@ -23,6 +23,9 @@ HYDRA_FLAGS = ("-m", "--multirun", "--cfg", "--info", "-c", "--help", "-h", "--h
                "--shell-completion", "-sc", "--run", "-r", "--experimental-rerun", "--version")
 
 
+SCHEMA_PREFIX = "base_"  # STYLE.md 3: schemas are registered as base_<group>
+
+
 class CommandLineError(StatedError, ValueError):
     """A command line that cannot make a complete config: names the key or the override."""
 
@@ -59,7 +62,7 @@ def check_group_choices(sweeps: dict[str, list[str]]) -> None:
         bad = [v for v in values if options and v not in options and v != "null"]
         if bad:
             raise CommandLineError(f"{group}={bad[0]}: not an option of the config group {group!r} "
-                                   f"(available: {', '.join(options)})")
+                                   f"(available: {', '.join(shown_options(options))})")
 
 
 def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
@@ -88,13 +91,19 @@ def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
         raise CommandLineError(f"required key(s) not set: {', '.join(missing)} ({source}: ???); add {hint}")
 
 
+def shown_options(options) -> list[str]:
+    """A group's options as a user may choose them: without the structured-config schemas
+    (``base_<group>``, registered by ``eval.config.register_configs``, which options extend)."""
+    return [o for o in options if not o.startswith(SCHEMA_PREFIX)]
+
+
 def _hydra_message(exc: BaseException) -> str:
     """Hydra's message without its 'Available options' list (the first line and the choices, joined)."""
     text = str(exc).strip()
     lines = [x.strip() for x in text.splitlines() if x.strip()]
     head = lines[0] if lines else type(exc).__name__
-    options = [x for x in lines[1:] if not x.lower().startswith(("available options", "config search path",
-                                                                   "provider=", "in '", "set the environment"))]
+    options = shown_options(x for x in lines[1:] if not x.lower().startswith(
+        ("available options", "config search path", "provider=", "in '", "set the environment")))
     if "Available options" in text and options:
         head += f" (available: {', '.join(options[:12])}{', ...' if len(options) > 12 else ''})"
     return head

@@ -123,3 +123,13 @@ def test_run_command_turns_stated_errors_and_ctrl_c_into_one_line(capsys):
     assert len(err) == 2 and "interrupted" in err[0] and err[1].endswith("error: x.pt: not found")
     with pytest.raises(ZeroDivisionError):  # a bug keeps its traceback
         run_command(lambda: 1 / 0)
+
+
+def test_a_protocol_preset_typo_lists_only_choosable_presets(workspace):
+    """`eval=<typo>` names the presets a user can choose, not the schema `base_eval` (issue 54)."""
+    from eval.cli import main
+
+    code, text = run_cli(main, [f"gt={workspace / 'gt'}", f"pred={workspace / 'pred'}",
+                                f"out={workspace / 'e'}", "eval=stanford_orbb"])
+    one_line_exit_2(code, text, "eval/stanford_orbb", "stanford_orb")
+    assert "base_eval" not in text and "default" in text
