@@ -19,6 +19,7 @@ from gspi.pipeline import Stage2Context
 from gspi.run.locks import file_lock
 from gspi.run.record import config_hash
 from gspi.run.scene_digest import scenes_digest
+from gspi.strict_config import ConfigError
 
 log = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -69,7 +70,7 @@ def check_compatible(have, want, path: Path) -> None:
     bad = {k: v for k, v in pairs.items() if v[0] != v[1]}
     if bad:
         desc = "; ".join(f"{k}: checkpoint {a!r}, run {b!r}" for k, (a, b) in bad.items())
-        raise ValueError(f"{path}: the Stage II checkpoint does not match the run's config ({desc}); "
+        raise ConfigError(f"{path}: the Stage II checkpoint does not match the run's config ({desc}); "
                          f"set stage2.checkpoint=null to train a matching model")
 
 
