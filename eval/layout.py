@@ -258,6 +258,17 @@ def _view_entry(v: View) -> dict:
     return entry
 
 
+def scene_dir_in(data_dir: str | Path, name: str) -> Path | None:
+    """The folder of scene ``name`` given a dataset folder (``<data>/<name>/``) or that one scene's
+    own folder (``gspi-run data=<scene folder>`` names its scene after the folder); None if neither."""
+    data_dir = Path(data_dir)
+    if (data_dir / name / "scene.json").is_file():
+        return data_dir / name
+    if data_dir.name == name and (data_dir / "scene.json").is_file():
+        return data_dir
+    return None
+
+
 def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
     """`<dataset>/splits.json` = {"train": [scene names], "val": [...], "test": [...]}."""
     path = Path(dataset_dir) / "splits.json"
@@ -268,6 +279,16 @@ def read_splits(dataset_dir: str | Path) -> dict[str, list[str]]:
             raise LayoutError(f"{path}: split {split!r} must be a list of scene names")
         out[split] = [check_name(n, f"{path}: {split}[{i}]") for i, n in enumerate(names)]
     return out
+
+
+def merge_splits(out_dir: str | Path, added: dict[str, list[str]]) -> dict[str, list[str]]:
+    """Add scene names to `<out>/splits.json` (created if missing); returns the result."""
+    path = Path(out_dir) / "splits.json"
+    splits = read_splits(out_dir) if path.is_file() else {"train": [], "val": [], "test": []}
+    for split, names in added.items():
+        splits[split] = sorted(set(splits.get(split, [])) | set(names))
+    write_json_atomic(path, splits)
+    return splits
 
 
 def read_view_file(view_dir: Path, name: str, shape: tuple[int, int] | None = None) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Install-time fetch of one npm package, checked against its SHA-256 (the only network access).
 
 `npm pack <spec>` from npm's registry into a folder; the tarball's SHA-256 must equal the one
-the caller pins. Used by `gspi.data.assets.pmndrs_assets` (Poly Haven HDRIs) and
+the caller pins. Used by `gspi.data.pmndrs_assets` (Poly Haven HDRIs) and
 `eval.report_site.model_viewer` (the report's 3D viewer). Failures raise `NpmUnavailable`
 with one line.
 """

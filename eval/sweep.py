@@ -27,6 +27,7 @@ from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.eval_folder import META_NAME, SUMMARY_NAME
 from eval.records.run_points import run_points_path
 from eval.records.run_record import RECORD_NAME, TABLES, RecordError, check_record, load_record_json
+from eval.tables.labels import REFERENCE_ABLATION
 
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 METRICS = ("psnr", "ssim", "lpips")
@@ -56,6 +57,7 @@ class RunRecord:
     material_eval: Path | None     # absolute folder, None if the run has none
     points_eval: Path | None
     mtime: float                   # of result.json; the newest of duplicates is kept
+    untabled: bool = False         # `table` null in the record (a run of no experiment)
 
     @property
     def run_dir(self) -> Path:
@@ -127,7 +129,8 @@ def read_record(path: str | Path) -> RunRecord:
                      ablation=ablation, table=data.get("table") or infer_table(method, ablation),
                      seed=data["seed"], config_hash=str(data["config_hash"]),
                      data=data.get("data"), scenes=tuple(data.get("scenes") or ()),
-                     material_eval=material, points_eval=points, mtime=path.stat().st_mtime)
+                     material_eval=material, points_eval=points, mtime=path.stat().st_mtime,
+                     untabled=data.get("table") is None)
 
 
 def find_records(paths: list[str | Path]) -> tuple[list[Path], list[Path]]:
@@ -267,22 +270,47 @@ def deduplicate(records: list[RunRecord]) -> tuple[list[RunRecord], list[str]]:
 
 
 def check_one_config(records: list[RunRecord]) -> None:
-    """Refuse two configurations of one (table, method, ablation, seed): a row would mix them."""
+    """Refuse two configurations of one (table, method, ablation, seed): a row would mix them.
+    The error names the config keys that differ (from each job's ``.hydra/config.yaml``)."""
+    from eval.records.job_config import config_differences
+
     seen: dict[tuple, RunRecord] = {}
     for rec in records:
         other = seen.setdefault((rec.table, rec.method, rec.ablation, rec.seed), rec)
         if other.config_hash != rec.config_hash:
             raise SweepError(f"{rec.path} and {other.path}: {rec.table} method={rec.method} "
                              f"ablation={rec.ablation} seed={rec.seed} was run with two "
-                             f"configurations ({other.config_hash} vs {rec.config_hash}); "
+                             f"configurations ({other.config_hash} vs {rec.config_hash}; "
+                             f"{config_differences(other.run_dir, rec.run_dir)}); "
                              "tabulate one sweep at a time")
+
+
+REFERENCE_ROW = ("gspi", REFERENCE_ABLATION)  # the row every table's Δ compares with (eval.tables.build)
+
+
+def with_reference_rows(records: list[RunRecord]) -> list[RunRecord]:
+    """``records`` plus, for each ablation table (2, 3) the sweep has rows of, the Full run of no
+    experiment (``table`` null, so filed under Table 1) as that table's reference row, unless the
+    table has its own Full of that seed: ``gspi-run -m ablation=full,a1_...,a6_...`` gives Tables
+    2 and 3 their Δ column as the per-table sweeps do (issue 54)."""
+    from dataclasses import replace
+
+    present = {(r.table, r.method, r.ablation, r.seed) for r in records}
+    ablation_tables = {r.table for r in records if r.table in ("table2", "table3")}
+    extra = [replace(r, table=table) for r in records
+             if r.untabled and (r.method, r.ablation) == REFERENCE_ROW
+             for table in sorted(ablation_tables)
+             if (table, *REFERENCE_ROW, r.seed) not in present]
+    return records + extra
 
 
 def load_sweep(paths: list[str | Path], *, tables: tuple[str, ...] = TABLES) -> Sweep:
     """Find, validate and flatten every run record below `paths` (only those of `tables`)."""
     files, unfinished = find_records(paths)
-    parsed = [r for r in map(read_record, files) if r.table in tables]
+    parsed = list(map(read_record, files))
     complete, notes = deduplicate([r for r in parsed if r.status == "complete"])
+    complete = [r for r in with_reference_rows(complete) if r.table in tables]
+    parsed = [r for r in parsed if r.table in tables]
     check_one_config(complete)
     done = {r.identity for r in complete}
     failed = [r for r in parsed if r.status == "failed" and r.identity not in done]

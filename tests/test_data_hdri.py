@@ -1,5 +1,5 @@
 """HDR environment files: the documented convention, bad files, environment sets, the npm
-asset install (gspi.data.hdri, gspi.data.env_sets, gspi.data.assets.pmndrs_assets)."""
+asset install (gspi.data.hdri, gspi.data.env_sets, gspi.data.pmndrs_assets)."""
 from __future__ import annotations
 
 import base64
@@ -14,7 +14,7 @@ import torch
 from eval.imageio import write_exr
 from eval.layout import read_scene
 from eval.relight import split_sum
-from gspi.data.assets import pmndrs_assets
+from gspi.data import pmndrs_assets
 from gspi.data.env_sets import assign_environments, environment_sets, resolve_env_set
 from gspi.data.generate import BenchmarkConfig, generate_dataset, scene_recipes
 from gspi.data.hdri import POLYHAVEN_CAPTURE, POLYHAVEN_HELDOUT, HDRIError, load_hdri, read_hdri
@@ -150,7 +150,7 @@ def test_polyhaven_files_follow_the_convention():
     """The installed Poly Haven maps: sky above (row 0 side brighter), sun of `sky` up high."""
     root = pmndrs_assets.asset_root()
     if not (root / "MANIFEST").is_file():
-        pytest.skip(f"{pmndrs_assets.PACKAGE} not installed (python -m gspi.data.assets.pmndrs_assets)")
+        pytest.skip(f"{pmndrs_assets.PACKAGE} not installed (python -m gspi.data.pmndrs_assets)")
     for name in ("sky", "city", "forest", "park"):
         env = read_hdri(root / "hdri" / f"{name}.exr")
         h = env.shape[0]

@@ -124,6 +124,45 @@ def test_imports_point_down(path):
     assert not bad, f"{src} may import only {ALLOWED[src]}:\n" + "\n".join(bad)
 
 
+# The floors inside gspi/data (gspi/data/__init__.py), lowest first: the shared facts, the
+# procedural benchmark, the rooms built on it, and the dataset writer on top (issue 54). A module
+# may import its own floor and those below; every gspi.data module must be placed here.
+DATA_FLOORS: tuple[tuple[str, ...], ...] = (
+    ("gspi.data.lattice", "gspi.data.environments", "gspi.data.pmndrs_assets", "gspi.data.hdri",
+     "gspi.data.point_clouds", "gspi.data.gt_maps", "gspi.data.contact_sheet", "gspi.data.layouts"),
+    ("gspi.data.procedural",),
+    ("gspi.data.env_sets", "gspi.data.assets", "gspi.data.pool"),
+    ("gspi.data.generate",),
+)
+
+
+def data_floor(name: str) -> int | None:
+    """Index in DATA_FLOORS of a gspi.data module (None for the package itself or outside it)."""
+    for level, prefixes in enumerate(DATA_FLOORS):
+        if any(name == p or name.startswith(p + ".") for p in prefixes):
+            return level
+    return None
+
+
+def test_every_gspi_data_module_has_a_floor():
+    names = [module_name(p) for p in (ROOT / "gspi" / "data").rglob("*.py")]
+    assert [n for n in names if n != "gspi.data" and data_floor(n) is None] == []
+
+
+def test_imports_inside_gspi_data_point_down():
+    """hdri -> assets.pmndrs_assets and assets.glb_import -> generate ran upward before issue 54."""
+    assert data_floor("gspi.data.assets.glb_import") < data_floor("gspi.data.generate")
+    assert data_floor("gspi.data.hdri") < data_floor("gspi.data.assets.pathtrace")
+    bad = []
+    for path in sorted((ROOT / "gspi" / "data").rglob("*.py")):
+        src = data_floor(module_name(path))
+        for name, line in imported_names(path):
+            target = data_floor(name)
+            if src is not None and target is not None and target > src:
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name} (floor {target} > {src})")
+    assert not bad, "\n".join(bad)
+
+
 def module_graph() -> dict[str, set[str]]:
     """module -> the project modules it imports (function-level imports included)."""
     paths = {module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
@@ -227,3 +266,17 @@ def test_eval_is_in_rooms():
     assert not flat, f"eval/ modules outside their rooms: {flat}"
     for room in ("tables", "lpips", "records", "report_site"):
         assert (ROOT / "eval" / room / "__init__.py").is_file(), room
+
+
+def test_gitignore_covers_the_venv_link_and_readme_outputs(tmp_path):
+    """A `.venv` symlink (a shared environment) and README's `data/` and `runs/` are ignored; the
+    test fixtures under tests/data stay tracked (issue 54)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("git") is None:
+        pytest.skip("git not installed")
+    paths = [".venv", "data/small/splits.json", "runs/gspi/result.json", "tests/data/ply/x.ply"]
+    proc = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "--no-index", *paths],
+                          capture_output=True, text=True)
+    assert proc.stdout.split() == paths[:3], proc.stdout + proc.stderr

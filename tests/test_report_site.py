@@ -230,3 +230,37 @@ def test_viewer_hdr_is_the_environment_resampled(tmp_path):
         back = read_hdr(tmp_path / "e.hdr")
         assert back.shape == (ENV_ROWS, 2 * ENV_ROWS, 3)
         np.testing.assert_allclose(back, np.broadcast_to([0.5, 1.0, 2.0], back.shape), rtol=2 ** -7)
+
+
+def single_scene_run(sweep: Path, tmp_path: Path) -> tuple[Path, Path]:
+    """A `gspi-run data=<scene folder>` job (its record's data is the scene's own folder, its one
+    scene named after it) with gspi-relight and gspi-export outputs where README writes them."""
+    import json
+    import shutil
+
+    scene = shutil.copytree(sweep.parent / "data" / "sphere_0", tmp_path / "my" / "sphere_0")
+    job = shutil.copytree(sweep / "method=gspi", tmp_path / "runs" / "mine")
+    record = json.loads((job / "result.json").read_text())
+    (job / "result.json").write_text(json.dumps(dict(record, data=str(scene), scenes=["sphere_0"])))
+    return job, scene
+
+
+@pytest.mark.parametrize("gt", ["recorded", "scene", "parent"])
+def test_a_single_scene_run_gets_its_scene_page(sweep, tmp_path, gt):
+    """Issue 54: gt= the scene's own folder, its parent, or nothing (the recorded scene folder)."""
+    job, scene = single_scene_run(sweep, tmp_path)
+    data = {"recorded": None, "scene": str(scene), "parent": str(scene.parent)}[gt]
+    site = build_report([job], tmp_path / "r", data=data, figures=False)
+    assert list(site.scene_pages) == ["sphere_0"]
+    html = site.scene_pages["sphere_0"].read_text()
+    assert "anim/sphere_0/" in html and "glb/sphere_0/" in html  # relight/<scene>/, export/<scene>/ shown
+
+
+def test_a_report_with_no_ground_truth_at_all_exits_2_naming_the_scene(sweep, tmp_path):
+    from eval.report_site.cli import main
+    from tests.reliability.helpers import run_cli
+
+    job, _ = single_scene_run(sweep, tmp_path)
+    code, text = run_cli(main, [str(job), f"out={tmp_path / 'r'}", f"gt={tmp_path / 'runs'}", "figures=false"])
+    assert code == 2 and "Traceback" not in text, text[-2000:]
+    assert "sphere_0" in text.splitlines()[-1] and "gt=" in text.splitlines()[-1], text[-2000:]

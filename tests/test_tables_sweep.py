@@ -469,3 +469,52 @@ def test_one_row_on_two_datasets_is_refused_naming_runs(tmp_path):
     with pytest.raises(ValueError, match="different datasets") as err:
         build_sweep_table(load_sweep([tmp_path / "sweep"]), TABLE_SPECS["table3"])
     assert str(a) in str(err.value) and str(b) in str(err.value)
+
+
+class TestNaturalAblationSweep:
+    """`gspi-run -m ablation=full,a1_no_global_prior,a6_no_distillation` (no experiment): its Full
+    run records `table: null` and is the reference row of Tables 2 and 3 (issue 54)."""
+
+    @staticmethod
+    def natural_sweep(root: Path) -> Path:
+        for seed in SEEDS:
+            full = write_job(root, f"full_{seed}", table=None, seed=seed, measure="points")
+            material = write_job(root.parent / "scratch", f"full_{seed}", table=None, seed=seed,
+                                 measure="material")
+            (material / "eval").rename(full / "eval")  # a gspi-run Full job scores both
+            record = json.loads((full / "result.json").read_text())
+            (full / "result.json").write_text(json.dumps(dict(record, material_eval="eval")))
+            write_job(root, f"a1_{seed}", ablation="a1_no_global_prior", table=None, seed=seed,
+                      offset=-6.0, measure="points")
+            write_job(root, f"a6_{seed}", ablation="a6_no_distillation", table=None, seed=seed,
+                      offset=-2.0, measure="material")
+        return root
+
+    def test_tables_2_and_3_get_the_reference_row_delta_and_ci(self, tmp_path):
+        root = self.natural_sweep(tmp_path / "sweep")
+        for name, label in (("table2", "A1: w/o global semantic prior"), ("table3", "A6: w/o distill")):
+            table = _build(root, name, n=200)
+            assert table.reference == "Ours (Full)" and table.labels[-1] == "Ours (Full)", table.labels
+            lo, mean, hi = (table.delta.loc[label, k] for k in ("lo", "mean", "hi"))
+            assert lo <= mean <= hi and mean < 0 and table.delta.loc[label, "n_pairs"] == 6
+        assert _build(root, "table1").labels == ["Ours"]  # Table 1 keeps its row too
+
+    def test_a_table_with_its_own_full_keeps_it(self, tmp_path):
+        root = self.natural_sweep(tmp_path / "sweep")
+        for seed in SEEDS:
+            write_job(tmp_path / "t2", f"full_{seed}", table="table2", seed=seed, config_hash=f"t2-{seed}")
+        sweep = load_sweep([root, tmp_path / "t2"])
+        fulls = [r for r in sweep.records if r.table == "table2" and r.ablation == "full"]
+        assert sorted(r.config_hash for r in fulls) == ["t2-0", "t2-1"]
+
+    def test_two_configs_of_one_row_name_the_differing_keys(self, tmp_path):
+        for name, table, ckpt in (("plain", None, "checkpoints/x.pt"), ("t2", "table2", None)):
+            job = write_job(tmp_path / name, "a1", ablation="a1_no_global_prior", table=table,
+                            config_hash=f"h-{name}")
+            (job / ".hydra" / "config.yaml").write_text(
+                f"table: {table or 'null'}\nout: {job}\nstage2:\n  checkpoint: {ckpt or 'null'}\n  lr: 0.001\n")
+        with pytest.raises(SweepError) as exc:
+            load_sweep([tmp_path])
+        message = str(exc.value)
+        assert "table: None vs 'table2'" in message or "table: 'table2' vs None" in message, message
+        assert "stage2.checkpoint" in message and "stage2.lr" not in message and "out:" not in message

@@ -9,7 +9,7 @@ from html import escape
 from pathlib import Path
 
 from eval.imageio import read_exr
-from eval.layout import LayoutError, read_scene
+from eval.layout import LayoutError, read_scene, scene_dir_in
 from eval.report_site.collect import Job, Problem, collect_jobs, read_per_view
 from eval.report_site.html_tables import frame_html, sweep_table_html
 from eval.report_site.images import envmap_preview
@@ -64,12 +64,14 @@ def shown_jobs(jobs: list[Job]) -> list[Job]:
 
 
 def scene_sources(jobs: list[Job]) -> dict[str, Path]:
-    """scene name -> its ground-truth folder (from the first job whose dataset has it)."""
+    """scene name -> its ground-truth folder (from the first job whose dataset has it; the
+    dataset may be the scene's own folder, as after ``gspi-run data=<scene folder>``)."""
     out = {}
     for job in jobs:
         for scene in job.scenes:
-            if scene not in out and job.data is not None and (job.data / scene / "scene.json").is_file():
-                out[scene] = job.data / scene
+            found = scene_dir_in(job.data, scene) if job.data is not None else None
+            if scene not in out and found is not None:
+                out[scene] = found
     return out
 
 

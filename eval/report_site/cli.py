@@ -32,6 +32,11 @@ def run(cfg):
                         thumb=int(cfg.thumb), quality=int(cfg.quality),
                         bootstrap=OmegaConf.to_container(cfg.bootstrap, resolve=True),
                         figures=bool(cfg.figures))
+    no_gt = sorted(str(p.where) for p in site.problems if p.kind == "missing data")
+    if no_gt and not site.scene_pages:  # a report of nothing is an error, not exit 0
+        where = f"gt={cfg.gt}" if cfg.gt else "the runs' recorded dataset (result.json 'data')"
+        raise MissingInputError(f"no ground truth for scene(s) {', '.join(no_gt)} in {where}: give gt=<the "
+                                f"dataset folder> or gt=<the scene's own folder>; {site.index} lists the problems")
     print(f"report: {len(site.scene_pages)} scene page(s), {len(site.problems)} problem(s) "
           f"listed, {site.size_bytes / 1e6:.1f} MB")
     print(f"open {site.index.resolve().as_uri()}")

@@ -15,12 +15,11 @@ import pandas as pd
 
 from eval.protocol_id import check_one_protocol, describe_counts, describe_protocol, sum_counts
 from eval.stats import mean_and_sem, paired_bootstrap_ci, paired_differences
-from eval.sweep import Sweep
-from eval.tables.labels import REFERENCE_ABLATION, row_label, row_order
+from eval.sweep import REFERENCE_ROW, Sweep
+from eval.tables.labels import row_label, row_order
 
 AVG_CHANNELS = ("albedo", "roughness", "metallic")
 UNIT = ["method", "ablation", "scene", "seed"]
-REFERENCE_ROW = ("gspi", REFERENCE_ABLATION)
 
 
 @dataclass(frozen=True)

@@ -128,7 +128,7 @@ def run(cfg: DictConfig) -> dict:
             log.info("imported %s (%s) in %.1f s (input renderer %s: %.1f s)", s["name"],
                      s["split"], s["seconds"], cfg.data.renderer, s["retrace_seconds"])
     elif mode == "import":
-        from gspi.data.generate import merge_splits
+        from eval.layout import merge_splits
 
         scene, fmt = import_layout(cfg["import"], out)
         merge_splits(out, {"test": [scene.name]})

@@ -41,7 +41,7 @@ def read_reference(scene_dir: Path):
 
     path = scene_dir / "gt_points.npz"
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing (scene= must be a canonical scene folder generated with "
+        raise MissingInputError(f"{path}: missing (scene= must be a canonical scene folder generated with "
                                 "point clouds; docs/FORMAT.md)")
     with np.load(path) as npz:
         if "xyz" not in npz or "view" not in npz:

@@ -298,15 +298,3 @@ def _render_recipes(out_dir: Path, recipes: list[dict], cfg: BenchmarkConfig, *,
         if scratch_dir is None:
             shutil.rmtree(scratch, ignore_errors=True)
     return stats, env_seconds
-
-
-def merge_splits(out_dir: str | Path, added: dict[str, list[str]]) -> dict[str, list[str]]:
-    """Add scene names to `<out>/splits.json` (created if missing); returns the result."""
-    from eval.layout import read_splits
-
-    path = Path(out_dir) / "splits.json"
-    splits = read_splits(out_dir) if path.is_file() else {"train": [], "val": [], "test": []}
-    for split, names in added.items():
-        splits[split] = sorted(set(splits.get(split, [])) | set(names))
-    write_json_atomic(path, splits)
-    return splits

@@ -88,7 +88,7 @@ def load_hdri(path: str | Path, height: int, *, white_radiance: float = 1.0) -> 
 
 def polyhaven_path(name: str) -> Path:
     """The cached file of a Poly Haven HDRI ("city" or "ph_city"), installing on first use."""
-    from gspi.data.assets.pmndrs_assets import HDRI_NAMES, asset_path
+    from gspi.data.pmndrs_assets import HDRI_NAMES, asset_path
 
     bare = name[len(POLYHAVEN_PREFIX):] if name.startswith(POLYHAVEN_PREFIX) else name
     if bare not in HDRI_NAMES:

@@ -178,4 +178,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from eval.errors import run_command
+
+    run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

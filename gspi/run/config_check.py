@@ -9,14 +9,15 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from gspi.strict_config import check_value
+from gspi.strict_config import ConfigError, check_value
 
 # key -> (type, lo, hi); inclusive, None = open
 JOB_KEYS = {"seed": (int, 0, None), "threads": (int, 1, 1024), "scene_workers": (int, 1, 1024)}
 
 
 def check_run_config(cfg: Mapping[str, Any]) -> None:
-    """Raises ValueError naming the first key whose value is not allowed."""
+    """Raises a stated error (:class:`ConfigError`, ``ProtocolError``, ``MissingInputError``) naming
+    the first key whose value is not allowed or whose file is missing."""
     from omegaconf import OmegaConf
 
     from eval.config import validate_protocol
@@ -39,7 +40,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
     AssetCheckConfig.from_dict(cfg.get("asset_check"))
     if cfg.get("scenes") is not None:
         if not isinstance(cfg["scenes"], (list, tuple)):
-            raise ValueError(f"scenes={cfg['scenes']!r}: must be a list of scene names or null")
+            raise ConfigError(f"scenes={cfg['scenes']!r}: must be a list of scene names or null")
         from eval.layout import check_name
         for name in cfg["scenes"]:
             check_name(name, "scenes")
@@ -49,8 +50,20 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
             kind.from_dict(dict(cfg[key]))
     if cfg.get("stage2") is not None:
         check_no_time_budget(cfg["stage2"])
+        check_checkpoint_exists(cfg["stage2"])
     if cfg.get("eval") is not None:
         validate_protocol(OmegaConf.create(dict(cfg["eval"])))
+
+
+def check_checkpoint_exists(stage2: Mapping[str, Any]) -> None:
+    """``stage2.checkpoint=<path>`` names a file (resolved as the run resolves it): a missing one
+    fails at start-up, naming the key."""
+    from eval.errors import MissingInputError
+    from gspi.run.stage2_model import resolve_path
+
+    path = stage2.get("checkpoint")
+    if path and not resolve_path(str(path)).is_file():
+        raise MissingInputError(f"stage2.checkpoint={path}: Stage II checkpoint not found")
 
 
 TIME_BUDGETS = ("stop_after_minutes", "stop_after_cpu_minutes")
@@ -67,7 +80,7 @@ def check_no_time_budget(stage2: Mapping[str, Any]) -> None:
     train = stage2.get("train") or {}
     for key in TIME_BUDGETS:
         if train.get(key) is not None:
-            raise ValueError(f"stage2.train.{key}={train[key]}: gspi-run trains Stage II to "
+            raise ConfigError(f"stage2.train.{key}={train[key]}: gspi-run trains Stage II to "
                              f"stage2.train.steps (its model is cached by config and must not depend "
                              f"on the machine's speed); set stage2.train.{key}=null and the steps, or "
                              f"train with gspi-train and pass stage2.checkpoint=<its checkpoint.pt>")

@@ -32,9 +32,9 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from eval.layout import Scene, read_meta, read_scene, read_splits, write_meta
+from eval.layout import LayoutError, Scene, read_meta, read_scene, read_splits, scene_dir_in, write_meta
 from eval.atomic import write_json_atomic
-from eval.errors import StatedError, one_line
+from eval.errors import MissingInputError, StatedError, one_line
 from eval.records import run_points
 from eval.records.eval_folder import RESULT_FILES
 from gspi.device import resolve_device
@@ -53,13 +53,13 @@ def select_scenes(data_dir: Path, split: str, scenes: Optional[list[str]]) -> li
     if scenes:
         missing = [s for s in scenes if not (data_dir / s / "scene.json").is_file()]
         if missing:
-            raise FileNotFoundError(f"{data_dir}: scenes not found: {missing}")
+            raise MissingInputError(f"{data_dir}: scenes not found: {missing}")
         return list(scenes)
     if (data_dir / "scene.json").is_file():  # a single scene folder
         return [data_dir.name]
     names = read_splits(data_dir).get(split, [])
     if not names:
-        raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} has no scenes")
+        raise LayoutError(f"{data_dir / 'splits.json'}: split {split!r} has no scenes")
     return names
 
 
@@ -87,8 +87,7 @@ def seed_everything(seed: int) -> None:
 def run_scene(name: str, *, data_dir: Path, method: Method, cfg: Mapping[str, Any], out: Path,
               cfg_hash: str, cache_root: Path, num_scenes: int, progress: bool = False) -> dict:
     """Predicts one scene into ``out/predictions/<name>`` and writes its meta.json."""
-    scene = read_scene(data_dir if data_dir.name == name and (data_dir / "scene.json").is_file()
-                       else data_dir / name)
+    scene = read_scene(scene_dir_in(data_dir, name) or data_dir / name)
     split = view_split(cfg)
     pred_scene, work = out / "predictions" / name, out / "work" / name
     if scene_done(pred_scene, cfg_hash, scene, split):
@@ -282,6 +281,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
     from gspi.run.config_check import check_run_config
 
     check_run_config(cfg)  # bad types or ranges fail here, before anything is written
+    names = select_scenes(data_dir, cfg["split"], cfg.get("scenes"))  # a bad data path too (no wandb yet)
     out.mkdir(parents=True, exist_ok=True)
     old = invalidate_result(out)  # from here on, no record describes this folder until ours
     removed = clear_stale_outputs(out, cfg_hash)
@@ -295,10 +295,8 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
     record = dict(cfg_hash=cfg_hash, method=str(method_cfg["name"]), ablation=str(cfg.get("ablation_name", "full")),
                   table=cfg.get("table"), seed=int(cfg["seed"]), data=str(data_dir))
     tracker = make_tracker(cfg.get("logger"), cfg, out)
-    names: list[str] = []
     t0 = time.perf_counter()
     try:
-        names = select_scenes(data_dir, cfg["split"], cfg.get("scenes"))
         method = build_method(method_cfg, cfg, cache_root)
         prepared = method.prepare()
         errors = {}
@@ -354,7 +352,7 @@ def write_figures(cfg: Mapping[str, Any], data_dir: Path, out: Path, names: list
 
     protocol = OmegaConf.create(cfg["eval"])
     for name in names:
-        scene_dir = data_dir if (data_dir / "scene.json").is_file() else data_dir / name
+        scene_dir = scene_dir_in(data_dir, name) or data_dir / name
         try:
             path = scene_figure(read_scene(scene_dir), out / "predictions" / name, out / "figures" / f"{name}.png",
                                 protocol, split=view_split(cfg))

@@ -4,7 +4,7 @@
 directory, then the repository root, so the shipped ``checkpoints/stage2_pool224_pixel_5k.pt`` works
 from anywhere). ``stage2.checkpoint=null`` trains ``gspi-train``'s recipe on the dataset's
 training split into ``<cache>/stage2/<hash>/`` (hash of the Stage II config, the training
-scenes and the seed), resuming a partial run, under a file lock so that the parallel jobs of
+scenes' content and the seed: a moved or copied dataset reuses its model), resuming a partial run, under a file lock so that the parallel jobs of
 a sweep that share a model (Table 3: A6-A9 and Full) train it once.
 """
 from __future__ import annotations
@@ -18,6 +18,8 @@ from eval.layout import read_splits
 from gspi.pipeline import Stage2Context
 from gspi.run.locks import file_lock
 from gspi.run.record import config_hash
+from gspi.run.scene_digest import scenes_digest
+from gspi.strict_config import ConfigError
 
 log = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -34,11 +36,30 @@ def resolve_path(path: str | Path) -> Path:
 
 
 def training_hash(cfg: Mapping[str, Any]) -> str:
-    """Identity of a trained model: Stage II config (minus inference keys), training scenes, seed."""
+    """Identity of a trained model: Stage II config (minus inference keys), the training scenes by
+    name and content (:func:`gspi.run.scene_digest.scene_digest`, not by where they lie), seed."""
+    stage2 = {k: v for k, v in cfg["stage2"].items() if k not in NOT_TRAINING}
+    train_scenes = read_splits(cfg["data_dir"]).get("train", [])
+    return config_hash({"stage2": stage2, "train_scenes": scenes_digest(cfg["data_dir"], train_scenes),
+                        "seed": cfg["seed"]}, volatile=())
+
+
+def path_keyed_hash(cfg: Mapping[str, Any]) -> str:
+    """The key of caches trained before issue 54 (the dataset's absolute path instead of its
+    content): such a model is adopted, not retrained (:func:`adopt_path_keyed`)."""
     stage2 = {k: v for k, v in cfg["stage2"].items() if k not in NOT_TRAINING}
     train_scenes = read_splits(cfg["data_dir"]).get("train", [])
     return config_hash({"stage2": stage2, "train_scenes": train_scenes, "seed": cfg["seed"],
                         "data": str(Path(cfg["data_dir"]).resolve())}, volatile=())
+
+
+def adopt_path_keyed(cfg: Mapping[str, Any], folder: Path) -> None:
+    """Renames a pre-issue-54 cache folder of this very dataset (same path, so same content) to
+    the content key ``folder``, so an existing (or half-trained) model is kept. Call under the lock."""
+    old = folder.parent / path_keyed_hash(cfg)
+    if not folder.exists() and old.is_dir() and (old / "checkpoint.pt").is_file():
+        old.rename(folder)
+        log.info("Stage II cache %s is now keyed by content: %s", old, folder)
 
 
 def check_compatible(have, want, path: Path) -> None:
@@ -49,7 +70,7 @@ def check_compatible(have, want, path: Path) -> None:
     bad = {k: v for k, v in pairs.items() if v[0] != v[1]}
     if bad:
         desc = "; ".join(f"{k}: checkpoint {a!r}, run {b!r}" for k, (a, b) in bad.items())
-        raise ValueError(f"{path}: the Stage II checkpoint does not match the run's config ({desc}); "
+        raise ConfigError(f"{path}: the Stage II checkpoint does not match the run's config ({desc}); "
                          f"set stage2.checkpoint=null to train a matching model")
 
 
@@ -82,6 +103,7 @@ def load_or_train(cfg: Mapping[str, Any], stage2, cache_root: Path):
     train_cfg = {"stage2": replace(stage2, checkpoint=None), "data_dir": str(cfg["data_dir"]),
                  "seed": int(cfg["seed"])}
     with file_lock(folder):
+        adopt_path_keyed(cfg, folder)
         done = folder / "checkpoint.pt"
         stats = None
         if not (done.is_file() and _finished(done, train_cfg)):

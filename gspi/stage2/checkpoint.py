@@ -18,7 +18,7 @@ from typing import Any
 import torch
 
 from eval.atomic import atomic_path
-from eval.errors import StatedError
+from eval.errors import MissingInputError, StatedError
 from gspi.stage2.model import RCWConfig, RCWDenoiser
 
 CHECKPOINT_FORMAT = "gspi-stage2"
@@ -45,12 +45,12 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """Loads and validates the header of a Stage II checkpoint.
 
     Raises:
-        FileNotFoundError: no file at ``path``.
+        MissingInputError: no file at ``path`` (a ``FileNotFoundError``).
         CheckpointError: unreadable, not a Stage II checkpoint, or an unsupported version.
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: Stage II checkpoint not found")
+        raise MissingInputError(f"{path}: Stage II checkpoint not found")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # pickle/zip errors of a truncated or foreign file

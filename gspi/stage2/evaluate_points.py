@@ -19,6 +19,7 @@ from typing import Any, Callable, Mapping
 
 import torch
 
+from eval.layout import LayoutError
 from eval.records.points_scores import write_points_scores
 from gspi.stage2.data import ScenePoints
 from gspi.stage2.points_measure import (CHANNELS, PSNR_CAP_DB, PointSampling, baseline_prediction,
@@ -62,9 +63,9 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
             train_scenes = load_split({**cfg, "data_dir": str(baseline_train or data_dir)}, "train", encoder,
                                       conditions=False)
         except ValueError as exc:  # e.g. a test-only dataset
-            raise ValueError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
-                             "pass a dataset with a train split (--baseline-train, e.g. the model's training "
-                             "data, or a scores.json that recorded them)") from exc
+            raise LayoutError(f"{exc}: the no-decomposition baseline's roughness/metallic are training means; "
+                              "pass a dataset with a train split (--baseline-train, e.g. the model's training "
+                              "data, or a scores.json that recorded them)") from exc
         rough, metal = training_constants(train_scenes)
     result = evaluate_scenes(scenes, lambda s: predict(s, scenes.index(s)), lambda s: baseline_prediction(s, rough, metal))
     result.update(train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
@@ -83,7 +84,7 @@ def recorded_constants(scores: Path) -> tuple[float, float]:
 
     c = read_points_scores(scores).get("baseline_constants") or {}
     if "roughness" not in c or "metallic" not in c:
-        raise ValueError(f"{scores}: records no baseline_constants (roughness, metallic)")
+        raise LayoutError(f"{scores}: records no baseline_constants (roughness, metallic)")
     return float(c["roughness"]), float(c["metallic"])
 
 
@@ -181,4 +182,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from eval.errors import run_command
+
+    run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.layout import LayoutError
 from gspi.data.gt_maps import read_gt_view_maps
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.point_cloud import PointCloud, nearest_fill, scatter_pixel_values
@@ -56,7 +57,7 @@ def check_lattice_size(points: PointCloud, scene_dir: Path) -> tuple[int, int]:
     size = (scene.height, scene.width)
     if points.image_size is not None and tuple(points.image_size) != size:
         h, w = points.image_size
-        raise ValueError(f"{scene_dir}: scene's lattice views are {size[0]}x{size[1]} px but the point cloud "
+        raise LayoutError(f"{scene_dir}: scene's lattice views are {size[0]}x{size[1]} px but the point cloud "
                          f"was extracted at {h}x{w} px; rerun gspi-extract with stage1.image_size="
                          f"{size[0]} to score it against this scene")
     return size
@@ -84,13 +85,13 @@ def score_generated_points(points: PointCloud, pbr: np.ndarray, scene_dir: Path,
     height, width = check_lattice_size(points, scene_dir)
     pbr = np.asarray(pbr, dtype=np.float32)
     if pbr.shape != (len(points), PBR_CHANNELS):
-        raise ValueError(f"{scene_dir}: pbr must be [P, {PBR_CHANNELS}] = [{len(points)}, {PBR_CHANNELS}], "
+        raise LayoutError(f"{scene_dir}: pbr must be [P, {PBR_CHANNELS}] = [{len(points)}, {PBR_CHANNELS}], "
                          f"got {pbr.shape}")
     gt, gt_mask = read_gt_view_maps(scene_dir)
     pred, hit = scatter_point_values(points, pbr, height=height, width=width, num_views=len(gt))
     mask = gt_mask & hit
     if not mask.any():
-        raise ValueError(f"{scene_dir}: no point lands inside the GT mask of any lattice view")
+        raise LayoutError(f"{scene_dir}: no point lands inside the GT mask of any lattice view")
     scores = score_maps(pred, gt, mask, lpips_net if lpips_net is not None else load_lpips())
     scores["avg"] = {m: float(np.mean([scores[c][m] for c in CHANNELS])) for m in METRICS}
     return scores
@@ -118,4 +119,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from eval.errors import run_command
+
+    run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

@@ -66,8 +66,8 @@ def test_gspi_run_killed_rerun_of_another_config_leaves_no_stale_record(micro_da
     stray = next((out / "predictions").iterdir()) / "test" / "t00" / "stale_from_config_a.png"
     stray.write_bytes(b"A")
     monkeypatch.setattr(runner, "points_summary", _kill)  # after eval/ is written, before result.json
-    with pytest.raises(KeyboardInterrupt):
-        run_cli(main, config_a + ["seed=1"])
+    code, text = run_cli(main, config_a + ["seed=1"])  # a kill is one line and exit 130 (issue 54)
+    assert code == 130, text[-2000:]
     monkeypatch.undo()
     assert not stray.exists()
     assert (out / "eval" / "summary.json").is_file()  # B's scores ...

@@ -4,5 +4,4 @@
     mesh_render     split-sum views + exact GT maps of a textured PBR mesh (trimesh ray casting)
     glb_import      `gspi-data import.glb=...`: an asset -> a scene in the canonical layout
     pathtrace       Mitsuba 3 path-traced input views (`data.renderer=pathtraced`)
-    pmndrs_assets   the HDRIs and test assets fetched from the npm registry at install time
 """

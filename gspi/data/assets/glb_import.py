@@ -126,7 +126,7 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
     """
     from eval.relight import prefilter_environment
     from gspi.data.env_sets import environment_sets, make_named_environment
-    from gspi.data.generate import merge_splits
+    from eval.layout import merge_splits
     from gspi.data.assets.gltf import GLTFError, read_gltf
     from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
     from gspi.data.assets.pathtrace import retracer

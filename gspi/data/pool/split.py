@@ -19,6 +19,8 @@ import json
 import os
 from pathlib import Path
 
+from eval.errors import MissingInputError
+from eval.layout import LayoutError
 from gspi.data.pool.training_pool import is_complete
 
 SPLITS = ("train", "val", "test")
@@ -39,7 +41,7 @@ def pool_scenes(pool: Path) -> dict[int, str]:
     """{pool index: scene name} of the pool's splits.json (its "train" list)."""
     splits = pool / "splits.json"
     if not splits.is_file():
-        raise FileNotFoundError(f"{splits}: not found ({pool} is not a Stage II training pool)")
+        raise MissingInputError(f"{splits}: not found ({pool} is not a Stage II training pool)")
     names = json.loads(splits.read_text()).get("train") or []
     return {int(name[1:5]): name for name in names}
 
@@ -63,16 +65,16 @@ def split_view(pool: str | Path, out: str | Path, ranges: dict[str, range]) -> d
         for b in SPLITS[SPLITS.index(a) + 1:]:
             common = set(chosen[a]) & set(chosen[b])
             if common:
-                raise ValueError(f"splits {a} and {b} share pool indices {sorted(common)[:5]}...")
+                raise LayoutError(f"splits {a} and {b} share pool indices {sorted(common)[:5]}...")
     splits = {}
     for split, indices in chosen.items():
         missing = [i for i in indices if i not in by_index]
         if missing:
-            raise ValueError(f"{pool}: has no pool scene {missing[0]} ({split} range ends at "
+            raise LayoutError(f"{pool}: has no pool scene {missing[0]} ({split} range ends at "
                              f"{indices[-1] + 1}, the pool has {len(by_index)} scenes)")
         unfinished = [by_index[i] for i in indices if not is_complete(pool / by_index[i])]
         if unfinished:
-            raise ValueError(f"{pool / unfinished[0]}: unfinished pool scene (no complete.json); "
+            raise LayoutError(f"{pool / unfinished[0]}: unfinished pool scene (no complete.json); "
                              "rerun the pool generation first")
         splits[split] = [by_index[i] for i in indices]
     out.mkdir(parents=True, exist_ok=True)
@@ -95,4 +97,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from eval.errors import run_command
+
+    run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

@@ -10,7 +10,7 @@ install is never mistaken for a finished one. `asset_dir()` returns the folder, 
 first use; `<cache>` is `eval.lpips.weights.cache_dir()` ($GSPI_CACHE, else ~/.cache/gspi).
 
 Without `npm`, `AssetsUnavailable` says so in one line; callers keep the procedural
-environments. CLI: `python -m gspi.data.assets.pmndrs_assets [--from-tgz FILE] [--force]`.
+environments. CLI: `python -m gspi.data.pmndrs_assets [--from-tgz FILE] [--force]`.
 """
 from __future__ import annotations
 
@@ -90,7 +90,7 @@ def asset_path(rel: str) -> Path:
     path = install() / rel
     if not path.is_file():
         raise AssetsUnavailable(f"{path}: missing from the installed {PACKAGE} "
-                                f"(re-run `python -m gspi.data.assets.pmndrs_assets --force`)")
+                                f"(re-run `python -m gspi.data.pmndrs_assets --force`)")
     return path
 
 
