@@ -53,8 +53,9 @@ def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
     split = lambda pool, view, *ranges: [*python_module("gspi.data.pool.split"), str(pool), str(view), *ranges]  # noqa: E731
     reconstruct = lambda src, out: [*python_module("gspi.recon.reconstructed_pool"), str(src), str(out),  # noqa: E731
                                     *cfg["recon_overrides"], "--recon", recon, "--workers", str(cfg["workers"])]
-    heldout_indices = [list(hp["train"]), list(hp["test"])]
-    return [
+    recorded = cfg["measure"].get("baseline")  # the constants from committed scores: no pool scenes for them
+    heldout_indices = [list(hp["test"])] if recorded else [list(hp["train"]), list(hp["test"])]
+    steps = [
         Step("data: training pool", done / "train_pool", data(work / "train_pool", list(map(list, tp["indices"])),
                                                                 tp["keys"])),
         Step("data: training view", done / "train_view", split(work / "train_pool", work / "train_view",
@@ -62,16 +63,18 @@ def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
         Step("data: held-out pool", done / "heldout_pool", data(work / "heldout_pool", heldout_indices, hp["keys"])),
         Step("data: held-out views", done / "heldout_views",
              split(work / "heldout_pool", work / "heldout_test", "--test", ":".join(map(str, hp["test"])))),
-        Step("data: baseline view", done / "baseline_view",
-             split(work / "heldout_pool", work / "baseline_train", "--train", ":".join(map(str, hp["train"])))),
+        *([] if recorded else [Step("data: baseline view", done / "baseline_view",
+                                    split(work / "heldout_pool", work / "baseline_train", "--train",
+                                          ":".join(map(str, hp["train"]))))]),
         Step(f"stage 0: training pool (recon={recon})", done / f"recon_train_{recon}",
              reconstruct(work / "train_view", work / f"rtrain_{recon}")),
         Step(f"stage 0: held-out scenes (recon={recon})", done / f"recon_heldout_{recon}",
              reconstruct(work / "heldout_test", work / f"rheldout_{recon}")),
     ]
+    return steps
 
 
-def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path) -> list[Step]:
+def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path, root: Path) -> list[Step]:
     """Train one (variant, seed) in chunks, then measure it and commit its scores."""
     recon = cfg["recon"]
     name = run_name(variant, seed)
@@ -82,7 +85,7 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     m = cfg["measure"]
     measure = [*python_module("gspi.stage2.evaluate_points"), str(run_dir / "checkpoint.pt"),
                str(work / f"rheldout_{recon}"), str(run_dir / "eval"), "--num-steps", str(m["num_steps"]),
-               "--baseline-train", str(work / "baseline_train")]
+               "--baseline-train", str(root / m["baseline"]) if m.get("baseline") else str(work / "baseline_train")]
     if m.get("max_points"):
         measure += ["--max-points", str(m["max_points"])]
     if m.get("patch_points"):
@@ -113,7 +116,7 @@ def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
         for variant in cfg["variants"]:
             scores = scores_dir / run_name(variant, seed) / "scores.json"
             if not scores.is_file():
-                runs += run_steps(cfg, work, variant, seed, scores)
+                runs += run_steps(cfg, work, variant, seed, scores, root)
     steps = (pool_steps(cfg, work) if runs else []) + runs
     table = table_step(cfg, scores_dir, tables_dir)
     table.done.unlink(missing_ok=True)  # the table is rebuilt from whatever scores exist, every call
