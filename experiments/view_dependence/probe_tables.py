@@ -47,9 +47,11 @@ def fmt_ci(mean: float, lo: float, hi: float) -> str:
 
 def patch_table(whole: dict, patch: dict) -> str:
     """Per scene and in the mean: avg, roughness, metallic PSNR and metal IoU, whole vs patches."""
-    w, p = whole["per_scene"]["stage2"], patch["per_scene"]["stage2"]
-    wi, pi = whole["metal_iou"]["stage2"], patch["metal_iou"]["stage2"]
-    nd = whole["per_scene"]["no_decomposition"]
+    common = sorted(set(whole["per_scene"]["stage2"]) & set(patch["per_scene"]["stage2"]))  # patches ran on a subset
+    pick = lambda d: {k: v for k, v in d.items() if k in common}  # noqa: E731
+    w, p = pick(whole["per_scene"]["stage2"]), pick(patch["per_scene"]["stage2"])
+    wi, pi = pick(whole["metal_iou"]["stage2"]), pick(patch["metal_iou"]["stage2"])
+    nd = pick(whole["per_scene"]["no_decomposition"])
     lines = ["| scene | avg whole | avg patches | roughness whole | roughness patches | metallic whole | "
              "metallic patches | metal IoU whole | metal IoU patches |", "|---" * 9 + "|"]
     iou = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
@@ -57,7 +59,7 @@ def patch_table(whole: dict, patch: dict) -> str:
         lines.append(f"| {s} | {scene_avg(w)[s]:.2f} | {scene_avg(p)[s]:.2f} | {w[s]['roughness']['psnr']:.2f} | "
                      f"{p[s]['roughness']['psnr']:.2f} | {w[s]['metallic']['psnr']:.2f} | {p[s]['metallic']['psnr']:.2f} | "
                      f"{iou(wi.get(s))} | {iou(pi.get(s))} |")
-    out = ["| measure (32 held-out scenes) | whole cloud | 512-point patches | patches - whole [95% CI] |",
+    out = [f"| measure ({len(common)} held-out scenes) | whole cloud | 512-point patches | patches - whole [95% CI] |",
            "|---|---|---|---|"]
     for label, get in (("avg", scene_avg), ("roughness", lambda d: channel(d, "roughness")),
                        ("metallic", lambda d: channel(d, "metallic"))):
@@ -73,8 +75,9 @@ def patch_table(whole: dict, patch: dict) -> str:
         if common:
             out.append(f"| {label} ({len(common)}) | {np.mean([a[s] for s in common]):.2f} | "
                        f"{np.mean([b[s] for s in common]):.2f} | {fmt_ci(*paired_bootstrap_ci(b, a))} |")
-    head = (f"The shipped checkpoint ({whole.get('checkpoint', '?')}) on {len(w)} held-out pool scenes "
-            f"({whole['data']}), {whole['num_steps']} DDIM steps, {whole.get('max_points')} points per scene.")
+    head = (f"The shipped checkpoint ({whole.get('checkpoint', '?')}) on {len(common)} held-out pool scenes "
+            f"({whole['data']}: the metal class and the multi-part scenes), {whole['num_steps']} DDIM steps, "
+            f"{whole.get('max_points')} points per scene.")
     return head + "\n\n" + "\n".join(out) + "\n\nPer scene:\n\n" + "\n".join(lines) + "\n"
 
 
