@@ -26,7 +26,8 @@ from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.eval_folder import META_NAME, SUMMARY_NAME, find_eval_folders, read_eval_meta, read_summary
 from eval.records.points_scores import (BASELINE_KEY, FORMAT, MODEL_KEY, SCORES_NAME, find_points_folders,
                                         read_points_scores)
-from eval.sweep import COLUMNS, RunRecord, Sweep, material_protocol_label, per_scene_rows, runtime_min_rows
+from eval.sweep import (COLUMNS, RunRecord, Sweep, material_protocol_label, peak_memory_rows, per_scene_rows,
+                        runtime_min_rows)
 from eval.tables.build import TABLE_SPECS
 
 TABLE1, TABLE2 = "table1", "table2"
@@ -83,7 +84,7 @@ def load_eval_folders(paths: list[str | Path]) -> Sweep:
                "config_hash": record.config_hash, "data": record.data or "", "run": str(folder),
                "protocol": material_protocol_label(meta)}
         rows += [dict(own, **r) for r in _score_rows(folder, summaries[folder], meta)
-                 + runtime_min_rows(meta)]
+                 + runtime_min_rows(meta) + peak_memory_rows(meta)]
     notes = ([f"Incomplete gspi-eval folder(s) left out (killed before eval_meta.json): "
               f"{', '.join(map(str, incomplete))}"] if incomplete else [])
     return Sweep(values=pd.DataFrame(rows, columns=COLUMNS), records=records, notes=notes,
