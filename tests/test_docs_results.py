@@ -1,0 +1,52 @@
+"""`make results` (eval/tables/docs_results.py): every committed result table equals what the
+command generates from the committed scores, and the generator fails loudly on broken markers."""
+import pytest
+
+from eval.tables import docs_results
+
+
+def test_committed_tables_equal_the_generated_ones():
+    stale = [str(p.relative_to(docs_results.ROOT)) for p, text in docs_results.generated().items()
+             if not p.is_file() or p.read_text() != text]
+    assert not stale, f"run `make results` and commit: {stale}"
+
+
+def test_a_block_is_replaced_between_its_markers_only():
+    text = "a\n<!-- generated: t -->\nold 1.00\n<!-- /generated: t -->\nb\n"
+    assert docs_results.replace_block(text, "t", "new\n", "X") == \
+        "a\n<!-- generated: t -->\nnew\n<!-- /generated: t -->\nb\n"
+    with pytest.raises(ValueError, match="X: needs exactly one"):
+        docs_results.replace_block("no markers", "t", "new\n", "X")
+
+
+def test_check_exits_1_naming_a_stale_file(tmp_path, monkeypatch, capsys):
+    target = tmp_path / "t.md"
+    target.write_text("typed by hand\n")
+    monkeypatch.setattr(docs_results, "generated", lambda: {target: "generated\n"})
+    monkeypatch.setattr(docs_results, "ROOT", tmp_path)
+    assert docs_results.main(["--check"]) == 1 and "t.md" in capsys.readouterr().out
+    assert target.read_text() == "typed by hand\n"  # --check writes nothing
+    assert docs_results.main([]) == 0 and target.read_text() == "generated\n"
+    assert docs_results.main(["--check"]) == 0
+
+
+def test_table2_takes_todays_recipe_runs_only():
+    files = docs_results.table2_files()
+    assert files[0] == docs_results.TODAY_FULL_SEED0
+    assert all(docs_results.TODAY.fullmatch(f) for f in files[1:])
+    assert "stage2_pool224_pixel.json" not in files  # an older recipe's model
+
+
+def test_models_of_heldout_files():
+    assert docs_results.model_of("cpu_parts_pool_pixel_5k_224_s1.json") == docs_results.DEFAULT_MODEL
+    assert docs_results.model_of("cpu_parts_pool_a1_no_global_prior_pixel_5k_224_s0.json") == ""
+    assert docs_results.model_of("stage2_pool224.json") == "stage2_pool224"
+
+
+def test_no_generated_number_is_typed_in_the_docs_that_link_to_it():
+    """The default's held-out average appears only in the generated file (and the diary, history)."""
+    heldout = (docs_results.ROOT / "docs" / "results" / "heldout.md").read_text()
+    row = next(line for line in heldout.splitlines() if "**default**" in line)
+    average = row.split("|")[6].strip()
+    for doc in ("README.md", "docs/STAGE2.md", "checkpoints/README.md", "docs/RESULTS.md"):
+        assert average not in (docs_results.ROOT / doc).read_text(), doc
