@@ -16,7 +16,9 @@ from eval.config import register_configs
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 GOLDEN = json.loads((ROOT / "tests" / "golden" / "stage2_recipes.json").read_text())
-FLAT = ["cpu_pool224_pixel_5k"]  # shipped recipes rewritten flat (issue 53); the default first
+FLAT = ["cpu_pool224_pixel_5k", "cpu_pool224_pixel", "cpu_pool224_5k", "cpu_pool224", "cpu_mix_pool",  # shipped recipes
+        "cpu_matte_pool", "cpu_parts_pool", "cpu_pool_recon", "cpu_pool_trunc_snr", "cpu_pool_xs", "cpu_small",
+        "table2_cpu"]  # (checkpoints/README.md) and Table 2's CPU recipe, rewritten flat by issue 53
 
 
 def composed_stage2(override: str) -> dict:
@@ -52,3 +54,9 @@ def test_a_flat_recipe_has_one_level_of_defaults(name):
 
 def test_the_run_default_is_flat():
     assert run_default_recipe() in FLAT
+
+
+def test_every_recipe_that_names_a_shipped_checkpoint_is_flat():
+    shipping = [p.stem for p in sorted((CONF / "stage2").glob("*.yaml"))
+                if (yaml.safe_load(p.read_text()) or {}).get("checkpoint")]
+    assert shipping and set(shipping) <= set(FLAT), sorted(set(shipping) - set(FLAT))
