@@ -187,3 +187,12 @@ def test_resources_give_table2_a_time_and_memory_column():
 
     cols = [(c.measure, c.channel) for c in with_resources(TABLE_SPECS["table2"]).columns]
     assert cols[-3:] == [("runtime", "material"), ("runtime", "end_to_end"), ("memory", "peak_rss")]
+
+
+def test_gspi_table_resources_option_writes_the_memory_column(tmp_path):
+    _write_run(tmp_path / "runs", "a", _summary(20.0, 0.8, 0.05), "A", peak_memory_mb={"rss": 1024.0})
+    for resources, expected in ((False, False), (True, True)):
+        out = tmp_path / f"tables_{resources}"
+        run(OmegaConf.create({"runs": [str(tmp_path / "runs")], "out": str(out), "resources": resources}))
+        assert ("Peak RSS (MB)" in (out / "table1.md").read_text()) is expected
+        assert ("mb/peak_rss/mean" in (out / "table1.csv").read_text()) is expected
