@@ -107,7 +107,7 @@ def table1_block() -> str:
     n = len(relight["gspi"])
     return ("\n".join(lines) + f"\n\nUnder the default protocol GS-PI's relight lead over no decomposition is "
             f"{lead[0]:+.2f} [{lead[1]:+.2f}, {lead[2]:+.2f}] dB over {n} scenes "
-            f"(95 % paired bootstrap CI, {BOOTSTRAP['n_resamples']} resamples).\n")
+            f"({round(100 * BOOTSTRAP['confidence'])} % paired bootstrap CI, {BOOTSTRAP['n_resamples']} resamples).\n")
 
 
 def table1_file() -> str:
