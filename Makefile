@@ -8,7 +8,7 @@ DEMO   := demo_out
 # DEMO_GLB=0: make demo writes no GLB export (gspi-export asset=)
 DEMO_GLB ?= 1
 
-.PHONY: install demo test test-all bench lpips-weights real-assets clean chromium report-check gpu-prepare gpu-check-smoke
+.PHONY: install demo results test test-all bench lpips-weights real-assets clean chromium report-check gpu-prepare gpu-check-smoke
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -63,6 +63,12 @@ demo: install
 	    > /dev/null || exit 1; done; fi
 	$(VENV)/bin/gspi-report $(DEMO)/runs out=$(DEMO)/report
 	@echo "report: open $(abspath $(DEMO))/report/index.html"
+
+# The result tables of the docs (README Table 1, docs/results/*.md) from the committed scores
+# (docs/log/demo/, docs/log/heldout/; docs/RESULTS.md); tests/test_docs_results.py checks them.
+results: install
+	$(PY) -m eval.tables.docs_results
+	$(PY) -m experiments.view_dependence.probe_tables   # issue 52's probe tables (docs/results/probes/)
 
 # Headless Chromium for the report's browser test (tests/test_report_browser.py; skipped without).
 chromium:

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from eval.checksums import ALGORITHM as CHECKSUM_ALGORITHM
+from eval.checksums import combined, scene_checksums
 from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_message, read_meta,
                          read_scene, read_splits)
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
@@ -184,6 +186,18 @@ def _mean_runtime(metas: list[dict], key: str) -> float | None:
     return float(np.mean(vals)) / 60.0 if vals else None
 
 
+def peak_memory_mb(metas: list[dict]) -> dict:
+    """{"rss"[, "cuda"]}: the largest peak of any stage of any scene (meta.json ``stages``,
+    gspi/stage_clock.py), in MB; {} when no prediction recorded its stages (an imported method)."""
+    out = {}
+    for key, name in (("peak_rss_mb", "rss"), ("peak_cuda_mb", "cuda")):
+        vals = [s[key] for m in metas for s in (m.get("stages") or {}).values()
+                if isinstance(s, dict) and s.get(key) is not None]
+        if vals:
+            out[name] = float(max(vals))
+    return out
+
+
 def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
              method: str | None = None, progress: bool = False,
              device: torch.device | str = CPU) -> EvalResult:
@@ -203,7 +217,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     if getattr(net, "net_name", protocol.lpips.net) != protocol.lpips.net:
         raise ValueError(f"the LPIPS network passed in is {net.net_name!r} but the protocol "
                          f"asks for eval.lpips.net={protocol.lpips.net!r}")
-    envs, rows, missing, metas, absent = EnvironmentCache(device), [], [], [], {}
+    envs, rows, missing, metas, absent, sums = EnvironmentCache(device), [], [], [], {}, {}
     iterator = names
     if progress:
         from tqdm import tqdm
@@ -218,6 +232,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         rows += scene_rows
         missing += scene_missing
         metas.append(read_meta(pred_scene))
+        sums[name] = scene_checksums(gt_scenes[name], pred_scene, scored_split(protocol))
     if absent:
         log.info("channels the ground truth does not provide, not scored (absent, not 0): %s",
                  "; ".join(f"{c} ({', '.join(n)})" for c, n in absent.items()))
@@ -237,6 +252,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
         "method": method or (methods[0] if len(methods) == 1 else Path(pred_root).name),
         "protocol": {"name": protocol.name, "version": int(protocol.version),
                      "hash": protocol_hash(protocol_dict(protocol))},
+        "checksums": {"algorithm": CHECKSUM_ALGORITHM, **combined(sums), "per_scene": sums},
         "protocol_config": protocol_dict(protocol),
         "data": str(Path(gt_root).resolve()), "device": str(device), "counts": image_counts(rows),
         "scenes": names, "missing_scenes": missing_scenes, "num_images": len(rows), "missing": missing,
@@ -245,6 +261,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
                         "end_to_end": _mean_runtime(metas, "end_to_end"),
                         **({"geometry": _mean_runtime(metas, "geometry")}
                            if any("geometry" in m.get("runtime_s", {}) for m in metas) else {})},
+        "peak_memory_mb": peak_memory_mb(metas),
         "per_scene": {n: summarise([r for r in rows if r["scene"] == n]) for n in names},
     }
     if getattr(protocol, "unpremultiply", False):  # how many views carried an alpha.png and were divided by it

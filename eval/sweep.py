@@ -9,7 +9,7 @@ job folders without a record (killed mid-way), and returns one row per
     (method, ablation, table, seed, scene, measure, channel, metric) -> value
 
 with measure "material" (eval_meta.json per_scene), "points" (points_eval/points_summary.json
-per_scene) or "runtime" (minutes). Values are in file units: PSNR dB, SSIM and LPIPS as
+per_scene), "runtime" (minutes) or "memory" (the run's peak RSS, MB). Values are in file units: PSNR dB, SSIM and LPIPS as
 fractions. Nothing here knows how the runs were made.
 """
 from __future__ import annotations
@@ -215,6 +215,14 @@ def runtime_min_rows(eval_meta: dict) -> list[dict]:
             for key in ("material", "end_to_end") if runtime.get(key) is not None]
 
 
+def peak_memory_rows(eval_meta: dict) -> list[dict]:
+    """The run's peak resident memory (eval_meta.json peak_memory_mb.rss: the largest of any
+    stage of any scene) as one unit, scene "*"; none when the predictions did not record it."""
+    rss = (eval_meta.get("peak_memory_mb") or {}).get("rss")
+    return [] if rss is None else [{"scene": "*", "measure": "memory", "channel": "peak_rss",
+                                    "metric": "mb", "value": float(rss)}]
+
+
 def material_protocol_label(eval_meta: dict) -> str:
     """"name vN #hash" of the protocol an eval_meta.json records."""
     return (protocol_name(eval_meta.get("protocol"), "unnamed protocol")
@@ -237,7 +245,8 @@ def record_values(record: RunRecord) -> tuple[list[dict], list[str]]:
         _read_json(record.material_eval / SUMMARY_NAME, f"{SUMMARY_NAME} of material_eval")
         material = per_scene_rows(meta.get("per_scene"), meta_path, "material")
         protocol["material"] = material_protocol_label(meta)
-        rows += material + _runtime_rows(record, meta, sorted({r["scene"] for r in material}))
+        rows += (material + _runtime_rows(record, meta, sorted({r["scene"] for r in material}))
+                 + peak_memory_rows(meta))
     if record.points_eval is not None:
         summary_path = run_points_path(record.points_eval)
         summary = _read_json(summary_path, f"{summary_path.name} of points_eval")

@@ -48,3 +48,10 @@ def test_the_default_model_loads_and_is_the_one_the_readme_names():
     readme = (ROOT / "checkpoints" / "README.md").read_text()
     default_line = next(line for line in readme.splitlines() if line.startswith("**Default"))
     assert f"`{ckpt.name}`" in default_line and f"stage2={option}" in default_line, default_line
+
+
+def test_exactly_one_card_says_it_is_the_default_and_it_is_gspi_runs():
+    """A former default keeps its history under `was_default`; only today's card has `default`."""
+    claiming = [card.name for card in CARDS if "default" in json.loads(card.read_text())]
+    node = yaml.safe_load((ROOT / "conf" / "stage2" / f"{default_stage2()}.yaml").read_text())
+    assert claiming == [Path(node["checkpoint"]).with_suffix(".json").name]

@@ -227,3 +227,29 @@ def test_what_evaluate_reads_lands_on_the_requested_device(sphere_dataset):
     mask = torch.ones(scene.height, scene.width, dtype=torch.bool, device=meta)
     assert erode_mask(mask, 2).device == meta
     assert fit_albedo_scale([maps["albedo"]], [maps["albedo"]], [mask], "none").device == meta
+
+
+def test_the_record_names_the_bytes_it_scored(sphere_dataset, tmp_path, lpips_net):
+    """eval_meta's checksums (next to the protocol hash): the oracle's prediction IS its ground
+    truth, so both sides agree; one changed prediction pixel changes that side only."""
+    from eval.checksums import scene_checksums
+
+    oracle = evaluate(sphere_dataset, sphere_dataset, protocol(), net=lpips_net).info["checksums"]
+    pred = make_prediction(sphere_dataset, tmp_path / "pred", roughness_offset=0.1)
+    sums = evaluate(sphere_dataset, pred, protocol(**{"channels": ["roughness"]}), net=lpips_net).info["checksums"]
+    assert oracle["per_scene"].keys() == sums["per_scene"].keys()
+    for scene, pair in sums["per_scene"].items():
+        assert pair == scene_checksums(sphere_dataset / scene, pred / scene, "test")
+        assert pair["ground_truth"] == oracle["per_scene"][scene]["ground_truth"]
+        assert pair["predictions"] != pair["ground_truth"]
+    assert sums["ground_truth"] == oracle["ground_truth"] and sums["predictions"] != oracle["predictions"]
+    assert len(sums["predictions"]) == 64
+
+
+def test_peak_memory_is_the_largest_stage_peak():
+    from eval.evaluate import peak_memory_mb
+
+    metas = [{"stages": {"recon": {"seconds": 1, "peak_rss_mb": 600.0}, "stage2": {"peak_rss_mb": 950.5}}},
+             {"stages": {"recon": {"peak_rss_mb": 700.0, "peak_cuda_mb": 12.0}}}, {}]
+    assert peak_memory_mb(metas) == {"rss": 950.5, "cuda": 12.0}
+    assert peak_memory_mb([{}, {"method": "imported"}]) == {}

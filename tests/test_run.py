@@ -96,6 +96,11 @@ def test_tiny_end_to_end_run_then_rerun_skips(micro_dataset, tmp_path):
     points = json.loads((out / "points_eval" / "points_summary.json").read_text())
     assert set(points["per_scene"]) == {test_scene} and "avg" in points["mean"]
     assert (out / "work" / test_scene / "pbr_gs.ply").is_file() and (out / "figures" / f"{test_scene}.png").is_file()
+    eval_meta = json.loads((out / "eval" / "eval_meta.json").read_text())
+    assert result["protocol_hash"] == eval_meta["protocol"]["hash"]  # the record names what it scored
+    assert {k: result["checksums"][k] for k in ("predictions", "ground_truth")} == \
+        {k: eval_meta["checksums"][k] for k in ("predictions", "ground_truth")}
+    assert eval_meta["peak_memory_mb"]["rss"] >= max(s["peak_rss_mb"] for s in meta["stages"].values())
     stamp = (out / "result.json").stat().st_mtime_ns
     assert run_job(cfg)["status"] == "complete"
     assert (out / "result.json").stat().st_mtime_ns == stamp  # skipped, not redone

@@ -165,3 +165,34 @@ def test_footer_of_a_protocol_recorded_before_the_floor_says_so():
     text = describe_protocol(old)
     assert "no MSE floor (recorded before the floor" in text and "LPIPS alex v0.1" in text
     assert "knobs unknown" in describe_protocol({"name": "p", "version": 1})
+
+
+def test_resources_add_a_peak_memory_column_and_the_default_table_has_none(runs, tmp_path):
+    _write_run(tmp_path / "more", "d", _summary(18.0, 0.7, 0.06), "D", peak_memory_mb={"rss": 812.4})
+    from eval.tables.build import with_resources
+
+    sweep = load_eval_folders([runs, tmp_path / "more"])
+    plain = to_markdown(build_sweep_table(sweep, TABLE_SPECS["table1"]), sweep)
+    table = build_sweep_table(sweep, with_resources(TABLE_SPECS["table1"]))
+    md = to_markdown(table, sweep)
+    assert "Peak RSS" not in plain and "Peak RSS (MB)" in md.splitlines()[2]
+    d_row = next(line for line in md.splitlines() if line.startswith("| D |"))
+    a_row = next(line for line in md.splitlines() if line.startswith("| A |"))
+    assert "| 812 |" in d_row and "10.4) | -- |" in a_row  # A recorded no peak: "--"
+    assert table.marks["mb/peak_rss"].eq(0).all()  # memory is shown, never ranked
+
+
+def test_resources_give_table2_a_time_and_memory_column():
+    from eval.tables.build import with_resources
+
+    cols = [(c.measure, c.channel) for c in with_resources(TABLE_SPECS["table2"]).columns]
+    assert cols[-3:] == [("runtime", "material"), ("runtime", "end_to_end"), ("memory", "peak_rss")]
+
+
+def test_gspi_table_resources_option_writes_the_memory_column(tmp_path):
+    _write_run(tmp_path / "runs", "a", _summary(20.0, 0.8, 0.05), "A", peak_memory_mb={"rss": 1024.0})
+    for resources, expected in ((False, False), (True, True)):
+        out = tmp_path / f"tables_{resources}"
+        run(OmegaConf.create({"runs": [str(tmp_path / "runs")], "out": str(out), "resources": resources}))
+        assert ("Peak RSS (MB)" in (out / "table1.md").read_text()) is expected
+        assert ("mb/peak_rss/mean" in (out / "table1.csv").read_text()) is expected

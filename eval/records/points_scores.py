@@ -4,7 +4,7 @@
 `python -m gspi.stage2.evaluate_points CKPT DATA OUT` writes `OUT/scores.json` (format
 "gspi-points-eval"): Table 2's measure of one trained Stage II model on the GT point clouds
 of a split, per scene, for the model ("stage2") and the no-decomposition baseline. With one
-such folder per ablation (a CPU-scale Table 2 trained outside gspi-run, docs/RESULTS.md),
+such folder per ablation (a CPU-scale Table 2 trained outside gspi-run, docs/log/diary.md),
 
     gspi-table runs/t2/*/eval_heldout out=runs/t2_tables table=table2
 

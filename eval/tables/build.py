@@ -9,7 +9,7 @@ ablation "full"), paired on (scene, seed). Rendering is in `eval.tables.render`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import pandas as pd
 
@@ -26,9 +26,9 @@ UNIT = ["method", "ablation", "scene", "seed"]
 class Column:
     """One numeric column: a metric of a channel ("avg" = mean of AVG_CHANNELS) of a measure."""
 
-    measure: str      # material | points | runtime
-    channel: str      # albedo | roughness | metallic | relight | avg | material | end_to_end
-    metric: str       # psnr | ssim | lpips | minutes
+    measure: str      # material | points | runtime | memory
+    channel: str      # albedo | roughness | metallic | relight | avg | material | end_to_end | peak_rss
+    metric: str       # psnr | ssim | lpips | minutes | mb
     ranked: bool = True
 
     @property
@@ -57,6 +57,11 @@ class TableSpec:
     averaging: str    # one sentence for the footer: what a cell averages
 
 
+RUNTIME_COLUMNS = (Column("runtime", "material", "minutes"),
+                   Column("runtime", "end_to_end", "minutes", ranked=False))
+MEMORY_COLUMN = Column("memory", "peak_rss", "mb", ranked=False)
+
+
 def _metric_columns(measure: str, channels: tuple[str, ...]) -> tuple[Column, ...]:
     return tuple(Column(measure, c, m) for m in ("psnr", "ssim", "lpips") for c in channels)
 
@@ -65,8 +70,7 @@ TABLE_SPECS = {
     "table1": TableSpec(
         "table1", "Table 1: comparison with methods (material maps and relighting, test views)",
         "Method", _metric_columns("material", ("albedo", "roughness", "metallic", "relight"))
-        + (Column("runtime", "material", "minutes"),
-           Column("runtime", "end_to_end", "minutes", ranked=False)),
+        + RUNTIME_COLUMNS,
         Column("material", "relight", "psnr"),
         "per scene: mean over its test views (relight: views x held-out environments)"),
     "table2": TableSpec(
@@ -81,6 +85,13 @@ TABLE_SPECS = {
         "per scene: mean over its test views (material_eval), then over albedo, roughness, "
         "metallic"),
 }
+
+
+def with_resources(spec: TableSpec) -> TableSpec:
+    """``spec`` plus the time column (if it lacks one) and the peak-memory column
+    (gspi-table resources=true); "--" where a run did not record them."""
+    extra = () if any(c.measure == "runtime" for c in spec.columns) else RUNTIME_COLUMNS
+    return replace(spec, columns=spec.columns + extra + (MEMORY_COLUMN,))
 
 
 @dataclass

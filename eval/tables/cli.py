@@ -4,6 +4,7 @@
     gspi-table 'runs=[runs/a/eval,runs/b/eval]' out=tables
     gspi-table multirun/2025-01-01/12-00-00 out=tables             # a gspi-run sweep
     gspi-table multirun/... table=table2 bootstrap.n=20000 bootstrap.seed=1
+    gspi-table multirun/... resources=true                         # + time and peak-memory columns
 
 Three sources, one table builder and one renderer: folders holding gspi-run records
 (result.json, docs/TABLES.md) give Tables 1-3 (`eval.sweep`); plain gspi-eval folders
@@ -62,7 +63,7 @@ def run(cfg) -> dict:
     """Tables 1-3 (those with rows, or `cfg.table`) -> files; returns {name: SweepTable}."""
     from eval.sweep import TABLES
     from eval.tables.render import to_markdown, write_sweep_table
-    from eval.tables.build import TABLE_SPECS, build_sweep_table
+    from eval.tables.build import TABLE_SPECS, build_sweep_table, with_resources
 
     runs = list(cfg.runs) if cfg.runs else []
     if not runs:
@@ -73,7 +74,10 @@ def run(cfg) -> dict:
     names = (chosen,) if chosen else TABLES
     sweep = load_sources(runs, names)
     boot = dict(cfg.get("bootstrap") or {})
-    built = {n: build_sweep_table(sweep, sweep.specs.get(n, TABLE_SPECS[n]), bootstrap=boot) for n in names}
+    specs = {n: sweep.specs.get(n, TABLE_SPECS[n]) for n in names}
+    if cfg.get("resources", False):
+        specs = {n: with_resources(s) for n, s in specs.items()}
+    built = {n: build_sweep_table(sweep, specs[n], bootstrap=boot) for n in names}
     built = {n: t for n, t in built.items() if t is not None}
     if not built:
         failed = "; ".join(f"{r.run_dir}: {r.error}" for r in sweep.failed)

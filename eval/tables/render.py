@@ -30,8 +30,15 @@ def _num(value: float, digits: int) -> str:
     return "inf" if math.isinf(value) else f"{value:.{digits}f}"
 
 
+RESOURCE_MEASURES = ("runtime", "memory")  # shown after the metric columns, never ranked
+
+
 def _digits(col: Column) -> int:
-    return 1 if col.metric == "minutes" else 2
+    return {"minutes": 1, "mb": 0}.get(col.metric, 2)
+
+
+def _metric_cols(table: SweepTable) -> list[Column]:
+    return [c for c in table.spec.columns if c.measure not in RESOURCE_MEASURES]
 
 
 def _cell(table: SweepTable, label: str, col: Column, style: str) -> str:
@@ -55,8 +62,7 @@ def _delta_cell(table: SweepTable, label: str, style: str) -> str:
 
 
 def _row_cells(table: SweepTable, label: str, style: str) -> list[str]:
-    cols = [c for c in table.spec.columns if c.measure != "runtime"]
-    cells = [_cell(table, label, c, style) for c in cols]
+    cells = [_cell(table, label, c, style) for c in _metric_cols(table)]
     runtime = [c for c in table.spec.columns if c.measure == "runtime"]
     if runtime:
         material, e2e = (_cell(table, label, c, style) for c in runtime)
@@ -64,16 +70,18 @@ def _row_cells(table: SweepTable, label: str, style: str) -> list[str]:
             cells.append(f"{e2e} total only")
         else:
             cells.append(material + (f" ({e2e})" if e2e != "--" and material != "--" else ""))
+    cells += [_cell(table, label, c, style) for c in table.spec.columns if c.measure == "memory"]
     n = int(table.count.loc[label, table.spec.delta.key])
     return cells + [str(n), _delta_cell(table, label, style)]
 
 
 def _headers(table: SweepTable) -> list[str]:
-    multi_channel = len({c.channel for c in table.spec.columns if c.measure != "runtime"}) > 1
-    heads = [METRIC_LABELS[c.metric] + (f" {c.channel}" if multi_channel else "")
-             for c in table.spec.columns if c.measure != "runtime"]
+    multi_channel = len({c.channel for c in _metric_cols(table)}) > 1
+    heads = [METRIC_LABELS[c.metric] + (f" {c.channel}" if multi_channel else "") for c in _metric_cols(table)]
     if any(c.measure == "runtime" for c in table.spec.columns):
         heads.append("Runtime (min) material (end-to-end)")
+    if any(c.measure == "memory" for c in table.spec.columns):
+        heads.append("Peak RSS (MB)")
     delta = table.spec.delta
     what = f"PSNR {delta.channel}" if multi_channel else "PSNR"
     ref = table.reference or "reference (none)"
@@ -144,7 +152,7 @@ def to_latex(table: SweepTable, sweep: Sweep) -> str:
 
 def _latex_header(table: SweepTable, head: list[str]) -> list[str]:
     """One header line, or for Table 1 the paper's two: metric groups over channel names."""
-    cols = [c for c in table.spec.columns if c.measure != "runtime"]
+    cols = _metric_cols(table)
     channels = list(dict.fromkeys(c.channel for c in cols))
     if len(channels) == 1:
         return [" & ".join(_tex_escape(h) for h in head) + r" \\"]

@@ -26,7 +26,8 @@ from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.eval_folder import META_NAME, SUMMARY_NAME, find_eval_folders, read_eval_meta, read_summary
 from eval.records.points_scores import (BASELINE_KEY, FORMAT, MODEL_KEY, SCORES_NAME, find_points_folders,
                                         read_points_scores)
-from eval.sweep import COLUMNS, RunRecord, Sweep, material_protocol_label, per_scene_rows, runtime_min_rows
+from eval.sweep import (COLUMNS, RunRecord, Sweep, material_protocol_label, peak_memory_rows, per_scene_rows,
+                        runtime_min_rows)
 from eval.tables.build import TABLE_SPECS
 
 TABLE1, TABLE2 = "table1", "table2"
@@ -83,7 +84,7 @@ def load_eval_folders(paths: list[str | Path]) -> Sweep:
                "config_hash": record.config_hash, "data": record.data or "", "run": str(folder),
                "protocol": material_protocol_label(meta)}
         rows += [dict(own, **r) for r in _score_rows(folder, summaries[folder], meta)
-                 + runtime_min_rows(meta)]
+                 + runtime_min_rows(meta) + peak_memory_rows(meta)]
     notes = ([f"Incomplete gspi-eval folder(s) left out (killed before eval_meta.json): "
               f"{', '.join(map(str, incomplete))}"] if incomplete else [])
     return Sweep(values=pd.DataFrame(rows, columns=COLUMNS), records=records, notes=notes,
@@ -118,20 +119,32 @@ def load_points_folders(paths: list[str | Path]) -> Sweep:
     if not folders:
         raise FileNotFoundError(f"no {SCORES_NAME} of format {FORMAT!r} below "
                                 f"{', '.join(map(str, paths))}")
-    scores = {f: read_points_scores(f / SCORES_NAME) for f in folders}
+    return points_sweep({f / SCORES_NAME: read_points_scores(f / SCORES_NAME) for f in folders})
+
+
+def points_sweep(scores: dict[Path, dict], *, seed_key: str | None = None) -> Sweep:
+    """Table 2's Sweep of read gspi-points-eval files ({scores file: its data}): one run per file.
+
+    Args:
+        seed_key: the key holding each run's training seed (e.g. "train_seed", as
+            docs/log/heldout/*.json carry it), so Δ pairs runs of one seed; None numbers the
+            runs of each ablation 0, 1, ... in file order.
+    """
     _same_evaluation(scores)
     rows, records, runs_of = [], [], {}
     label = f"{FORMAT} v{next(iter(scores.values())).get('version', 1)}"
-    for folder, data in scores.items():
+    for path, data in scores.items():
         ablation = str(data["ablation"])
         seed = runs_of[ablation] = runs_of.get(ablation, -1) + 1
+        if seed_key is not None:
+            seed = int(data[seed_key])
         model = str(data.get("checkpoint", ""))  # a trained model's identity: its checkpoint
-        rows += _rows("gspi", ablation, seed, model, folder, data, MODEL_KEY, label)
-        records.append(_record("gspi", ablation, seed, model, folder, data))
-    first_folder, first = next(iter(scores.items()))
-    rows += _rows(BASELINE_KEY, "full", 0, "", first_folder, first, BASELINE_KEY, label)
-    records.append(_record(BASELINE_KEY, "full", 0, "", first_folder, first))
-    notes = [f"{len(folders)} Stage II model(s) scored on the GT point clouds of "
+        rows += _rows("gspi", ablation, seed, model, path, data, MODEL_KEY, label)
+        records.append(_record("gspi", ablation, seed, model, path, data))
+    first_path, first = next(iter(scores.items()))
+    rows += _rows(BASELINE_KEY, "full", 0, "", first_path, first, BASELINE_KEY, label)
+    records.append(_record(BASELINE_KEY, "full", 0, "", first_path, first))
+    notes = [f"{len(scores)} Stage II model(s) scored on the GT point clouds of "
              f"{len(first['scenes'])} {first['split']} scene(s) of {first['data']} "
              f"({first.get('num_steps')} DDIM steps, "
              f"{'every point' if first.get('max_points') is None else str(first['max_points']) + '-point subset + 1-NN fill'}"
@@ -141,16 +154,15 @@ def load_points_folders(paths: list[str | Path]) -> Sweep:
                  specs={TABLE2: TABLE2_GT})
 
 
-def _record(method: str, ablation: str, seed: int, model: str, folder: Path, data: dict) -> RunRecord:
-    path = folder / SCORES_NAME
+def _record(method: str, ablation: str, seed: int, model: str, path: Path, data: dict) -> RunRecord:
     return RunRecord(path=path, status="complete", error=None, method=method, ablation=ablation,
                      table=TABLE2, seed=seed, config_hash=model,
                      data=str(data["data"]), scenes=tuple(data["scenes"]), material_eval=None,
-                     points_eval=folder, mtime=path.stat().st_mtime)
+                     points_eval=path.parent, mtime=path.stat().st_mtime)
 
 
-def _rows(method: str, ablation: str, seed: int, model: str, folder: Path, data: dict, key: str,
+def _rows(method: str, ablation: str, seed: int, model: str, path: Path, data: dict, key: str,
           protocol: str) -> list[dict]:
     own = {"method": method, "ablation": ablation, "table": TABLE2, "seed": seed, "config_hash": model,
-           "data": str(data["data"]), "run": str(folder), "protocol": protocol}
-    return [dict(own, **r) for r in per_scene_rows(data["per_scene"][key], folder / SCORES_NAME, "points")]
+           "data": str(data["data"]), "run": str(path.parent), "protocol": protocol}
+    return [dict(own, **r) for r in per_scene_rows(data["per_scene"][key], path, "points")]

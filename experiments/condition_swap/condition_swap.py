@@ -11,7 +11,7 @@ cloud) and the same model, Table 2's measure is taken three times:
 - ``asset_prior``: Top-RGB from the GT renders, the global prior computed from the asset's
   lattice renders (the lattice ``rgb.exr`` files replaced by them).
 
-A drop from ``gt`` to one of the others names the input the asset degrades (docs/RESULTS.md
+A drop from ``gt`` to one of the others names the input the asset degrades (docs/log/diary.md
 "The ladder-fixed checkpoint end to end": on the metal demo scene the prior, not Top-RGB).
 
     python -m experiments.condition_swap.condition_swap CKPT SCENE_DIR ASSET_PLY OUT [--baseline-train POOL]

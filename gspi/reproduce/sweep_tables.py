@@ -2,9 +2,10 @@
 sweep (``+experiment=<name>``; rerunning it skips finished jobs) -> each job's gspi-eval scores
 committed -> the table (gspi-table over the committed scores).
 
-Config: conf/reproduce/table{1,3}_<scale>.yaml. The committed scores of a job are its gspi-eval
-folder's ``summary.json``, ``per_view.csv`` and ``eval_meta.json`` (paths made portable), which
-``gspi-table`` reads as a plain evaluation folder.
+Config: conf/reproduce/table{1,3}_<scale>.yaml. The committed scores of a job are its record
+(``result.json``), its gspi-eval summary and metadata and its scenes' ``meta.json`` (paths made
+portable; ``commit_sweep_records``), which ``gspi-table`` reads as a sweep (docs/log/demo/ holds
+Table 1's).
 """
 from __future__ import annotations
 
@@ -16,27 +17,27 @@ from gspi.reproduce.plan import Step
 from gspi.reproduce.portable import portable
 from gspi.reproduce.table2 import tool
 
-EVAL_FILES = ("per_view.csv", "eval_meta.json", "summary.json")  # summary.json last: the folder is complete
+# what a job folder's record is made of (gspi-table reads a sweep of such folders; docs/log/demo/README.md)
+RECORD_FILES = ("result.json", "eval/eval_meta.json", "eval/summary.json", "points_eval/points_summary.json")
 
 
-def commit_eval_folders(runs: Path, scores_dir: Path, roots: Mapping[str, Path]) -> list[Path]:
-    """Copies every ``<runs>/<job>/eval`` folder's scores to ``<scores_dir>/<job>/`` (portable JSON)."""
+def commit_sweep_records(runs: Path, scores_dir: Path, roots: Mapping[str, Path]) -> list[Path]:
+    """Copies every finished job of the sweep ``runs`` (its ``result.json``) to ``<scores_dir>/<job>/``:
+    the record, its gspi-eval summary and metadata, Table 2's points summary and each scene's
+    ``meta.json`` (runtimes), JSON with portable paths; no predictions, no images."""
     import json
 
     written = []
-    for summary in sorted(runs.glob("*/eval/summary.json")):
-        job = summary.parent.parent.name
-        dst = scores_dir / job
+    for record in sorted(runs.glob("*/result.json")):
+        job = record.parent
+        dst = scores_dir / job.name
         if dst.exists():
             shutil.rmtree(dst)
-        dst.mkdir(parents=True)
-        for name in EVAL_FILES:
-            src = summary.parent / name
-            if name.endswith(".json"):
-                (dst / name).write_text(json.dumps(portable(json.loads(src.read_text()), roots), indent=1,
-                                                   sort_keys=True) + "\n")
-            else:
-                shutil.copyfile(src, dst / name)
+        files = [job / f for f in RECORD_FILES if (job / f).is_file()] + sorted(job.glob("predictions/*/meta.json"))
+        for src in sorted(files, key=lambda f: f.name == "result.json"):  # the record last: the folder is complete
+            out = dst / src.relative_to(job)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps(portable(json.loads(src.read_text()), roots), indent=1, sort_keys=True) + "\n")
         written.append(dst)
     return written
 
@@ -54,9 +55,9 @@ def sweep_table_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
         Step(f"{name}: sweep", done / "sweep", [tool("gspi-run"), "-m", f"data={data}", f"out={runs}",
                                                 f"+experiment={cfg['experiment']}", *cfg["run_overrides"]]),
         Step(f"{name}: commit scores", done / "scores",
-             action=lambda: commit_eval_folders(runs, scores_dir, {"<work>": work, "<repo>": root})),
+             action=lambda: commit_sweep_records(runs, scores_dir, {"<work>": work, "<repo>": root})),
     ]
-    if any(scores_dir.glob("*/summary.json")):
+    if any(scores_dir.glob("*/result.json")):
         steps = []  # committed scores stand (written all at once after the sweep): nothing to recompute
     table = Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
                                                   f"table={name}"])

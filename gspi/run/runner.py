@@ -271,6 +271,15 @@ def evaluate_predictions(cfg: Mapping[str, Any], data_dir: Path, out: Path, meth
     return result
 
 
+def scored_inputs(eval_info: Mapping[str, Any]) -> dict:
+    """What the record states about its scores (issue 53): the protocol hash and the SHA-256
+    checksums of the predictions and of the ground truth they were scored against
+    (eval/checksums.py; per scene in eval/eval_meta.json)."""
+    sums = eval_info["checksums"]
+    return {"protocol_hash": eval_info["protocol"]["hash"],
+            "checksums": {k: sums[k] for k in ("algorithm", "predictions", "ground_truth")}}
+
+
 def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
     """Runs (or skips, when complete) one job; returns its result.json content."""
     out, data_dir = Path(cfg["out"]), Path(cfg["data_dir"])
@@ -310,9 +319,11 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
                 errors[name] = error
         done = [n for n in names if n not in errors]
         material_eval = points_eval = None
+        scored: dict = {}
         if done:
             result = evaluate_predictions(cfg, data_dir, out, method.name, cfg_hash)
             material_eval = "eval"
+            scored = scored_inputs(result.info)
             tracker.log(flatten("eval", result.summary))
             tracker.summary(flatten("eval", result.summary))
             import pandas as pd
@@ -328,7 +339,8 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
         error = None if not errors else "; ".join(f"{k}: {v}" for k, v in errors.items())
         write_result(out, status=status, error=error, scenes=names, material_eval=material_eval,
                      points_eval=points_eval, extra={"prepare": prepared, "scene_errors": errors,
-                                                     "seconds": round(time.perf_counter() - t0, 2)}, **record)
+                                                     "seconds": round(time.perf_counter() - t0, 2),
+                                                     **scored}, **record)
         tracker.finish(exit_code=0 if not errors else 1)
         if errors and reraise:
             kind = ScenesFailedError if all(isinstance(e, StatedMessage) for e in errors.values()) else RuntimeError

@@ -1,7 +1,7 @@
 """A dataset view of a Stage II training pool: chosen pool scenes as train / val / test splits.
 
 The pool (`gspi.data.pool.training_pool`) lists every scene under "train". Experiments that train
-on part of it and score on scenes it never saw (Table 2 at CPU scale, docs/RESULTS.md) need a
+on part of it and score on scenes it never saw (Table 2 at CPU scale, docs/log/diary.md) need a
 dataset folder whose splits say so. This writes one without copying anything: a symlink per
 scene and a `splits.json`, ranges by pool index, disjoint by construction (overlap is refused):
 

@@ -31,7 +31,7 @@ holds beyond the benchmark's classes:
   The benchmark's classes put half their dielectric finishes below 0.25 (glossy plastic, glazed
   ceramic); the objects users bring are mostly matte (glTF's default roughness is 1.0), and a
   prior calibrated on the classes guesses glossy where the shading cannot tell (issue 42,
-  docs/RESULTS.md "Session 16").
+  docs/log/diary.md "Session 16").
 
 The recipes stay JSON (`scene.json`'s `generator.material`); `evaluate_material` reads the
 ``parts`` entry and the per-part keys ``f0``, ``roughness_shift``, ``texture``, ``look`` and ``finish_roughness``. With

@@ -1,0 +1,75 @@
+"""End-to-end scores of the shipped Stage II models as their checkpoint cards record them.
+
+Each `checkpoints/stage2_<name>.json` card keeps, per seed, what the shipping rule reads (issue 42,
+checkpoints/README.md): the demo's s004 metal IoU and metallic PSNR, and the mean PSNR over the 19
+real objects (albedo, roughness, metallic, relight), beside the held-out average. Cards written in
+different sessions spell these three ways; :func:`read_card` reads each into one record, so the
+shipping-rule and real-object tables (eval.tables.docs_results) are generated, never retyped.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+REAL_CHANNELS = ("albedo", "roughness", "metallic", "relight")
+RULE_CHANNELS = ("albedo", "roughness", "metallic")   # the rule: never behind no decomposition on these
+MIN_METAL_IOU = 0.5                                   # the rule: s004's metal found
+
+
+@dataclass
+class CardScores:
+    """One model's recorded end-to-end scores; index i of each list is seed i."""
+
+    model: str                                        # checkpoint stem, e.g. stage2_pool224
+    heldout_avg: Optional[float]                      # Table 2's measure, mean of its seeds
+    heldout_seeds: int
+    s004_iou: list[float] = field(default_factory=list)
+    s004_metallic: list[float] = field(default_factory=list)
+    real: list[dict] = field(default_factory=list)    # [{channel: psnr}] per seed
+    real_baseline: Optional[dict] = None              # no decomposition on the same 19 objects
+
+
+def _heldout(card: dict) -> tuple[Optional[float], int]:
+    held = card.get("heldout_pool_scenes_reconstructed_conditions") or {}
+    for key, seeds in (("psnr_mean_of_2_seeds", 2), ("psnr_seed0", 1)):
+        if isinstance(held.get(key), dict) and "avg" in held[key]:
+            return float(held[key]["avg"]), seeds
+    return None, 0
+
+
+def _demo(demo: dict) -> tuple[list[float], list[float]]:
+    if "s004" in demo:                                # sessions 14-18: lists over seeds
+        return list(demo["s004"]["metal_iou"]), list(demo["s004"]["metallic_psnr"])
+    if "seed0" in demo:                               # session 21 on: {"seed<k>": {"s004": ...}}
+        seeds = [demo[k]["s004"] for k in sorted(k for k in demo if k.startswith("seed"))]
+    else:                                             # sessions 19-20: "s004_seed<k>"
+        seeds = [demo[k] for k in sorted(k for k in demo if k.startswith("s004_seed"))]
+    return [s["metal_iou"] for s in seeds], [s["metallic_psnr"] for s in seeds]
+
+
+def _real(real: dict) -> list[dict]:
+    if "seed0" in real:
+        return [real[k]["mean_psnr"] for k in sorted(k for k in real if k.startswith("seed"))]
+    return [real[k] for k in sorted(k for k in real if k.startswith("mean_psnr_seed"))]
+
+
+def read_card(path: Path) -> Optional[CardScores]:
+    """The card's scores, or None when it records no end-to-end run (not a rule candidate)."""
+    card = json.loads(Path(path).read_text())
+    demo, real = card.get("demo_end_to_end"), card.get("real_objects_19_small")
+    if not demo or not real:
+        return None
+    avg, seeds = _heldout(card)
+    iou, metallic = _demo(demo)
+    return CardScores(model=Path(path).stem, heldout_avg=avg, heldout_seeds=seeds, s004_iou=iou,
+                      s004_metallic=metallic, real=_real(real),
+                      real_baseline=real.get("no_decomposition_same_data"))
+
+
+def rule_failures(scores: CardScores) -> list[str]:
+    """What keeps seed 0 of a model from passing the shipping rule ([] = it passes)."""
+    failed = [] if scores.s004_iou and scores.s004_iou[0] >= MIN_METAL_IOU else ["s004"]
+    base = scores.real_baseline or {}
+    return failed + [c for c in RULE_CHANNELS if scores.real and c in base and scores.real[0][c] < base[c]]
