@@ -4,24 +4,24 @@
 # rerun this script after a cut-off session and it continues where it stopped (complete.json,
 # reconstructed.json, the training's checkpoint.pt, scores.json mark what is done).
 #
-#   WORK=/work/data/parts_pool SEEDS="0 1" CHUNK_MIN=40 nohup setsid experiments/parts_pool/run.sh &
-#   WORK=/work/data/parts_pool RECIPE=cpu_parts_pool_s nohup setsid experiments/parts_pool/run.sh &
+#   WORK=data/parts_pool SEEDS="0 1" CHUNK_MIN=40 nohup setsid experiments/parts_pool/run.sh &
+#   WORK=data/parts_pool RECIPE=cpu_parts_pool_s nohup setsid experiments/parts_pool/run.sh &
 #   # session 15's look-swap pool: train scenes only, measured on the parts pool's held-out scenes
-#   WORK=/work/data/looks_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.look_swap=0.5 \
-#     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=/work/data/parts_pool \
+#   WORK=data/looks_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.look_swap=0.5 \
+#     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=data/parts_pool \
 #     nohup setsid experiments/parts_pool/run.sh &
 #   # session 16's matte-finish pool (the default's recipe); ABLATION=a1_no_global_prior etc.: a Table 2 row
-#   WORK=/work/data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
-#     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=/work/data/parts_pool [ABLATION=a1_no_global_prior SEEDS=0] \
+#   WORK=data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
+#     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=data/parts_pool [ABLATION=a1_no_global_prior SEEDS=0] \
 #     nohup setsid experiments/parts_pool/run.sh &
 #   # session 18: the same, trained on each scene under reconstructed AND exact conditions
 #   # (experiments/parts_pool/mix_conditions.py; runs/<RECIPE>_mix_s<seed>)
-#   WORK=/work/data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/parts_pool/run.sh &
+#   WORK=data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/parts_pool/run.sh &
 #   # session 20's default (stage2_pool224_pixel.pt): the same with TAG=pixel TRAIN_EXTRA=stage2.data.pixel_features=true
 #   # (runs/<RECIPE>_pixel_224_s<seed>); session 19's default (stage2_pool224.pt): the matte pool's 224 training scenes (runs/<RECIPE>_224_s<seed>;
 #   # with CONDITIONS=mixed runs/<RECIPE>_mix224_s<seed>)
-#   WORK=/work/data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
-#     POOL_INDICES='[[0,224]]' SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=/work/data/parts_pool \
+#   WORK=data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
+#     POOL_INDICES='[[0,224]]' SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=data/parts_pool \
 #     nohup setsid experiments/parts_pool/run.sh &
 #
 # PLAN_ONLY=1 prints the run names and data it would use and stops.
