@@ -71,10 +71,10 @@ def patch_table(whole: dict, patch: dict) -> str:
                         ("metal IoU, multi-part scenes", is_multi_part)):
         a = {s: v for s, v in wi.items() if v is not None and keep(s)}
         b = {s: v for s, v in pi.items() if v is not None and keep(s)}
-        common = sorted(set(a) & set(b))
-        if common:
-            out.append(f"| {label} ({len(common)}) | {np.mean([a[s] for s in common]):.2f} | "
-                       f"{np.mean([b[s] for s in common]):.2f} | {fmt_ci(*paired_bootstrap_ci(b, a))} |")
+        both = sorted(set(a) & set(b))
+        if both:
+            out.append(f"| {label} ({len(both)}) | {np.mean([a[s] for s in both]):.2f} | "
+                       f"{np.mean([b[s] for s in both]):.2f} | {fmt_ci(*paired_bootstrap_ci(b, a))} |")
     head = (f"The shipped checkpoint ({whole.get('checkpoint', '?')}) on {len(common)} held-out pool scenes "
             f"({whole['data']}: the metal class and the multi-part scenes), {whole['num_steps']} DDIM steps, "
             f"{whole.get('max_points')} points per scene.")
