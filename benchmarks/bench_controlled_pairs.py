@@ -29,6 +29,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from eval.atomic import write_json_atomic
 from eval.layout import read_scene, read_view_file
@@ -127,13 +128,25 @@ def markdown_table(scores: dict) -> str:
 
 
 def score_run(run: Path, data: Path, manifest: Path | None = None, *, split: str = "test",
-              min_gap: float = MIN_GAP, threshold: float = THRESHOLD) -> dict:
-    """`score_pairs` of a gspi-run folder's predictions on a controlled-pairs dataset."""
+              min_gap: float = MIN_GAP, threshold: float = THRESHOLD, pair_ids: list[str] | None = None) -> dict:
+    """`score_pairs` of a gspi-run folder's predictions on a controlled-pairs dataset (only the
+    pairs `pair_ids` when given, e.g. of a run made with `scenes=[...]`)."""
     pairs = read_manifest(manifest or data)
+    if pair_ids is not None:
+        unknown = sorted(set(pair_ids) - {p["id"] for p in pairs})
+        if unknown:
+            raise ValueError(f"{manifest or data}: no pairs {unknown} (has {[p['id'] for p in pairs]})")
+        pairs = [p for p in pairs if p["id"] in pair_ids]
     scenes = sorted({s for p in pairs for s in p["scenes"].values()})
     means = {s: masked_means(data / s, run / "predictions" / s, split) for s in scenes}
-    return {"run": str(run), "data": str(data), "split": split,
+    return {"run": str(run), "data": str(data), "split": split, "overrides": run_overrides(run),
             **score_pairs(pairs, means, min_gap=min_gap, threshold=threshold)}
+
+
+def run_overrides(run: Path) -> list[str] | None:
+    """The command-line overrides of a gspi-run folder (Hydra's .hydra/overrides.yaml), None without."""
+    path = run / ".hydra" / "overrides.yaml"
+    return [str(o) for o in yaml.safe_load(path.read_text()) or []] if path.is_file() else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,11 +157,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="test", help="the views scored (the protocol's eval.split)")
     parser.add_argument("--min-gap", type=float, default=MIN_GAP)
     parser.add_argument("--threshold", type=float, default=THRESHOLD)
+    parser.add_argument("--pairs", default=None, help="comma-separated pair ids to score (default: all)")
     parser.add_argument("--json", type=Path, default=None, help="write the scores there")
     args = parser.parse_args(argv)
     try:
         scores = score_run(args.run, args.data, args.manifest, split=args.split, min_gap=args.min_gap,
-                           threshold=args.threshold)
+                           threshold=args.threshold, pair_ids=args.pairs.split(",") if args.pairs else None)
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.bench_controlled_pairs import main, markdown_table, masked_means, score_pairs
+from benchmarks.bench_controlled_pairs import main, markdown_table, masked_means, score_pairs, score_run
 from eval.imageio import write_png
 from gspi.data.controlled_pairs import write_manifest
 
+REPO = Path(__file__).resolve().parents[1]
 ROUGH = {"id": "c00", "kind": "roughness", "family": "sphere", "albedo_linear": [0.5] * 3,
          "scenes": {"glossy": "g", "matte": "m"}, "values": {"glossy": 0.1, "matte": 0.8}}
 METAL = {"id": "c01", "kind": "metal", "family": "torus", "albedo_linear": [1.0, 0.78, 0.34],
@@ -116,6 +117,33 @@ def test_script_prints_the_table_and_writes_the_scores(dataset_and_run, tmp_path
     assert scores["roughness"] == {"pairs": 1, "ordered": 1.0, "ordered_with_gap": 1.0}
     assert scores["metal"]["separated"] == 1.0
     assert "| c01 | metal | torus |" in capsys.readouterr().out
+
+
+def test_scores_record_the_runs_overrides(dataset_and_run):
+    data, run = dataset_and_run
+    (run / ".hydra").mkdir()
+    (run / ".hydra" / "overrides.yaml").write_text("- recon=fast\n- recon.lr.shN=0.0025\n")
+    assert score_run(run, data)["overrides"] == ["recon=fast", "recon.lr.shN=0.0025"]
+
+
+def test_a_subset_of_pairs_needs_only_its_scenes(dataset_and_run):
+    data, run = dataset_and_run
+    import shutil
+
+    shutil.rmtree(run / "predictions" / "d")
+    scores = score_run(run, data, pair_ids=["c00"])
+    assert [r["id"] for r in scores["pairs"]] == ["c00"] and scores["metal"]["pairs"] == 0
+    with pytest.raises(ValueError, match="no pairs"):
+        score_run(run, data, pair_ids=["c07"])
+
+
+def test_docs_show_the_committed_scores():
+    """docs/STAGE2.md's controlled-pairs tables are the committed scores' markdown_table (STYLE 12)."""
+    results = sorted((REPO / "benchmarks" / "results").glob("controlled_pairs_*.json"))
+    assert results, "no committed controlled-pairs scores"
+    doc = (REPO / "docs" / "STAGE2.md").read_text()
+    for path in results:
+        assert markdown_table(json.loads(path.read_text())) in doc, f"docs/STAGE2.md lacks {path.name}'s table"
 
 
 def test_script_states_a_missing_scene_in_one_line(dataset_and_run, capsys):
