@@ -139,13 +139,15 @@ def score_run(run: Path, data: Path, manifest: Path | None = None, *, split: str
         pairs = [p for p in pairs if p["id"] in pair_ids]
     scenes = sorted({s for p in pairs for s in p["scenes"].values()})
     means = {s: masked_means(data / s, run / "predictions" / s, split) for s in scenes}
-    return {"run": str(run), "data": str(data), "split": split, "overrides": run_overrides(run),
+    return {"run": str(run), "data": str(data), "split": split, "overrides": hydra_overrides(run),
+            "data_overrides": hydra_overrides(data),
             **score_pairs(pairs, means, min_gap=min_gap, threshold=threshold)}
 
 
-def run_overrides(run: Path) -> list[str] | None:
-    """The command-line overrides of a gspi-run folder (Hydra's .hydra/overrides.yaml), None without."""
-    path = run / ".hydra" / "overrides.yaml"
+def hydra_overrides(folder: Path) -> list[str] | None:
+    """The command-line overrides that made a gspi-run or gspi-data folder (its .hydra/overrides.yaml),
+    None without one."""
+    path = folder / ".hydra" / "overrides.yaml"
     return [str(o) for o in yaml.safe_load(path.read_text()) or []] if path.is_file() else None
 
 

@@ -123,7 +123,8 @@ def test_scores_record_the_runs_overrides(dataset_and_run):
     data, run = dataset_and_run
     (run / ".hydra").mkdir()
     (run / ".hydra" / "overrides.yaml").write_text("- recon=fast\n- recon.lr.shN=0.0025\n")
-    assert score_run(run, data)["overrides"] == ["recon=fast", "recon.lr.shN=0.0025"]
+    scores = score_run(run, data)
+    assert scores["overrides"] == ["recon=fast", "recon.lr.shN=0.0025"] and scores["data_overrides"] is None
 
 
 def test_a_subset_of_pairs_needs_only_its_scenes(dataset_and_run):

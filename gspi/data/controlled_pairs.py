@@ -44,7 +44,6 @@ from gspi.strict_config import dataclass_from_dict
 
 PAIRS_NAMESPACE = 3    # benchmark scenes: 0, dataset-level draws: 1, the training pool: 2
 KIND_MEMBERS = {"roughness": ("glossy", "matte"), "metal": ("dielectric", "metal")}
-PROPERTY = {"roughness": "roughness", "metal": "metallic"}  # the channel a kind varies
 MANIFEST = "pairs.json"
 MANIFEST_FORMAT, MANIFEST_VERSION = "gspi-controlled-pairs", 1
 
