@@ -4,6 +4,7 @@ Examples:
     gspi-data preset=tiny out=data/tiny seed=0      # 7 scenes at 64 px (tests, smoke runs)
     gspi-data preset=small out=data/small seed=0    # 22 scenes at 128 px (the demo)
     gspi-data preset=paper out=data/paper seed=0    # 230 scenes at 512 px (large machines)
+    gspi-data preset=controlled_pairs out=data/pairs seed=0  # 18 pairs differing in one property (pairs.json)
     gspi-data preset=tiny out=d seed=1 data.num_train_scenes=2 data.image_size=32
     gspi-data import.src=nerf_synthetic/lego out=data/lego_canonical
     gspi-data export.src=data/tiny/s000_torus_metal out=exports/s000

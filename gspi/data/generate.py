@@ -70,6 +70,7 @@ class BenchmarkConfig:
     pool_indices: Optional[list] = None       # training pool: only these [start, stop) index ranges
     material_mix: float = 0.0                 # training pool: share of two-class scenes (issue 24)
     parts: dict = field(default_factory=dict) # training pool: multi-part objects (gspi.data.procedural.material_parts)
+    controlled_pairs: Optional[dict] = None   # set: scenes in pairs differing in one property (gspi.data.controlled_pairs)
     capture_envs: Any = "procedural"          # procedural | polyhaven | [names or EXR paths]
     relight_envs: Any = "procedural"          # (gspi.data.env_sets; disjoint from capture_envs)
     renderer: str = "splitsum"                # input views: splitsum | pathtraced
@@ -216,6 +217,8 @@ def generate_dataset(out_dir: str | Path, cfg: BenchmarkConfig, *, seed: int,
     (out_dir / "splits.json").unlink(missing_ok=True)
     if cfg.training_pool:
         return generate_training_pool(out_dir, cfg, seed=seed, scratch_dir=scratch_dir, device=device)
+    if cfg.controlled_pairs is not None:
+        return generate_controlled_pairs(out_dir, cfg, seed=seed, scratch_dir=scratch_dir, device=device)
     recipes = scene_recipes(seed, cfg)
     splits = assign_splits([r["name"] for r in recipes], seed, num_train=cfg.num_train_scenes,
                            num_val=cfg.num_val_scenes, num_test=cfg.num_test_scenes,
@@ -257,6 +260,32 @@ def generate_training_pool(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
     splits = {"train": sorted(r["name"] for r in recipes if r["name"] in done), "val": [], "test": []}
     write_json_atomic(out_dir / "splits.json", splits)
     return {**_summary(out_dir, splits, stats, start, env_seconds), "skipped": len(recipes) - len(todo)}
+
+
+def generate_controlled_pairs(out_dir: Path, cfg: BenchmarkConfig, *, seed: int,
+                              scratch_dir: str | Path | None = None,
+                              device: torch.device | str = "cpu") -> dict:
+    """Pairs of test scenes that differ in one property, and their manifest (gspi.data.controlled_pairs)."""
+    from gspi.data.controlled_pairs import ControlledPairsConfig, controlled_pairs, write_manifest
+    from gspi.data.env_sets import is_default
+
+    if cfg.training_pool or cfg.only_splits or cfg.num_train_scenes or cfg.num_val_scenes or cfg.num_test_scenes:
+        raise ValueError("controlled pairs make test scenes only, as many as data.controlled_pairs asks (kinds x "
+                         "families x colours pairs): set data.num_train_scenes, num_val_scenes and num_test_scenes "
+                         "to 0, no data.only_splits and no data.training_pool")
+    if not is_default(cfg.capture_envs, cfg.relight_envs):
+        raise ValueError("controlled pairs use the procedural environments only (data.capture_envs and "
+                         "data.relight_envs: procedural)")
+    start = time.perf_counter()
+    entries, recipes = controlled_pairs(seed, ControlledPairsConfig.from_mapping(cfg.controlled_pairs),
+                                        num_test_views=cfg.num_test_views, num_val_views=cfg.num_val_views,
+                                        num_relight_envs=cfg.num_relight_envs, lattice=cfg.lattice)
+    stats, env_seconds = _render_recipes(out_dir, recipes, cfg, seed=seed, scratch_dir=scratch_dir,
+                                         device=device)
+    write_manifest(out_dir, seed, entries)
+    splits = {"train": [], "val": [], "test": sorted(r["name"] for r in recipes)}
+    write_json_atomic(out_dir / "splits.json", splits)
+    return _summary(out_dir, splits, stats, start, env_seconds)
 
 
 def _summary(out_dir: Path, splits: dict, stats: list[dict], start: float, env_seconds: float) -> dict:

@@ -19,6 +19,10 @@ with a `mix` entry is split by a noise-warped plane into its own class and a sec
 (metal beside a dielectric whenever either is metal), as real assets are (a metal bottle with a
 painted label, issue 24). Benchmark scenes never carry one. Objects of 2-4 parts with per-part
 variations (the pool's `data.parts`, issue 42): `gspi.data.procedural.material_parts`.
+
+One more class stands outside the six, for controlled scenes only (`gspi.data.controlled_pairs`):
+``plain``, one linear base colour, one roughness and one metallic over the whole object
+(`plain_material`), so two scenes can differ in exactly one property.
 """
 from __future__ import annotations
 
@@ -102,6 +106,13 @@ def sample_material(material_class: str, rng: np.random.Generator) -> dict:
 
 
 METAL_CLASSES = ("metal", "painted_metal")
+PLAIN_CLASS = "plain"  # controlled scenes only (module docstring); never drawn by sample_material
+
+
+def plain_material(albedo_linear: list[float], roughness: float, metallic: float) -> dict:
+    """The recipe of a uniform material: linear base colour [3], roughness and metallic in [0, 1]."""
+    return {"class": PLAIN_CLASS, "seed": 0, "albedo_linear": [float(c) for c in albedo_linear],
+            "roughness": float(roughness), "metallic": float(metallic)}
 
 
 def mix_materials(primary: dict, rng: np.random.Generator) -> dict:
@@ -238,8 +249,12 @@ def evaluate_material(recipe: dict, q: Tensor) -> MaterialSample:
         albedo = _pick(rim, albedo, vec(METAL_F0["gold"]).expand(n, 3))
         rough = _pick(rim, rough, full(0.15))
         metal = _pick(rim, zeros, ones)
+    elif cls == PLAIN_CLASS:
+        albedo = vec(recipe["albedo_linear"]).expand(n, 3)
+        rough, metal = full(float(recipe["roughness"])), full(float(recipe["metallic"]))
     else:
-        raise ValueError(f"unknown material class {cls!r}; allowed: {', '.join(MATERIAL_CLASSES)}")
+        raise ValueError(f"unknown material class {cls!r}; "
+                         f"allowed: {', '.join((*MATERIAL_CLASSES, PLAIN_CLASS))}")
     if "look" in recipe:  # data.parts.look_swap: another class's albedo on this finish's dielectric points
         albedo = _pick(metal > 0, evaluate_material(recipe["look"], q).albedo_linear, albedo)
     if "finish_roughness" in recipe:  # data.parts.matte_finish: the class's look on a matte finish

@@ -52,10 +52,10 @@ def sample_scene_recipe(seed: int, index: int, *, num_test_views: int, num_val_v
     if not 0 <= num_relight_envs <= len(heldout):
         raise ValueError(f"num_relight_envs must be in [0, {len(heldout)}], got {num_relight_envs}")
     relight = sorted(rng.choice(len(heldout), size=num_relight_envs, replace=False).tolist())
-    lattice = fibonacci_hemisphere_lattice(num_lattice_views, min_elevation_deg=min_elevation_deg)
-    test_dirs = held_out_directions(num_test_views, scene_rng(seed, index, 1), lattice=lattice)
-    val_dirs = held_out_directions(num_val_views, scene_rng(seed, index, 2),
-                                   lattice=np.concatenate([lattice, test_dirs]))
+    test_dirs, val_dirs = held_out_view_directions(
+        scene_rng(seed, index, 1), scene_rng(seed, index, 2), num_test_views=num_test_views,
+        num_val_views=num_val_views, num_lattice_views=num_lattice_views,
+        min_elevation_deg=min_elevation_deg)
     return {
         "index": int(index), "name": scene_name(index, family, material_class),
         "family": family, "shape": shape, "material": material,
@@ -64,6 +64,17 @@ def sample_scene_recipe(seed: int, index: int, *, num_test_views: int, num_val_v
         "test_directions": test_dirs.tolist(), "val_directions": val_dirs.tolist(),
         "view_seed": int(rng.integers(0, 2**31 - 1)),
     }
+
+
+def held_out_view_directions(test_rng: np.random.Generator, val_rng: np.random.Generator, *,
+                             num_test_views: int, num_val_views: int, num_lattice_views: int = 32,
+                             min_elevation_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A scene's test directions [T, 3], then its val directions [V, 3], each off the lattice
+    (and val off the test views), drawn from their own generators."""
+    lattice = fibonacci_hemisphere_lattice(num_lattice_views, min_elevation_deg=min_elevation_deg)
+    test_dirs = held_out_directions(num_test_views, test_rng, lattice=lattice)
+    val_dirs = held_out_directions(num_val_views, val_rng, lattice=np.concatenate([lattice, test_dirs]))
+    return test_dirs, val_dirs
 
 
 def assign_splits(names: list[str], seed: int, *, num_train: int, num_val: int, num_test: int,
