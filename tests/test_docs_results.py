@@ -3,7 +3,7 @@ command generates from the committed scores, and the generator fails loudly on b
 import pytest
 
 from eval.tables import docs_results
-from tests.test_portable_paths import MACHINE_PATH
+from tests.machine_paths import MACHINE_PATH
 
 
 def test_committed_tables_equal_the_generated_ones():

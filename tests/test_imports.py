@@ -131,7 +131,7 @@ DATA_FLOORS: tuple[tuple[str, ...], ...] = (
     ("gspi.data.lattice", "gspi.data.environments", "gspi.data.pmndrs_assets", "gspi.data.hdri",
      "gspi.data.point_clouds", "gspi.data.gt_maps", "gspi.data.contact_sheet", "gspi.data.layouts"),
     ("gspi.data.procedural",),
-    ("gspi.data.env_sets", "gspi.data.assets", "gspi.data.pool"),
+    ("gspi.data.env_sets", "gspi.data.assets", "gspi.data.pool", "gspi.data.controlled_pairs"),
     ("gspi.data.generate",),
 )
 

@@ -17,7 +17,7 @@ import pytest
 from gspi.cli import reproduce as cli
 from gspi.reproduce.plan import Step, StepFailed, blocks, run_plan
 from gspi.reproduce.portable import portable, portable_path
-from tests.test_portable_paths import MACHINE_PATH
+from tests.machine_paths import MACHINE_PATH
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
