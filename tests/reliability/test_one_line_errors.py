@@ -96,7 +96,7 @@ def test_ctrl_c_is_one_line_and_exit_130(tiny_gt, tmp_path):
             time.sleep(0.5)
         time.sleep(3.0)  # inside the job: the first scene's reconstruction
         proc.send_signal(signal.SIGINT)
-        code = proc.wait(timeout=60)
+        code = proc.wait(timeout=240)  # a loaded 2-core machine can take a while to reach the handler
     text = log.read_text()
     assert code == 130, text[-2000:]
     assert "Traceback" not in text, text[-3000:]

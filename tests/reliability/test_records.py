@@ -104,8 +104,9 @@ def test_gspi_eval_killed_rerun_leaves_no_old_summary(workspace):
     code, text = run_cli(cli.main, argv)
     assert code == 0 and (out / "summary.json").is_file(), text[-2000:]
     import unittest.mock as mock
-    with mock.patch.object(cli, "evaluate", _kill), pytest.raises(KeyboardInterrupt):
-        run_cli(cli.main, argv[:-1] + ["eval.channels=[roughness]"])
+    with mock.patch.object(cli, "evaluate", _kill):  # a kill is one line and exit 130 (issue 54)
+        killed, killed_text = run_cli(cli.main, argv[:-1] + ["eval.channels=[roughness]"])
+    assert killed == 130, killed_text[-2000:]
     assert not (out / "summary.json").exists() and not (out / "eval_meta.json").exists()
     code, text = run_cli(cli.main, argv[:-1] + ["eval.channels=[roughness]"])
     assert code == 0, text[-2000:]
@@ -129,8 +130,9 @@ def test_gspi_table_killed_while_writing_keeps_the_previous_table(workspace):
     code, text = run_cli(table_main, [str(workspace / "ev"), f"out={tables}"])
     assert code == 0, text[-2000:]
     before = snapshot(tables)
-    with mock.patch.object(atomic.os, "replace", _kill), pytest.raises(KeyboardInterrupt):
-        run_cli(table_main, [str(workspace / "ev"), f"out={tables}"])
+    with mock.patch.object(atomic.os, "replace", _kill):  # a kill is one line and exit 130 (issue 54)
+        killed, killed_text = run_cli(table_main, [str(workspace / "ev"), f"out={tables}"])
+    assert killed == 130, killed_text[-2000:]
     assert snapshot(tables) == before  # old files whole, no .tmp left
     code, _ = run_cli(table_main, [str(workspace / "ev"), f"out={tables}"])
     assert code == 0 and {p for p in before} == set(snapshot(tables))
@@ -159,8 +161,9 @@ def test_gspi_train_killed_while_saving_then_rerun(micro_dataset, tmp_path):
         Path(path).write_bytes(b"half a checkpoint")
         raise KeyboardInterrupt("simulated kill")
 
-    with mock.patch.object(checkpoint.torch, "save", save_half_then_die), pytest.raises(KeyboardInterrupt):
-        run_cli(main, argv)
+    with mock.patch.object(checkpoint.torch, "save", save_half_then_die):  # a kill is one line and exit 130 (issue 54)
+        killed, killed_text = run_cli(main, argv)
+    assert killed == 130, killed_text[-2000:]
     assert not (out / "checkpoint.pt").exists() and not (out / "stats.json").exists()
     assert not list(out.glob(".checkpoint.pt.*"))  # no temporary left
     assert checkpoint.torch.save is real_save
@@ -194,8 +197,9 @@ def test_gspi_data_killed_regeneration_leaves_no_old_splits(tmp_path):
         calls.append(1)
         return real(*a, **k)
 
-    with mock.patch.object(generate, "_make_scene", die_after_first), pytest.raises(KeyboardInterrupt):
-        run_cli(main, argv)
+    with mock.patch.object(generate, "_make_scene", die_after_first):  # a kill is one line and exit 130 (issue 54)
+        killed, killed_text = run_cli(main, argv)
+    assert killed == 130, killed_text[-2000:]
     assert not (out / "splits.json").exists()  # the first new scene is on disk: no old splits beside it
     before = snapshot(tmp_path)
     code, text = run_cli(main, argv)
