@@ -88,7 +88,10 @@ def test_ctrl_c_is_one_line_and_exit_130(tiny_gt, tmp_path):
     with open(log, "w") as fh:
         proc = subprocess.Popen([sys.executable, "-m", "gspi.cli.run", f"data={tiny_gt}", f"out={out}",
                                  "logger=none", "progress=false", "recon.iterations=100000"],
-                                stdout=fh, stderr=subprocess.STDOUT, env=env)
+                                stdout=fh, stderr=subprocess.STDOUT, env=env,
+                                # a job started in the background inherits an ignored SIGINT, which
+                                # Python then keeps ignoring: the child gets the default back
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         deadline = time.monotonic() + 120
         while not (out / "run.log").exists():  # Hydra has started the job
             assert proc.poll() is None, log.read_text()
