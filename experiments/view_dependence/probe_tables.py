@@ -99,6 +99,15 @@ def retraining_table(by_recon: dict[str, list[dict]]) -> str:
         lines.append(f"| {recon} | {steps} | {len(runs)} | {ch['albedo']:.2f} | {ch['roughness']:.2f} | {ch['metallic']:.2f} | "
                      f"{np.mean(list(ch.values())):.2f} | {fmt_ci(*paired_bootstrap_ci(rough, base))} | "
                      f"{np.mean(ious):.2f} | {np.mean(multi):.2f} |")
+    if len(by_recon.get("fast", [])) == 1 and all(len(by_recon.get(r, [])) == 1 for r in by_recon):
+        ref = by_recon["fast"][0]["per_scene"]["stage2"]
+        for recon, runs in by_recon.items():
+            if recon != "fast":
+                other = runs[0]["per_scene"]["stage2"]
+                lines.append("")
+                lines.append(f"{recon} - fast, paired over the held-out scenes: avg {fmt_ci(*paired_bootstrap_ci(scene_avg(other), scene_avg(ref)))}, "
+                             f"roughness {fmt_ci(*paired_bootstrap_ci(channel(other, 'roughness'), channel(ref, 'roughness')))}, "
+                             f"metallic {fmt_ci(*paired_bootstrap_ci(channel(other, 'metallic'), channel(ref, 'metallic')))} dB.")
     return "\n".join(lines) + "\n"
 
 
