@@ -2,4 +2,4 @@
 tests/test_portable_paths.py and the committed-scores tests share."""
 import re
 
-MACHINE_PATH = re.compile(r"(^|[\s'\"(=`:])/(work|home|root|Users)/")
+MACHINE_PATH = re.compile(r"(^|[\s'\"(=`:-])/(work|home|root|Users)/")  # '-': a shell default ${X:-/path}

@@ -35,5 +35,6 @@ def test_no_tracked_file_names_a_machine_path():
 
 
 def test_the_pattern_catches_what_it_should():
-    assert MACHINE_PATH.search("WORK=/work/data/x") and MACHINE_PATH.search("`/home/u/data`")
+    assert MACHINE_PATH.search("WORK=/root/data/x") and MACHINE_PATH.search("`/Users/u/data`")
+    assert MACHINE_PATH.search("WORK=${WORK:-/root/data/x}")  # a shell default
     assert not MACHINE_PATH.search("runs/method=gspi/work/s002/pbr_gs.ply") and not MACHINE_PATH.search("out=/tmp/t3")

@@ -4,7 +4,7 @@
 #   WORK=data/parts_pool experiments/parts_pool/measure_reference.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-WORK=${WORK:-/work/data/parts_pool}
+WORK=${WORK:-data/parts_pool}
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 for ck in stage2_pool_recon stage2_small stage2_pool_trunc_snr; do
   out="$WORK/runs/ref/$ck/eval"

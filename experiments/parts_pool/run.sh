@@ -34,7 +34,7 @@
 {
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-WORK=${WORK:-/work/data/parts_pool}
+WORK=${WORK:-data/parts_pool}
 SEEDS=${SEEDS-"0 1"}                  # SEEDS="" builds the pool and its reconstructions, trains nothing
 CHUNK_MIN=${CHUNK_MIN:-40}            # one gspi-train invocation (a chunk); checkpoints every 10 min inside
 RECIPE=${RECIPE:-cpu_parts_pool}
