@@ -6,17 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
-from eval.argv import apply_aliases
 from eval.layout import read_scene, read_splits, read_view_file
 from gspi.cli.data import run
 from gspi.data.controlled_pairs import (KIND_MEMBERS, ControlledPairsConfig, controlled_pairs, read_manifest)
 from gspi.data.generate import BenchmarkConfig, scene_recipes
 from gspi.data.procedural.materials import METAL_F0
 from gspi.strict_config import ConfigError
+from tests.data_config import compose_data_config
 
-REPO = Path(__file__).resolve().parents[1]
 # one family, one colour: a roughness pair and a metal pair, 4 scenes of 16 px
 SHRUNK = ["data.image_size=16", "data.env_height=16", "data.supersample=1", "data.workers=1",
           "data.num_test_views=2", "data.num_val_views=1", "data.num_relight_envs=1",
@@ -27,9 +25,7 @@ VIEWS = dict(num_test_views=8, num_val_views=4, num_relight_envs=4,
 
 
 def make_config(out: Path, seed: int = 0, extra: list[str] | None = None):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        return compose("gspi_data", overrides=apply_aliases(
-            ["preset=controlled_pairs", f"out={out}", f"seed={seed}", *SHRUNK, *(extra or [])], "gspi_data"))
+    return compose_data_config("controlled_pairs", out, seed, [*SHRUNK, *(extra or [])])
 
 
 def hashes(root: Path) -> dict[str, str]:

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 from eval.imageio import read_exr
 from eval.layout import GT_VIEW_FILES, read_scene, read_splits, read_view_file
@@ -20,6 +19,7 @@ from gspi.cli.data import run
 from gspi.data.lattice import lattice_cameras
 from gspi.data.procedural.render_scene import relight_stored_view
 from gspi.data.procedural.sdf_shapes import ShapeSDF
+from tests.data_config import compose_data_config
 
 REPO = Path(__file__).resolve().parents[1]
 # The tiny preset shrunk further so that the whole module runs in seconds.
@@ -29,9 +29,7 @@ SMALL = ["data.num_train_scenes=2", "data.num_val_scenes=0", "data.num_test_scen
 
 
 def make_config(out: Path, seed: int = 0, extra: list[str] | None = None):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        return compose("gspi_data", overrides=apply_aliases(
-            ["preset=tiny", f"out={out}", f"seed={seed}", *SMALL, *(extra or [])], "gspi_data"))
+    return compose_data_config("tiny", out, seed, [*SMALL, *(extra or [])])
 
 
 def file_hashes(root: Path) -> dict[str, str]:

@@ -6,25 +6,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
 from eval.layout import read_scene, read_splits
-from eval.argv import apply_aliases
 from gspi.cli.data import run
 from gspi.data.generate import BenchmarkConfig, scene_recipes
 from gspi.data.procedural.materials import MATERIAL_CLASSES
 from gspi.data.procedural.sdf_shapes import FAMILIES
 from gspi.data.pool.training_pool import DONE_FILE, describe, pool_recipes
+from tests.data_config import compose_data_config
 
-REPO = Path(__file__).resolve().parents[1]
 SHRUNK = ["data.num_train_scenes=3", "data.image_sizes=[12,8]", "data.env_height=16",
           "data.workers=1", "data.supersample=1"]
 
 
 def make_config(out: Path, seed: int = 0, extra: list[str] | None = None):
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        return compose("gspi_data", overrides=apply_aliases(
-            ["preset=stage2_pool", f"out={out}", f"seed={seed}", *SHRUNK, *(extra or [])], "gspi_data"))
+    return compose_data_config("stage2_pool", out, seed, [*SHRUNK, *(extra or [])])
 
 
 def hashes(root: Path) -> dict[str, str]:
