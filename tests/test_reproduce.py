@@ -99,6 +99,25 @@ def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeyp
         assert not MACHINE_PATH.search(text) and json.loads(text)["data"] == cfg["measure"]["data_label"], p
 
 
+def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, monkeypatch, capsys):
+    """``scores_from`` into an empty scores folder: the dry run names one ``adopt:`` step per run
+    and writes no file; ``only=[adopt]`` then copies them (portable) and plans no training for them."""
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    scores = tmp_path / "scores"
+    argv = [f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={scores}", "seeds=[0]",
+            "variants=[full,a1_no_global_prior]"]
+    assert cli.main([*argv, "dry_run=true"]) == 0
+    out = capsys.readouterr().out
+    assert "adopt: full_s0" in out and "adopt: a1_no_global_prior_s0" in out
+    assert not scores.exists() and not (tmp_path / "reproduce").exists()
+    assert cli.main([*argv, "only=[adopt]"]) == 0
+    adopted = sorted(p.parent.name for p in scores.glob("*/scores.json"))
+    assert adopted == ["a1_no_global_prior_s0", "full_s0"]
+    assert not MACHINE_PATH.search((scores / "full_s0" / "scores.json").read_text())
+    steps, _, _ = cli.plan(argv)
+    assert [s.name for s in steps] == ["table"]  # adopted runs are neither trained nor measured
+
+
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
     """A1 has no prior encoder, so no map to sample: its trainings turn the recipe's
     pixel_features off (variant_overrides), every other variant keeps the recipe."""

@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     if root_cfg.dry_run:
         print(f"{len(ran)} step(s) to do" if ran else "done: nothing left to do")
         return 0
-    left = [s.name for s in steps if s.name != "table" and not s.is_done()]
+    left = [s.name for s in steps if s.name not in ran and not s.is_done()]
     if left:  # only= left some out
         print(f"{len(left)} step(s) left ({left[0]}, ...): run the same command without only= to go on")
         return 0

@@ -43,6 +43,7 @@ class Step:
     lane_group: Optional[str] = None  # consecutive steps with a group run as lanes: groups side by side
     marker: bool = True  # ``done`` is a marker this module writes (with the command), not the step's output
     aliases: dict = field(default_factory=dict)  # path -> label in ``marker_text`` (e.g. the work folder -> <work>)
+    rebuild: bool = False  # run on every call: its output is rebuilt from whatever exists (a table)
 
     def describe(self) -> str:
         return shlex.join(map(str, self.command)) if self.command else f"({self.name}: in-process)"
@@ -62,7 +63,7 @@ class Step:
 
     def is_done(self) -> bool:
         """Done; a marker left by another command is an error (the work folder holds other data)."""
-        if not self.done.exists():
+        if self.rebuild or not self.done.exists():
             return False
         if self.marker and self.command is not None:
             recorded = without_speed_only(self.done.read_text().split(" ", 1)[-1].strip())
@@ -127,7 +128,7 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
     many ``lane_group``s of a block run side by side."""
     todo = [s for s in steps if not s.is_done() and (not only or any(s.name.startswith(p) for p in only))]
     for step in steps:
-        state = "done" if step.done.exists() else ("to do" if step in todo else "skipped (only=)")
+        state = "done" if step not in todo and step.done.exists() else ("to do" if step in todo else "skipped (only=)")
         log.info("[%s] %s", state, step.name)
     if dry_run:
         for step in todo:

@@ -60,8 +60,7 @@ def sweep_table_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     if any(scores_dir.glob("*/result.json")):
         steps = []  # committed scores stand (written all at once after the sweep): nothing to recompute
     table = Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
-                                                  f"table={name}"])
-    table.done.unlink(missing_ok=True)
+                                                  f"table={name}"], rebuild=True)
     for step in steps:
         step.aliases = {str(work): "<work>"}
     return steps + [table]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -103,32 +104,38 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
 def table_step(cfg: Mapping[str, Any], scores_dir: Path, tables_dir: Path) -> Step:
     """gspi-table over the committed scores: Table 2 (md, tex, csv), Δ vs Full with bootstrap CIs."""
     return Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
-                                                 "table=table2"])
+                                                 "table=table2"], rebuild=True)
 
 
 def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     """Every step of Table 2 at ``cfg``'s scale; ``root``: the repository (committed paths)."""
     work = (root / cfg["work"]).resolve()
     scores_dir, tables_dir = root / cfg["scores_dir"], root / cfg["tables_dir"]
-    adopt_committed_scores(cfg, root, scores_dir)
+    adopted = adopt_steps(cfg, root, scores_dir)
     runs = []
     for seed in cfg["seeds"]:
         for variant in cfg["variants"]:
             scores = scores_dir / run_name(variant, seed) / "scores.json"
-            if not scores.is_file():
+            if not scores.is_file() and run_name(variant, seed) not in adopted:
                 runs += run_steps(cfg, work, variant, seed, scores, root)
-    steps = (pool_steps(cfg, work) if runs else []) + runs
+    steps = list(adopted.values()) + (pool_steps(cfg, work) if runs else []) + runs
     table = table_step(cfg, scores_dir, tables_dir)
-    table.done.unlink(missing_ok=True)  # the table is rebuilt from whatever scores exist, every call
     for step in steps:
         step.aliases = {str(work): "<work>"}
     return steps + [table]
 
 
-def adopt_committed_scores(cfg: Mapping[str, Any], root: Path, scores_dir: Path) -> None:
-    """Scores committed before this command existed (``scores_from``) take their run's place."""
+def adopt_steps(cfg: Mapping[str, Any], root: Path, scores_dir: Path) -> dict[str, Step]:
+    """Scores committed before this command existed (``scores_from``) take their run's place: one
+    in-process step per planned run not yet in ``scores_dir`` copies them there (portable); a dry run
+    lists these steps and writes nothing."""
+    steps = {}
+    planned = {run_name(variant, seed) for variant in cfg["variants"] for seed in cfg["seeds"]}
     for key, path in (cfg.get("scores_from") or {}).items():
         variant, seed = key.rsplit("_s", 1)
-        dst = scores_dir / run_name(variant, int(seed)) / "scores.json"
-        if not dst.is_file():
-            write_portable_scores(root / path, dst, data_label=cfg["measure"]["data_label"], roots={})
+        name = run_name(variant, int(seed))
+        dst = scores_dir / name / "scores.json"
+        if name in planned and not dst.is_file():
+            steps[name] = Step(f"adopt: {name}", dst, marker=False, action=partial(
+                write_portable_scores, root / path, dst, data_label=cfg["measure"]["data_label"], roots={}))
+    return steps
