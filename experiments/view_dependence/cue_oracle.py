@@ -1,6 +1,6 @@
 """Issue 52's third probe: is metal (and gloss) separable point by point, from what conditions?
 
-A per-point regressor (the learnability ladder's R1: an MLP on the local condition, Top-RGB +
+A per-point regressor on the inputs of the learnability ladder's R1 (the local condition: Top-RGB +
 source-view one-hot) with and without the per-point cross-view statistic
 (``gspi.stage2.view_statistics``: brightest minus median view, spread, the highlight's tint),
 trained on half of a dataset's scenes and scored on the other half (two folds by scene, seeded),
@@ -50,7 +50,12 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
 
 
 def fit_mlp(x: np.ndarray, y: np.ndarray, *, seed: int = 0, steps: int = 1500) -> nn.Module:
-    """A 2-layer MLP regressing y [n, 2] in [0, 1] (sigmoid head), Adam, full-batch-ish minibatches."""
+    """A 2-layer MLP regressing y [n, 2] in [0, 1] (sigmoid head), Adam, full-batch-ish minibatches.
+
+    Not the ladder's ``PointMLP`` (experiments/ladder/regressors.py: 4 layers of 256, all five f0
+    channels in [-1, 1]): the oracle asks only whether two channels are separable per point from a
+    handful of inputs, so a small net fits its 3000 points per scene in seconds; its committed
+    figures (docs/log/probes/cue_oracle.json) were measured with this one."""
     torch.manual_seed(seed)
     model = nn.Sequential(nn.Linear(x.shape[1], 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, y.shape[1]))
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)

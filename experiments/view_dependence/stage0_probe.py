@@ -25,13 +25,11 @@ POINTS_PER_SCENE = 4000
 
 
 def lattice_images(scene_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(linear rgb [V, H, W, 3], depth [V, H, W]) of a scene folder's lattice views."""
-    from eval.layout import read_scene, read_view_file
+    """(linear rgb [V, H, W, 3] float64, depth [V, H, W]) of a scene folder's lattice views."""
+    from gspi.stage2.data import read_lattice_views
 
-    scene = read_scene(scene_dir)
-    dirs = [scene.view_dir("train", v.id) for v in scene.split_views("train")]
-    return (np.stack([read_view_file(d, "rgb.exr") for d in dirs]).astype(np.float64),
-            np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs]))
+    rgb, depth = read_lattice_views(scene_dir)
+    return rgb.astype(np.float64), depth
 
 
 def scene_scores(source: Path, recon: Path, seed: int = 0) -> dict:

@@ -71,6 +71,20 @@ def srgb_top_rgb(rgb_linear: np.ndarray) -> np.ndarray:
     return linear_to_srgb(torch.from_numpy(np.asarray(rgb_linear, dtype=np.float32))).numpy()
 
 
+def read_lattice_views(scene_dir: str | Path, *, depth: bool = True
+                       ) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """(linear radiance [V, H, W, 3] float32, GT depth [V, H, W] float32 or None) of a scene
+    folder's lattice views (its train split: ``rgb.exr``, ``depth.exr``), in the split's order."""
+    from eval.layout import read_scene, read_view_file
+
+    scene = read_scene(scene_dir)
+    dirs = [scene.view_dir("train", v.id) for v in scene.split_views("train")]
+    rgb = np.stack([read_view_file(d, "rgb.exr") for d in dirs]).astype(np.float32)
+    if not depth:
+        return rgb, None
+    return rgb, np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs]).astype(np.float32)
+
+
 def read_lattice_cameras(scene_dir: str | Path):
     """(Scene, LatticeCameras) of a canonical scene folder; the train split must be the 32-view lattice."""
     from eval.layout import read_scene
@@ -123,24 +137,14 @@ class ScenePoints:
     def lattice_views(self) -> tuple[np.ndarray, np.ndarray]:
         """(sRGB images [V, H, W, 3] float32, GT depth [V, H, W] float32), loaded once (A5)."""
         if self._views is None:
-            from eval.layout import read_scene, read_view_file
-
-            scene = read_scene(self.root)
-            dirs = [scene.view_dir("train", v.id) for v in scene.split_views("train")]
-            rgb = np.stack([srgb_top_rgb(read_view_file(d, "rgb.exr")) for d in dirs])
-            depth = np.stack([read_view_file(d, "depth.exr")[..., 0] for d in dirs])
-            self._views = (rgb, depth)
+            rgb, depth = read_lattice_views(self.root)
+            self._views = (srgb_top_rgb(rgb), depth)
         return self._views
-
 
     def lattice_linear(self) -> np.ndarray:
         """[V, H, W, 3] float32 linear radiance of the lattice views (``rgb.exr``), loaded once."""
         if self._linear is None:
-            from eval.layout import read_scene, read_view_file
-
-            scene = read_scene(self.root)
-            self._linear = np.stack([read_view_file(scene.view_dir("train", v.id), "rgb.exr")
-                                     for v in scene.split_views("train")]).astype(np.float32)
+            self._linear = read_lattice_views(self.root, depth=False)[0]
         return self._linear
 
 
