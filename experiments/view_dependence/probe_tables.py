@@ -10,7 +10,11 @@ scores of ``evaluate_points``), never typed:
 * ``cue_oracle.md`` from ``docs/log/probes/cue_oracle.json``;
 * ``retraining.md``: the Table 2 scores of ``gspi-reproduce table=2 scale=probe recon=<name>``
   (``docs/results/scores/table2_probe_<name>/``) or of its checkpoints measured before the last
-  step (``docs/log/probes/retraining/<name>.json``), one row per Stage 0 config.
+  step (``docs/log/probes/retraining/<name>.json``), one row per Stage 0 config;
+* ``retraining_shipped.md``: the same at the shipped scale, Table 2's Full runs under ``recon=fast``
+  (``docs/results/scores/table2_cpu/``) against ``scale=cpu_view``'s (``table2_cpu_<recon>/``, or a
+  checkpoint measured before its last step: ``docs/log/probes/retraining_shipped/<recon>_s<seed>.json``),
+  with issue 52's held-out targets met or not.
 A table whose scores are not committed yet is left out.
 """
 from __future__ import annotations
@@ -40,6 +44,17 @@ def channel(per_scene: dict, name: str) -> dict[str, float]:
 
 def is_multi_part(scene: str) -> bool:
     return "multipart" in scene
+
+
+def is_metal_class(scene: str) -> bool:
+    """A pool scene of the metal class: the pool names a scene ``p<index>_<shape>_<class>``."""
+    return scene.endswith("_metal") and not scene.endswith("_painted_metal")
+
+
+def mean_iou(runs: list[dict], keep=lambda scene: True) -> float:
+    """Mean metal IoU of Stage II over the runs' scenes that ``keep`` and whose IoU is defined
+    (metal in the ground truth or in the prediction)."""
+    return float(np.mean([v for r in runs for s, v in r["metal_iou"]["stage2"].items() if v is not None and keep(s)]))
 
 
 def fmt_ci(mean: float, lo: float, hi: float) -> str:
@@ -84,8 +99,8 @@ def patch_table(whole: dict, patch: dict) -> str:
 
 def retraining_table(by_recon: dict[str, list[dict]]) -> str:
     """One row per Stage 0 config: its Full model's held-out channels, metal class and multi-part."""
-    lines = ["| Stage 0 of the conditions | training step | seeds | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | metal IoU (scenes with metal) | metal IoU (multi-part) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| Stage 0 of the conditions | training step | seeds | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | metal IoU (scenes with metal) | metal IoU (metal class) | metal IoU (multi-part) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for recon, runs in by_recon.items():
         if not runs:
             continue
@@ -93,21 +108,45 @@ def retraining_table(by_recon: dict[str, list[dict]]) -> str:
         rough = {(s, i): v for i, r in enumerate(runs) for s, v in channel(r["per_scene"]["stage2"], "roughness").items()}
         base = {(s, i): v for i, r in enumerate(runs)
                 for s, v in channel(r["per_scene"]["no_decomposition"], "roughness").items()}
-        ious = [v for r in runs for v in r["metal_iou"]["stage2"].values() if v is not None]
-        multi = [v for r in runs for s, v in r["metal_iou"]["stage2"].items() if v is not None and is_multi_part(s)]
         steps = ", ".join(str(r.get("checkpoint_step", "?")) for r in runs)
         lines.append(f"| {recon} | {steps} | {len(runs)} | {ch['albedo']:.2f} | {ch['roughness']:.2f} | {ch['metallic']:.2f} | "
                      f"{np.mean(list(ch.values())):.2f} | {fmt_ci(*paired_bootstrap_ci(rough, base))} | "
-                     f"{np.mean(ious):.2f} | {np.mean(multi):.2f} |")
-    if len(by_recon.get("fast", [])) == 1 and all(len(by_recon.get(r, [])) == 1 for r in by_recon):
-        ref = by_recon["fast"][0]["per_scene"]["stage2"]
-        for recon, runs in by_recon.items():
-            if recon != "fast":
-                other = runs[0]["per_scene"]["stage2"]
-                lines.append("")
-                lines.append(f"{recon} - fast, paired over the held-out scenes: avg {fmt_ci(*paired_bootstrap_ci(scene_avg(other), scene_avg(ref)))}, "
-                             f"roughness {fmt_ci(*paired_bootstrap_ci(channel(other, 'roughness'), channel(ref, 'roughness')))}, "
-                             f"metallic {fmt_ci(*paired_bootstrap_ci(channel(other, 'metallic'), channel(ref, 'metallic')))} dB.")
+                     f"{mean_iou(runs):.2f} | {mean_iou(runs, is_metal_class):.2f} | {mean_iou(runs, is_multi_part):.2f} |")
+    ref = by_seed(by_recon.get("fast", []))
+    for recon, runs in by_recon.items():
+        seeds = sorted(set(ref) & set(by_seed(runs)))
+        if recon == "fast" or not seeds:
+            continue
+        other = by_seed(runs)
+        pair = lambda get, d: {(s, seed): v for seed in seeds for s, v in get(d[seed]).items()}  # noqa: E731
+        diff = {name: fmt_ci(*paired_bootstrap_ci(pair(get, other), pair(get, ref))) for name, get in (
+            ("avg", scene_avg), ("roughness", lambda d: channel(d, "roughness")),
+            ("metallic", lambda d: channel(d, "metallic")))}
+        over = "the held-out scenes" if len(seeds) == 1 else f"(scene, seed) over seeds {', '.join(map(str, seeds))}"
+        lines += ["", f"{recon} - fast, paired over {over}: avg {diff['avg']}, roughness {diff['roughness']}, "
+                      f"metallic {diff['metallic']} dB."]
+    return "\n".join(lines) + "\n"
+
+
+def by_seed(runs: list[dict]) -> dict[int, dict]:
+    """{training seed: the run's per-scene Stage II scores}."""
+    return {int(r.get("train_seed") or 0): r["per_scene"]["stage2"] for r in runs}
+
+
+def targets_table(by_recon: dict[str, list[dict]]) -> str:
+    """Issue 52's held-out targets per Stage 0 config: roughness above no decomposition with a
+    paired 95 % CI above 0, metal class IoU >= 0.8, multi-part metal IoU >= 0.6 (all seeds pooled)."""
+    lines = ["| Stage 0 of the conditions | seeds | roughness CI above no decomposition | metal class IoU >= 0.8 | "
+             "multi-part metal IoU >= 0.6 |", "|---|---|---|---|---|"]
+    for recon, runs in by_recon.items():
+        rough = {(s, i): v for i, r in enumerate(runs) for s, v in channel(r["per_scene"]["stage2"], "roughness").items()}
+        base = {(s, i): v for i, r in enumerate(runs)
+                for s, v in channel(r["per_scene"]["no_decomposition"], "roughness").items()}
+        lo = paired_bootstrap_ci(rough, base)[1]
+        iou, multi = mean_iou(runs, is_metal_class), mean_iou(runs, is_multi_part)
+        mark = lambda ok, text: f"{'yes' if ok else 'no'} ({text})"  # noqa: E731
+        lines.append(f"| {recon} | {len(runs)} | {mark(lo > 0, f'lower bound {lo:+.2f}')} | "
+                     f"{mark(iou >= 0.8, f'{iou:.2f}')} | {mark(multi >= 0.6, f'{multi:.2f}')} |")
     return "\n".join(lines) + "\n"
 
 
@@ -141,6 +180,19 @@ def tables() -> dict[str, str]:
         out["retraining.md"] = ("Full of the probe recipe (32 matte-pool scenes, cpu_pool224_pixel), trained under each "
                                 "Stage 0's conditions and measured on the 32 held-out scenes reconstructed by the same "
                                 "Stage 0 (10 DDIM steps, 20000 points).\n\n" + retraining_table(by_recon))
+    shipped: dict[str, list[dict]] = {"fast": [json.loads(p.read_text()) for p in sorted(
+        (ROOT / "docs" / "results" / "scores" / "table2_cpu").glob("full_s*/scores.json"))]}
+    for p in sorted((ROOT / "docs" / "results" / "scores").glob("table2_cpu_*/full_s*/scores.json")):
+        shipped.setdefault(p.parent.parent.name.removeprefix("table2_cpu_"), []).append(json.loads(p.read_text()))
+    for p in sorted((PROBES / "retraining_shipped").glob("*.json")):  # <recon>_s<seed>: measured before the last step
+        shipped.setdefault(p.stem.rsplit("_s", 1)[0], []).append(json.loads(p.read_text()))
+    if len(shipped) > 1:
+        out["retraining_shipped.md"] = (
+            "Full of the shipped recipe (224 matte-pool scenes, cpu_pool224_pixel_5k, 5000 steps): `gspi-reproduce "
+            "table=2 scale=cpu` (recon=fast) against `scale=cpu_view` (recon=fast_view_mild), each measured on the 32 "
+            "held-out parts-pool scenes reconstructed by its own Stage 0 (10 DDIM steps, 20000 points); a run measured "
+            "before its last step shows that step.\n\n" + retraining_table(shipped) + "\nIssue 52's held-out targets:\n\n"
+            + targets_table(shipped))
     return {name: f"<!-- generated by python -m experiments.view_dependence.probe_tables; do not edit -->\n{text}"
             for name, text in out.items()}
 
