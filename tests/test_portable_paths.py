@@ -38,3 +38,19 @@ def test_the_pattern_catches_what_it_should():
     assert MACHINE_PATH.search("WORK=/root/data/x") and MACHINE_PATH.search("`/Users/u/data`")
     assert MACHINE_PATH.search("WORK=${WORK:-/root/data/x}")  # a shell default
     assert not MACHINE_PATH.search("runs/method=gspi/work/s002/pbr_gs.ply") and not MACHINE_PATH.search("out=/tmp/t3")
+
+
+def test_the_committed_training_log_names_runs_without_a_machine_path(tmp_path):
+    """gspi-train appends to docs/log/stage2_runs.jsonl (committed): a run under the repository by
+    its relative path, a run elsewhere (here a temporary folder) without its machine root."""
+    import json
+
+    from gspi.stage2.train import append_run_log
+
+    stats = {"seed": 0, "resumed_from": 0, "steps": 10, "total_steps": 10, "wall_time_s": 1.0, "final_loss": 0.5}
+    log = tmp_path / "runs.jsonl"
+    append_run_log(log, tmp_path / "elsewhere" / "full_s0", stats, cpu_s=1.0, commit=None)
+    append_run_log(log, ROOT / "data" / "runs" / "full_s1", stats, cpu_s=1.0, commit=None)
+    lines = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [line["out"] for line in lines] == ["<elsewhere>/elsewhere/full_s0", "data/runs/full_s1"]
+    assert not MACHINE_PATH.search(log.read_text())

@@ -159,12 +159,19 @@ def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, cpu_s: float
     import datetime
     import json
 
+    from gspi.reproduce.portable import portable_path
+
+    repo = Path(__file__).resolve().parents[2]
     path = Path(path)
     if not path.is_absolute():
-        path = Path(__file__).resolve().parents[2] / path
+        path = repo / path
     path.parent.mkdir(parents=True, exist_ok=True)
+    out = Path(out_dir).resolve()
+    # the log is committed: a run under the repository by its relative path, any other by
+    # "<elsewhere>/<last two parts>" (no machine path in a tracked file, tests/test_portable_paths.py)
+    out_text = str(out.relative_to(repo)) if out.is_relative_to(repo) else portable_path(str(out), {})
     line = {"finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "out": str(Path(out_dir).resolve()), "commit": commit, "seed": stats["seed"],
+            "out": out_text, "commit": commit, "seed": stats["seed"],
             "steps": [stats["resumed_from"], stats["steps"]], "of": stats["total_steps"],
             "done": stats["steps"] >= stats["total_steps"], "wall_s_total": stats["wall_time_s"],
             "cpu_s_this_run": round(cpu_s, 1), "final_loss": stats["final_loss"]}
