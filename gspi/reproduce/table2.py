@@ -79,7 +79,7 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     """Train one (variant, seed) in chunks, then measure it and commit its scores."""
     recon = cfg["recon"]
     name = run_name(variant, seed)
-    run_dir = work / f"runs_{recon}" / name  # a work folder may hold runs under several Stage 0 configs
+    run_dir = work / (cfg.get("runs") or f"runs_{recon}") / name  # a work folder holds runs of several conditions
     train = [tool("gspi-train"), f"data={work / f'rtrain_{recon}'}", f"out={run_dir}", f"stage2={cfg['stage2']}",
              f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
