@@ -16,7 +16,7 @@ import pytest
 
 from gspi.cli import reproduce as cli
 from gspi.reproduce.plan import Step, StepFailed, blocks, run_plan
-from gspi.reproduce.portable import portable, portable_path
+from eval.portable import portable, portable_path
 from tests.machine_paths import MACHINE_PATH
 
 ROOT = Path(__file__).resolve().parents[1]

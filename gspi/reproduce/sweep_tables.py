@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from gspi.reproduce.plan import Step
-from gspi.reproduce.portable import portable
+from eval.portable import portable
 from gspi.reproduce.table2 import tool
 
 # what a job folder's record is made of (gspi-table reads a sweep of such folders; docs/log/demo/README.md)

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from gspi.reproduce.plan import Step
-from gspi.reproduce.portable import write_portable_scores
+from eval.portable import write_portable_scores
 
 BIN = Path(sys.executable).parent
 

@@ -159,15 +159,16 @@ def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, cpu_s: float
     import datetime
     import json
 
+    from eval.portable import portable_path
+
     repo = Path(__file__).resolve().parents[2]
     path = Path(path)
     if not path.is_absolute():
         path = repo / path
     path.parent.mkdir(parents=True, exist_ok=True)
-    out = Path(out_dir).resolve()
     # the log is committed: a run under the repository by its relative path, any other by
     # "<elsewhere>/<last two parts>" (no machine path in a tracked file, tests/test_portable_paths.py)
-    out_text = str(out.relative_to(repo)) if out.is_relative_to(repo) else "/".join(("<elsewhere>", *out.parts[-2:]))
+    out_text = portable_path(str(Path(out_dir).resolve()), {"": repo})
     line = {"finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "out": out_text, "commit": commit, "seed": stats["seed"],
             "steps": [stats["resumed_from"], stats["steps"]], "of": stats["total_steps"],

@@ -14,15 +14,17 @@ from typing import Any, Mapping
 
 
 def portable_path(text: str, roots: Mapping[str, Path]) -> str:
-    """An absolute path as ``<root name>/relative``; other strings unchanged."""
+    """An absolute path as ``<root name>/relative`` (a root named "" gives the bare relative path);
+    other strings unchanged."""
     if not text.startswith("/"):
         return text
     path = Path(text)
     for name, root in roots.items():
         try:
-            return f"{name}/{path.relative_to(Path(root).resolve())}"
+            rel = path.relative_to(Path(root).resolve())
         except ValueError:
             continue
+        return f"{name}/{rel}" if name else str(rel)
     return "<elsewhere>/" + "/".join(path.parts[-2:])
 
 
