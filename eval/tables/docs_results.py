@@ -112,26 +112,24 @@ def table1_block() -> str:
             f"({round(100 * BOOTSTRAP['confidence'])} % paired bootstrap CI, {BOOTSTRAP['n_resamples']} resamples).\n")
 
 
-def table1_file() -> str:
-    """gspi-table's full Table 1 (PSNR, SSIM, LPIPS, runtime) of the committed demo records."""
+def sweep_table_file(folder: Path, table: str, source: str) -> str:
+    """gspi-table's ``table`` of the gspi-run records committed under ``folder``."""
     from eval.sweep import load_sweep
     from eval.tables.build import TABLE_SPECS, build_sweep_table
     from eval.tables.render import to_markdown
 
-    sweep = load_sweep([DEMO], tables=("table1",))
-    return HEADER.format(source="docs/log/demo/ (the demo's gspi-run records)") + _relative(
-        to_markdown(build_sweep_table(sweep, TABLE_SPECS["table1"]), sweep))
+    sweep = load_sweep([folder], tables=(table,))
+    return HEADER.format(source=source) + _relative(to_markdown(build_sweep_table(sweep, TABLE_SPECS[table]), sweep))
+
+
+def table1_file() -> str:
+    """gspi-table's full Table 1 (PSNR, SSIM, LPIPS, runtime) of the committed demo records."""
+    return sweep_table_file(DEMO, "table1", "docs/log/demo/ (the demo's gspi-run records)")
 
 
 def table3_file() -> str:
     """gspi-table's Table 3 (Stage III ablations) of the committed Table 3 sweep records."""
-    from eval.sweep import load_sweep
-    from eval.tables.build import TABLE_SPECS, build_sweep_table
-    from eval.tables.render import to_markdown
-
-    sweep = load_sweep([TABLE3], tables=("table3",))
-    return HEADER.format(source="docs/log/table3/ (gspi-reproduce table=3 scale=cpu's gspi-run records)") + \
-        _relative(to_markdown(build_sweep_table(sweep, TABLE_SPECS["table3"]), sweep))
+    return sweep_table_file(TABLE3, "table3", "docs/log/table3/ (gspi-reproduce table=3 scale=cpu's gspi-run records)")
 
 
 def table2_file() -> str:

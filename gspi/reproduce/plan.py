@@ -128,7 +128,7 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
     many ``lane_group``s of a block run side by side."""
     todo = [s for s in steps if not s.is_done() and (not only or any(s.name.startswith(p) for p in only))]
     for step in steps:
-        state = "done" if step not in todo and step.done.exists() else ("to do" if step in todo else "skipped (only=)")
+        state = "to do" if step in todo else ("done" if step.is_done() else "skipped (only=)")
         log.info("[%s] %s", state, step.name)
     if dry_run:
         for step in todo:
