@@ -12,6 +12,21 @@ prints markdown.
 
     python -m experiments.view_dependence.cue_oracle exact=HELDOUT32 fast=RHELD_FAST fast_view=RHELD_VIEW \
         --out docs/log/probes/cue_oracle.json
+
+Two questions the first table left open (session 25), both from ``NAME=TRAIN_FOLDER,TEST_FOLDER``:
+
+* **Does the per-point cue grow with data?** ``--train-scenes 32,64,128,224`` fits the oracle on
+  nested prefixes of a seeded permutation of the training folder's scenes and scores each on the
+  same test scenes: the learning curve behind any "needs more data" claim.
+* **Does a part's cue need its neighbours?** The feature set ``+ neighbourhood`` adds the mean of the
+  cross-view statistic and of Top-RGB over each point's k nearest surface points (k in
+  ``NEIGHBOURHOODS``, geometry only, the scene's own subset): a point that shows no highlight in any
+  lattice view can take its part's. If it lifts the metal IoU where per-point features stop, the
+  decision is part-level and the fix is in how Stage II pools, not in the conditions.
+
+    python -m experiments.view_dependence.cue_oracle exact=TRAIN_VIEW,HELDOUT_TEST \
+        fast_view_mild=RTRAIN_VIEW_MILD,RHELDOUT_VIEW_MILD --train-scenes 32,64,128,224 --steps 5000 \
+        --out docs/log/probes/cue_oracle_curve.json
 """
 from __future__ import annotations
 
@@ -26,7 +41,21 @@ from torch import nn
 from eval.layout import read_splits
 
 POINTS_PER_SCENE = 3000
-FEATURE_SETS = {"R1": ("top_rgb", "onehot"), "R1 + cross-view": ("top_rgb", "onehot", "cross_view")}
+NEIGHBOURHOODS = (32, 256)  # k nearest of the scene's 3000 subset points: ~1 % and ~8 % of its surface
+FEATURE_SETS = {"R1": ("top_rgb", "onehot"), "R1 + cross-view": ("top_rgb", "onehot", "cross_view"),
+                "R1 + cross-view + neighbourhood": ("top_rgb", "onehot", "cross_view",
+                                                    *(f"{f}_knn{k}" for k in NEIGHBOURHOODS
+                                                      for f in ("cross_view", "top_rgb")))}
+
+
+def neighbourhood_mean(xyz: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
+    """[n, d] the mean of ``values`` over each point's ``k`` nearest points of ``xyz`` (itself
+    included; all of them when k >= n), by scipy's cKDTree."""
+    from scipy.spatial import cKDTree
+
+    k = min(k, len(xyz))
+    _, idx = cKDTree(xyz).query(xyz, k=k)
+    return values[idx.reshape(len(xyz), k)].mean(axis=1)
 
 
 def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
@@ -43,8 +72,11 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     xyz = pts["xyz"][keep].astype(np.float64)
     stats = cross_view_radiance(images, depth, cams, xyz)
     gen = json.loads((scene_dir / "scene.json").read_text()).get("generator", {})
-    return {"top_rgb": srgb_top_rgb(pts["rgb"][keep]), "onehot": np.eye(32, dtype=np.float32)[pts["view"][keep]],
-            "cross_view": condition_features(stats),
+    arrays = {"top_rgb": srgb_top_rgb(pts["rgb"][keep]), "cross_view": condition_features(stats)}
+    for k in NEIGHBOURHOODS:
+        arrays.update({f"{f}_knn{k}": neighbourhood_mean(xyz, arrays[f], k).astype(np.float32)
+                       for f in ("cross_view", "top_rgb")})
+    return {**arrays, "onehot": np.eye(32, dtype=np.float32)[pts["view"][keep]],
             "roughness": pts["roughness"][keep].astype(np.float32), "metallic": pts["metallic"][keep].astype(np.float32),
             "multi_part": np.full(len(keep), "parts" in gen.get("material", {}))}
 
@@ -80,7 +112,7 @@ def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
     return float(10 * np.log10(1.0 / max(np.mean((pred - gt) ** 2), 1e-12)))
 
 
-def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]]) -> dict:
+def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]], *, steps: int = 1500) -> dict:
     """``version``: {scene: arrays} holding every scene the folds name."""
     # per feature set: held-out metallic IoU (all, multi-part), roughness PSNR (model, constant)
     out = {}
@@ -90,7 +122,7 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]])
             cat = lambda names, k: np.concatenate([version[n][k] for n in names])  # noqa: E731
             x_tr = np.concatenate([cat(train, k) for k in keys], axis=1)
             y_tr = np.stack([cat(train, "roughness"), cat(train, "metallic")], axis=1)
-            model = fit_mlp(x_tr, y_tr)
+            model = fit_mlp(x_tr, y_tr, steps=steps)
             with torch.no_grad():
                 pred = torch.sigmoid(model(torch.from_numpy(np.concatenate([cat(test, k) for k in keys], axis=1)).float())).numpy()
             rough, metal, multi = cat(test, "roughness"), cat(test, "metallic"), cat(test, "multi_part")
@@ -102,35 +134,62 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]])
     return out
 
 
+def nested_subsets(names: list[str], sizes: list[int], seed: int) -> dict[int, list[str]]:
+    """{n: the first n of a seeded permutation of ``names``} (sorted): each larger set holds the
+    smaller ones, so a learning curve changes one thing, the number of training scenes."""
+    if max(sizes) > len(names):
+        raise ValueError(f"--train-scenes asks for {max(sizes)} training scenes, the folder has {len(names)}")
+    order = [names[i] for i in np.random.default_rng(seed).permutation(len(names))]
+    return {n: sorted(order[:n]) for n in sizes}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("versions", nargs="+",
                         help="NAME=FOLDER (two folds by scene) or NAME=TRAIN_FOLDER,TEST_FOLDER: one set of conditions")
-    parser.add_argument("--out", type=Path)
+    parser.add_argument("--out", type=Path, help="JSON; its versions not named here are kept")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=int, default=1500, help="MLP training steps (batches of 2048 points)")
+    parser.add_argument("--train-scenes", default=None,
+                        help="comma-separated training-scene counts: a learning curve (NAME=TRAIN,TEST versions only)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     versions = {k: [Path(p) for p in v.split(",")] for k, v in (a.split("=", 1) for a in args.versions)}
+    sizes = [int(n) for n in args.train_scenes.split(",")] if args.train_scenes else None
+    if sizes and any(len(f) != 2 for f in versions.values()):
+        raise SystemExit("--train-scenes needs NAME=TRAIN_FOLDER,TEST_FOLDER versions")
     scenes = lambda folder: [n for s in ("train", "val", "test") for n in read_splits(folder).get(s, [])]  # noqa: E731
-    result = {"points_per_scene": POINTS_PER_SCENE, "versions": {}, "folds": {}}
-    lines = ["| conditions | features | metal IoU | metal IoU (multi-part) | roughness PSNR | constant |", "|---|---|---|---|---|---|"]
+    result = {"points_per_scene": POINTS_PER_SCENE, "steps": args.steps, "neighbourhoods": list(NEIGHBOURHOODS),
+              "versions": {}, "folds": {}}
+    if args.out and args.out.is_file():  # a curve grows by versions over sessions: keep the others
+        previous = json.loads(args.out.read_text())
+        if (previous.get("steps"), previous.get("neighbourhoods")) != (args.steps, list(NEIGHBOURHOODS)):
+            raise SystemExit(f"{args.out} was measured with other settings (steps, neighbourhoods): use another --out")
+        result["versions"], result["folds"] = previous["versions"], previous["folds"]
+    lines = ["| conditions | training scenes | features | metal IoU | metal IoU (multi-part) | roughness PSNR | constant |",
+             "|---|---|---|---|---|---|---|"]
     for vname, folders in versions.items():
         if len(folders) == 1:  # two folds by scene, seeded
             names = scenes(folders[0])
             order = np.random.default_rng(args.seed).permutation(len(names))
             half = [sorted(names[i] for i in order[: len(names) // 2]), sorted(names[i] for i in order[len(names) // 2:])]
-            folds = [(half[0], half[1]), (half[1], half[0])]
+            runs = {len(half[0]): [(half[0], half[1]), (half[1], half[0])]}
             arrays = {n: scene_arrays(folders[0] / n, args.seed) for n in names}
         else:  # train on one dataset's scenes, score on the other's
             train, test = scenes(folders[0]), scenes(folders[1])
-            folds = [(train, test)]
-            arrays = {**{n: scene_arrays(folders[0] / n, args.seed) for n in train},
+            subsets = nested_subsets(train, sizes, args.seed) if sizes else {len(train): train}
+            runs = {n: [(subset, test)] for n, subset in subsets.items()}
+            used = sorted(set().union(*subsets.values()))
+            arrays = {**{n: scene_arrays(folders[0] / n, args.seed) for n in used},
                       **{n: scene_arrays(folders[1] / n, args.seed) for n in test}}
-        result["folds"][vname] = folds
-        result["versions"][vname] = evaluate(arrays, folds)
-        for fs, r in result["versions"][vname].items():
-            lines.append(f"| {vname} | {fs} | {r['metal_iou']:.2f} | {r['metal_iou_multi_part']:.2f} | "
-                         f"{r['roughness_psnr']:.2f} | {r['roughness_psnr_constant']:.2f} |")
+        for n, folds in runs.items():
+            key = vname if len(runs) == 1 and not sizes else f"{vname}@{n}"
+            result["folds"][key] = folds
+            result["versions"][key] = evaluate(arrays, folds, steps=args.steps)
+            for fs, r in result["versions"][key].items():
+                lines.append(f"| {vname} | {n} | {fs} | {r['metal_iou']:.2f} | {r['metal_iou_multi_part']:.2f} | "
+                             f"{r['roughness_psnr']:.2f} | {r['roughness_psnr_constant']:.2f} |")
+            print(lines[-1], flush=True)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")

@@ -159,13 +159,16 @@ DEMO = ROOT / "docs" / "log" / "demo"
 DEMO_CHANNELS = ("albedo", "roughness", "metallic", "relight")
 
 
-def stage0_only_table(demo_runs: dict[str, dict], pairs: dict[str, dict]) -> str:
+def stage0_only_table(demo_runs: dict[str, dict], pairs: dict[str, dict], *,
+                      intro: str = "the shipped Stage II", label=lambda name: f"recon={name}") -> str:
     """Per demo scene and channel: PSNR under recon=fast (the demo's committed run) and under each
-    other Stage 0, with no decomposition's; s004-style metal IoU; then the controlled-pair fractions."""
+    other run (``label(name)`` names its column), with no decomposition's; s004-style metal IoU; then
+    the controlled-pair fractions."""
     meta = lambda method: json.loads((DEMO / f"method={method}" / "eval" / "eval_meta.json").read_text())["per_scene"]  # noqa: E731
     runs = {"fast": meta("gspi"), **{r: d["per_scene"] for r, d in demo_runs.items()}}
     nd = meta("no_decomposition")
-    head = "| scene | channel | no decomposition | " + " | ".join(f"GS-PI, recon={r}" for r in runs) + " |"
+    head = "| scene | channel | no decomposition | GS-PI, recon=fast | " + " | ".join(
+        f"GS-PI, {label(r)}" for r in list(runs)[1:]) + " |"
     lines = [head, "|---" * (3 + len(runs)) + "|"]
     for scene in sorted(nd):
         for c in DEMO_CHANNELS:
@@ -177,16 +180,27 @@ def stage0_only_table(demo_runs: dict[str, dict], pairs: dict[str, dict]) -> str
     for c in DEMO_CHANNELS:
         lines.append(f"| mean | {c} PSNR | {np.mean([nd[s][c]['psnr'] for s in nd]):.2f} | "
                      + " | ".join(f"{np.mean([v[s][c]['psnr'] for s in nd]):.2f}" for v in runs.values()) + " |")
-    out = "The demo's four `small` test scenes end to end (Stage III 300 iterations), the shipped Stage II:\n\n" + "\n".join(lines)
+    out = f"The demo's four `small` test scenes end to end (Stage III 300 iterations), {intro}:\n\n" + "\n".join(lines)
     if pairs:
         rows = ["| Stage 0 | glossy/matte pairs | ordered | ordered with gap >= 0.3 | metal/dielectric pairs | separated at 0.5 |",
                 "|---|---|---|---|---|---|"]
         for recon, d in pairs.items():
-            rows.append(f"| {recon} | {d['roughness']['pairs']} | {d['roughness']['ordered']:.2f} | "
-                        f"{d['roughness']['ordered_with_gap']:.2f} | {d['metal']['pairs']} | {d['metal']['separated']:.2f} |")
+            rows.append(f"| {'recon=fast' if recon == 'fast' else label(recon)} | {d['roughness']['pairs']} | "
+                        f"{d['roughness']['ordered']:.2f} | {d['roughness']['ordered_with_gap']:.2f} | "
+                        f"{d['metal']['pairs']} | {d['metal']['separated']:.2f} |")
         out += ("\n\nControlled pairs end to end at `small` (`benchmarks/bench_controlled_pairs.py`; the 6-pair set, "
                 "`data.controlled_pairs.colours=1`):\n\n" + "\n".join(rows))
     return out + "\n"
+
+
+def end_to_end_runs(folder: Path) -> tuple[dict[str, dict], dict[str, dict]]:
+    """({name: demo run}, {name: controlled-pairs result}) of a folder's ``demo_<name>.json`` and
+    ``controlled_pairs_<name>.json``, the pairs led by recon=fast's committed benchmark."""
+    demo_runs = {p.stem.removeprefix("demo_"): json.loads(p.read_text()) for p in sorted(folder.glob("demo_*.json"))}
+    pairs = {"fast": json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())}
+    pairs.update({p.stem.removeprefix("controlled_pairs_"): json.loads(p.read_text())
+                  for p in sorted(folder.glob("controlled_pairs_*.json"))})
+    return demo_runs, (pairs if len(pairs) > 1 else {})
 
 
 def tables() -> dict[str, str]:
@@ -232,13 +246,15 @@ def tables() -> dict[str, str]:
             "held-out parts-pool scenes reconstructed by its own Stage 0 (10 DDIM steps, 20000 points); a run measured "
             "before its last step shows that step.\n\n" + retraining_table(shipped) + "\nIssue 52's held-out targets:\n\n"
             + targets_table(shipped))
-    only = PROBES / "stage0_only"
-    demo_runs = {p.stem.removeprefix("demo_"): json.loads(p.read_text()) for p in sorted(only.glob("demo_*.json"))}
+    demo_runs, pairs = end_to_end_runs(PROBES / "stage0_only")
     if demo_runs:
-        pairs = {"fast": json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())}
-        pairs.update({p.stem.removeprefix("controlled_pairs_"): json.loads(p.read_text())
-                      for p in sorted(only.glob("controlled_pairs_*.json"))})
-        out["stage0_only.md"] = stage0_only_table(demo_runs, pairs if len(pairs) > 1 else {})
+        out["stage0_only.md"] = stage0_only_table(demo_runs, pairs)
+    demo_runs, pairs = end_to_end_runs(PROBES / "retrained_end_to_end")  # <recon>_<run>: a retrained model
+    if demo_runs or pairs:
+        out["retrained_end_to_end.md"] = stage0_only_table(
+            demo_runs, pairs, intro="the shipped Stage II under recon=fast against the models retrained at the shipped "
+            "scale under a view-keeping Stage 0 (`docs/results/probes/retraining_shipped.md`), each behind its own Stage 0",
+            label=lambda name: "recon={}, retrained {}".format(*name.split("_retrained_")))
     return {name: f"<!-- generated by python -m experiments.view_dependence.probe_tables; do not edit -->\n{text}"
             for name, text in out.items()}
 
