@@ -203,3 +203,27 @@ def test_feature_spread_extends_the_local_condition(scene):
                                                                        tol_pixels=2.0))
     with pytest.raises(ValueError, match="pixel_feature_spread needs the prior encoder's maps"):
         local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot", pixel_feature_spread=True)
+
+
+def test_whole_object_subset_spans_the_object_and_sample_batch_uses_it(scene):
+    from gspi.stage2.data import PointDataConfig, sample_batch, whole_object_subset
+
+    rng = np.random.default_rng(0)
+    n = 128
+    idx = whole_object_subset(scene, n, rng)
+    assert len(set(idx.tolist())) == n and np.all(np.diff(idx) > 0)
+    # a uniform draw reaches about as far as the object does; a kNN ball of the same size does not
+    extent = lambda pts: np.linalg.norm(pts - pts.mean(0), axis=1).max()  # noqa: E731
+    assert extent(scene.xyz[idx]) > 0.8 * extent(scene.xyz)
+    assert extent(scene.xyz[local_subset(scene, n, rng)]) < 0.6 * extent(scene.xyz)
+    np.testing.assert_array_equal(whole_object_subset(scene, scene.num_points + 5, rng), np.arange(scene.num_points))
+    cfg = PointDataConfig(num_points=n, subset="whole")
+    f0, inputs = sample_batch([scene], cfg, 2, np.random.default_rng(3))
+    assert f0.shape == (2, n, 5) and inputs.xyz.shape == (2, n, 3)
+
+
+def test_an_unknown_subset_names_the_key():
+    from gspi.stage2.data import PointDataConfig
+
+    with pytest.raises(ValueError, match=r"stage2.data.subset must be one of \['local', 'whole'\], got 'global'"):
+        PointDataConfig.from_mapping({"subset": "global"})

@@ -79,7 +79,8 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     """Train one (variant, seed) in chunks, then measure it and commit its scores."""
     recon = cfg["recon"]
     name = run_name(variant, seed)
-    run_dir = work / (cfg.get("runs") or f"runs_{recon}") / name  # a work folder holds runs of several conditions
+    runs = cfg.get("runs") or f"runs_{recon}"
+    run_dir = work / runs / name  # a work folder holds runs of several conditions
     train = [tool("gspi-train"), f"data={work / f'rtrain_{recon}'}", f"out={run_dir}", f"stage2={cfg['stage2']}",
              f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
@@ -94,7 +95,7 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     commit = lambda: write_portable_scores(run_dir / "eval" / "scores.json", scores,  # noqa: E731
                                            data_label=m["data_label"], roots={"<work>": work})
     return [
-        Step(f"train: {name}", work / ".done" / f"train_{name}", train,
+        Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
              repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name),
         Step(f"measure: {name}", scores, measure, after=commit, env={"OMP_NUM_THREADS": "1"}, lane_group=name,
              marker=False),

@@ -12,6 +12,9 @@ linear RGB and PBR ground truth. From it:
 * **Local subset** of ``num_points`` (N_train = 512): a uniformly random centre point and its
   N nearest neighbours (scipy ``cKDTree`` on the unperturbed cloud; the subset is perturbed
   afterwards, which is the same distribution as perturbing the whole cloud first).
+  ``stage2.data.subset=whole`` (issue 52's named departure, not the paper) draws the N points
+  uniformly from the whole object instead: every item shows all of the object's parts at once, as
+  inference does (the whole cloud through the same latents), at a sparser density.
 * **Coordinates**: the unit-sphere frame (``normalize.fit_unit_sphere``) of the whole
   unperturbed scene cloud, shared by all its subsets.
 * **Local condition** (``stage2.data.local_condition``):
@@ -199,6 +202,16 @@ def local_subset(scene: ScenePoints, num_points: int, rng: np.random.Generator) 
     return np.asarray(idx, dtype=np.int64)
 
 
+def whole_object_subset(scene: ScenePoints, num_points: int, rng: np.random.Generator) -> np.ndarray:
+    """[num_points] indices drawn uniformly without replacement from the whole object (all if fewer)."""
+    if num_points >= scene.num_points:
+        return np.arange(scene.num_points)
+    return np.sort(rng.choice(scene.num_points, num_points, replace=False))
+
+
+SUBSETS = {"local": local_subset, "whole": whole_object_subset}  # stage2.data.subset -> item sampler
+
+
 def multiview_condition(scene: ScenePoints, xyz: np.ndarray, *, tol_pixels: float,
                         chunk: int = 65536) -> np.ndarray:
     """A5 condition [n, 32 * 4]: per lattice view (view-major) sRGB at the projection + visibility."""
@@ -309,6 +322,7 @@ class PointDataConfig:
     """``stage2.data``: how items are drawn from the GT point clouds."""
 
     num_points: int = 512  # N_train points per local subset (A3/A4: 1024)
+    subset: str = "local"  # local: a point and its N nearest (paper) | whole: N points over the object (issue 52)
     perturb_pixels: float = 0.5  # depth-noise sigma in pixel footprints at the point's depth
     local_condition: str = "top_rgb_onehot"  # top_rgb_onehot (35) | top_rgb (A2, 3) | multiview (A5, 128)
     visibility_tol_pixels: float = 2.0  # A5 depth test tolerance, in pixel footprints
@@ -321,6 +335,8 @@ class PointDataConfig:
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
         out = cls(**dict(cfg))
         local_condition_dim(out.local_condition)
+        if out.subset not in SUBSETS:
+            raise ValueError(f"stage2.data.subset must be one of {sorted(SUBSETS)}, got {out.subset!r}")
         return out
 
     def condition_width(self, feature_dim: int) -> int:
@@ -349,7 +365,7 @@ def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: n
 
 def sample_batch(scenes: list[ScenePoints], cfg: PointDataConfig, batch_size: int,
                  rng: np.random.Generator) -> tuple[Tensor, Stage2Inputs]:
-    """One training batch: B items, each a local subset of a uniformly drawn scene.
+    """One training batch: B items, each a subset (``cfg.subset``) of a uniformly drawn scene.
 
     Returns:
         f0 [B, N, 5] in [-1, 1] and Stage2Inputs (xyz [B, N, 3] unit sphere, local_cond
@@ -358,7 +374,7 @@ def sample_batch(scenes: list[ScenePoints], cfg: PointDataConfig, batch_size: in
     xyz, cond, f0, tokens, view_ids = [], [], [], [], []
     for _ in range(batch_size):
         scene = scenes[int(rng.integers(len(scenes)))]
-        idx = local_subset(scene, cfg.num_points, rng)
+        idx = SUBSETS[cfg.subset](scene, cfg.num_points, rng)
         if len(idx) < cfg.num_points:
             raise ValueError(f"scene {scene.name} has {len(idx)} points < num_points {cfg.num_points}")
         x, c, f = scene_item(scene, idx, cfg, rng)
