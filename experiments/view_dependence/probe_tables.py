@@ -6,8 +6,13 @@ scores of ``evaluate_points``), never typed:
 
 * ``stage0_view_dependence.md`` from ``docs/log/probes/stage0_view_dependence.json``;
 * ``patch_inference.md``: ``docs/log/probes/patch_inference/<mode>.json`` (``whole``, ``patch512``),
-  per scene and the paired differences (95 % bootstrap CI over scenes);
+  per scene and the paired differences (95 % bootstrap CI over scenes); the same for a retrained
+  model, ``patch_inference_<scores folder>_<run>.md``: its 512-point-patch scores
+  ``docs/log/probes/patch_inference_retrained/<scores folder>__<run>.json`` against its committed
+  whole-cloud Table 2 scores;
 * ``cue_oracle.md`` from ``docs/log/probes/cue_oracle.json``;
+* ``cue_oracle_curve.md`` from ``docs/log/probes/cue_oracle_curve.json``: the oracle's learning curve
+  over training scenes, per feature set (with the neighbourhood features) and conditions;
 * ``retraining.md``: the Table 2 scores of ``gspi-reproduce table=2 scale=probe recon=<name>``
   (``docs/results/scores/table2_probe_<name>/``) or of its checkpoints measured before the last
   step (``docs/log/probes/retraining/<name>.json``), one row per Stage 0 config;
@@ -66,7 +71,8 @@ def fmt_ci(mean: float, lo: float, hi: float) -> str:
     return f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]"
 
 
-def patch_table(whole: dict, patch: dict) -> str:
+def patch_table(whole: dict, patch: dict, *, model: str = "The shipped checkpoint",
+                scenes: str = "the metal class and the multi-part scenes") -> str:
     """Per scene and in the mean: avg, roughness, metallic PSNR and metal IoU, whole vs patches."""
     common = sorted(set(whole["per_scene"]["stage2"]) & set(patch["per_scene"]["stage2"]))  # patches ran on a subset
     pick = lambda d: {k: v for k, v in d.items() if k in common}  # noqa: E731
@@ -89,6 +95,7 @@ def patch_table(whole: dict, patch: dict) -> str:
                    f"{fmt_ci(*paired_bootstrap_ci(b, a))} |")
     out.append(f"| roughness PSNR, no decomposition | {np.mean(list(channel(nd, 'roughness').values())):.2f} | | |")
     for label, keep in (("metal IoU, scenes with metal", lambda s: True),
+                        ("metal IoU, metal class", is_metal_class),
                         ("metal IoU, multi-part scenes", is_multi_part)):
         a = {s: v for s, v in wi.items() if v is not None and keep(s)}
         b = {s: v for s, v in pi.items() if v is not None and keep(s)}
@@ -96,8 +103,8 @@ def patch_table(whole: dict, patch: dict) -> str:
         if both:
             out.append(f"| {label} ({len(both)}) | {np.mean([a[s] for s in both]):.2f} | "
                        f"{np.mean([b[s] for s in both]):.2f} | {fmt_ci(*paired_bootstrap_ci(b, a))} |")
-    head = (f"The shipped checkpoint ({whole.get('checkpoint', '?')}) on {len(common)} held-out pool scenes "
-            f"({whole['data']}: the metal class and the multi-part scenes), {whole['num_steps']} DDIM steps, "
+    head = (f"{model} ({whole.get('checkpoint', '?')}) on {len(common)} held-out pool scenes "
+            f"({whole['data']}: {scenes}), {whole['num_steps']} DDIM steps, "
             f"{whole.get('max_points')} points per scene.")
     return head + "\n\n" + "\n".join(out) + "\n\nPer scene:\n\n" + "\n".join(lines) + "\n"
 
@@ -203,6 +210,35 @@ def end_to_end_runs(folder: Path) -> tuple[dict[str, dict], dict[str, dict]]:
     return demo_runs, (pairs if len(pairs) > 1 else {})
 
 
+def oracle_curve_table(data: dict) -> str:
+    """Per measure, rows (conditions, features) and a column per training-scene count."""
+    by_row: dict[tuple[str, str], dict[int, dict]] = {}
+    for key, sets in data["versions"].items():
+        version, n = key.rsplit("@", 1)
+        for fs, r in sets.items():
+            by_row.setdefault((version, fs), {})[int(n)] = r
+    sizes = sorted({n for cells in by_row.values() for n in cells})
+    measures = [("metal-class IoU, per scene (Table 2's units; target 0.8)", lambda r: r.get("metal_iou_metal_class")),
+                ("multi-part scenes' metal IoU, per scene (target 0.6)", lambda r: r.get("metal_iou_multi_part_scenes")),
+                ("metal IoU, all test points pooled", lambda r: r["metal_iou"]),
+                ("roughness PSNR minus the training-mean constant's (dB)",
+                 lambda r: r["roughness_psnr"] - r["roughness_psnr_constant"])]
+    out = [f"A per-point MLP ({data['steps']} steps, {data['points_per_scene']} points per scene) trained on the first n "
+           "scenes of a seeded permutation of the 224 matte-pool training scenes and scored on the 32 held-out parts-pool "
+           "scenes, on the exact renders' conditions and on `recon=fast_view_mild`'s. Features: R1 = Top-RGB + source-view "
+           "one-hot; + cross-view = the per-point statistic over the lattice views (gspi/stage2/view_statistics.py); + "
+           f"neighbourhood = the means of the statistic and of Top-RGB over each point's k = {data['neighbourhoods']} "
+           "nearest points."]
+    for title, get in measures:
+        lines = [f"\n{title}:\n", "| conditions | features | " + " | ".join(f"n = {n}" for n in sizes) + " |",
+                 "|---|---|" + "---|" * len(sizes)]
+        for (version, fs), cells in by_row.items():
+            vals = [get(cells[n]) if n in cells else None for n in sizes]
+            lines.append(f"| {version} | {fs} | " + " | ".join("-" if v is None else f"{v:.2f}" for v in vals) + " |")
+        out.append("\n".join(lines))
+    return "\n".join(out) + "\n"
+
+
 def tables() -> dict[str, str]:
     """{file name: markdown} of every probe whose scores are committed."""
     from experiments.view_dependence.stage0_probe import class_table
@@ -214,6 +250,12 @@ def tables() -> dict[str, str]:
     whole, patch = PROBES / "patch_inference" / "whole.json", PROBES / "patch_inference" / "patch512.json"
     if whole.is_file() and patch.is_file():
         out["patch_inference.md"] = patch_table(json.loads(whole.read_text()), json.loads(patch.read_text()))
+    for patch in sorted((PROBES / "patch_inference_retrained").glob("*__*.json")):  # <scores folder>__<run>.json
+        folder, run = patch.stem.split("__")  # its whole-cloud scores: the run's committed Table 2 scores
+        whole = ROOT / "docs" / "results" / "scores" / folder / run / "scores.json"
+        out[f"patch_inference_{folder}_{run}.md"] = patch_table(
+            json.loads(whole.read_text()), json.loads(patch.read_text()),
+            model=f"{run} of `{folder}`, retrained at the shipped scale", scenes="all")
     oracle = PROBES / "cue_oracle.json"
     if oracle.is_file():
         data = json.loads(oracle.read_text())
@@ -224,6 +266,9 @@ def tables() -> dict[str, str]:
                 rows.append(f"| {version} | {fs} | {r['metal_iou']:.2f} | {r['metal_iou_multi_part']:.2f} | "
                             f"{r['roughness_psnr']:.2f} | {r['roughness_psnr_constant']:.2f} |")
         out["cue_oracle.md"] = "\n".join(rows) + "\n"
+    curve = PROBES / "cue_oracle_curve.json"
+    if curve.is_file():
+        out["cue_oracle_curve.md"] = oracle_curve_table(json.loads(curve.read_text()))
     by_recon: dict[str, list[dict]] = {}
     for p in sorted((ROOT / "docs" / "results" / "scores").glob("table2_probe_*/full_s*/scores.json")):
         by_recon.setdefault(p.parent.parent.name.removeprefix("table2_probe_"), []).append(json.loads(p.read_text()))
