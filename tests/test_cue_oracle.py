@@ -1,4 +1,4 @@
-"""The cue oracle's two pure helpers (experiments/view_dependence/cue_oracle.py, issue 52)."""
+"""Issue 52 probes' pure helpers: the cue oracle's (cue_oracle.py) and the pair highlights' (pair_highlights.py)."""
 import numpy as np
 import pytest
 
@@ -25,3 +25,13 @@ def test_nested_subsets_grow_by_adding_scenes_and_are_seeded():
     assert subsets[8] != nested_subsets(names, [8], seed=1)[8]
     with pytest.raises(ValueError, match="asks for 41 training scenes, the folder has 40"):
         nested_subsets(names, [41], seed=0)
+
+
+def test_highlight_summary_counts_the_points_above_the_gain():
+    from experiments.view_dependence.pair_highlights import HIGHLIGHT_GAIN, highlight_summary
+
+    gain = np.array([0.0, 0.01, 0.02, HIGHLIGHT_GAIN, 0.5, 3.0])  # the threshold itself is not a highlight
+    out = highlight_summary(gain)
+    assert out["share_highlit"] == pytest.approx(2 / 6)
+    assert out["median"] == pytest.approx(np.median(gain))
+    assert out["q90"] == pytest.approx(np.quantile(gain, 0.9))

@@ -11,6 +11,8 @@ scores of ``evaluate_points``), never typed:
   ``docs/log/probes/patch_inference_retrained/<scores folder>__<run>.json`` against its committed
   whole-cloud Table 2 scores;
 * ``cue_oracle.md`` from ``docs/log/probes/cue_oracle.json``;
+* ``pair_highlights.md`` from ``docs/log/probes/pair_highlights.json``: per controlled pair, how
+  many of each member's surface points show a highlight in the exact lattice renders;
 * ``cue_oracle_curve.md`` from ``docs/log/probes/cue_oracle_curve.json``: the oracle's learning curve
   over training scenes, per feature set (with the neighbourhood features) and conditions;
 * ``retraining.md``: the Table 2 scores of ``gspi-reproduce table=2 scale=probe recon=<name>``
@@ -239,6 +241,23 @@ def oracle_curve_table(data: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def pair_highlights_table(data: dict) -> str:
+    """Per pair and member: the per-point gain's median and q90 and the share of highlit points; then
+    the mean share per member kind."""
+    lines = ["| pair | kind | family | member | median gain | q90 gain | points highlit |", "|---|---|---|---|---|---|---|"]
+    share: dict[str, list[float]] = {}
+    for p in data["pairs"]:
+        for member, v in p["members"].items():
+            lines.append(f"| {p['id']} | {p['kind']} | {p['family']} | {member} | {v['median']:.3f} | {v['q90']:.3f} | "
+                         f"{100 * v['share_highlit']:.1f} % |")
+            share.setdefault(member, []).append(v["share_highlit"])
+    summary = ", ".join(f"{m} {100 * np.mean(v):.0f} % (min {100 * np.min(v):.0f} %)" for m, v in share.items())
+    return (f"The exact lattice renders of each controlled pair ({data['points_per_scene']} surface points per scene): "
+            "the per-point brightest-minus-median-view luminance gain, and the share of points whose gain exceeds "
+            f"{data['highlight_gain']} (a visible highlight). Mean share of highlit points: {summary}.\n\n"
+            + "\n".join(lines) + "\n")
+
+
 def tables() -> dict[str, str]:
     """{file name: markdown} of every probe whose scores are committed."""
     from experiments.view_dependence.stage0_probe import class_table
@@ -266,6 +285,9 @@ def tables() -> dict[str, str]:
                 rows.append(f"| {version} | {fs} | {r['metal_iou']:.2f} | {r['metal_iou_multi_part']:.2f} | "
                             f"{r['roughness_psnr']:.2f} | {r['roughness_psnr_constant']:.2f} |")
         out["cue_oracle.md"] = "\n".join(rows) + "\n"
+    highlights = PROBES / "pair_highlights.json"
+    if highlights.is_file():
+        out["pair_highlights.md"] = pair_highlights_table(json.loads(highlights.read_text()))
     curve = PROBES / "cue_oracle_curve.json"
     if curve.is_file():
         out["cue_oracle_curve.md"] = oracle_curve_table(json.loads(curve.read_text()))
