@@ -113,7 +113,7 @@ def patch_table(whole: dict, patch: dict, *, model: str = "The shipped checkpoin
 
 def retraining_table(by_recon: dict[str, list[dict]]) -> str:
     """One row per Stage 0 config: its Full model's held-out channels, metal class and multi-part."""
-    lines = ["| Stage 0 of the conditions | training step | seeds | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | metal IoU (scenes with metal) | metal IoU (metal class) | metal IoU (multi-part) |",
+    lines = ["| conditions (Stage 0 and departures) | training step | seeds | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | metal IoU (scenes with metal) | metal IoU (metal class) | metal IoU (multi-part) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for recon, runs in by_recon.items():
         if not runs:
@@ -150,7 +150,7 @@ def by_seed(runs: list[dict]) -> dict[int, dict]:
 def targets_table(by_recon: dict[str, list[dict]]) -> str:
     """Issue 52's held-out targets per Stage 0 config: roughness above no decomposition with a
     paired 95 % CI above 0, metal class IoU >= 0.8, multi-part metal IoU >= 0.6 (all seeds pooled)."""
-    lines = ["| Stage 0 of the conditions | seeds | roughness CI above no decomposition | metal class IoU >= 0.8 | "
+    lines = ["| conditions (Stage 0 and departures) | seeds | roughness CI above no decomposition | metal class IoU >= 0.8 | "
              "multi-part metal IoU >= 0.6 |", "|---|---|---|---|---|"]
     for recon, runs in by_recon.items():
         rough = {(s, i): v for i, r in enumerate(runs) for s, v in channel(r["per_scene"]["stage2"], "roughness").items()}
@@ -309,9 +309,10 @@ def tables() -> dict[str, str]:
     if len(shipped) > 1:
         out["retraining_shipped.md"] = (
             "Full of the shipped recipe (224 matte-pool scenes, cpu_pool224_pixel_5k, 5000 steps): `gspi-reproduce "
-            "table=2 scale=cpu` (recon=fast) against `scale=cpu_view` (recon=fast_view_mild), each measured on the 32 "
-            "held-out parts-pool scenes reconstructed by its own Stage 0 (10 DDIM steps, 20000 points); a run measured "
-            "before its last step shows that step.\n\n" + retraining_table(shipped) + "\nIssue 52's held-out targets:\n\n"
+            "table=2 scale=cpu` (recon=fast) against `scale=cpu_view` (recon=fast_view_mild) and its departures "
+            "(`_xv`: + the cross-view condition, `scale=cpu_view_xv`; `_whole`: whole-object training items, "
+            "`scale=cpu_view_whole`; conf/reproduce/), each measured on the 32 held-out parts-pool scenes reconstructed "
+            "by its own Stage 0 (10 DDIM steps, 20000 points); a run measured before its last step shows that step.\n\n" + retraining_table(shipped) + "\nIssue 52's held-out targets:\n\n"
             + targets_table(shipped))
     demo_runs, pairs = end_to_end_runs(PROBES / "stage0_only")
     if demo_runs:
