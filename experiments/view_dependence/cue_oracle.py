@@ -62,23 +62,21 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     """A seeded subset of the scene's GT points with their conditions and targets."""
     from gspi.stage2.data import read_lattice_cameras, srgb_top_rgb
     from gspi.stage2.view_statistics import condition_features, cross_view_radiance
-    from experiments.view_dependence.stage0_probe import lattice_images
+    from experiments.view_dependence.stage0_probe import lattice_images, surface_subset
 
-    with np.load(scene_dir / "gt_points.npz") as npz:
-        pts = {k: npz[k] for k in npz.files}
-    keep = np.random.default_rng(seed).choice(len(pts["xyz"]), min(POINTS_PER_SCENE, len(pts["xyz"])), replace=False)
+    pts = surface_subset(scene_dir, POINTS_PER_SCENE, seed)
     _, cams = read_lattice_cameras(scene_dir)
     images, depth = lattice_images(scene_dir)
-    xyz = pts["xyz"][keep].astype(np.float64)
+    xyz = pts["xyz"].astype(np.float64)
     stats = cross_view_radiance(images, depth, cams, xyz)
     gen = json.loads((scene_dir / "scene.json").read_text()).get("generator", {})
-    arrays = {"top_rgb": srgb_top_rgb(pts["rgb"][keep]), "cross_view": condition_features(stats)}
+    arrays = {"top_rgb": srgb_top_rgb(pts["rgb"]), "cross_view": condition_features(stats)}
     for k in NEIGHBOURHOODS:
         arrays.update({f"{f}_knn{k}": neighbourhood_mean(xyz, arrays[f], k).astype(np.float32)
                        for f in ("cross_view", "top_rgb")})
-    return {**arrays, "onehot": np.eye(32, dtype=np.float32)[pts["view"][keep]],
-            "roughness": pts["roughness"][keep].astype(np.float32), "metallic": pts["metallic"][keep].astype(np.float32),
-            "multi_part": np.full(len(keep), "parts" in gen.get("material", {}))}
+    return {**arrays, "onehot": np.eye(32, dtype=np.float32)[pts["view"]],
+            "roughness": pts["roughness"].astype(np.float32), "metallic": pts["metallic"].astype(np.float32),
+            "multi_part": np.full(len(xyz), "parts" in gen.get("material", {}))}
 
 
 def fit_mlp(x: np.ndarray, y: np.ndarray, *, seed: int = 0, steps: int = 1500) -> nn.Module:
@@ -106,6 +104,10 @@ def metal_iou(pred: np.ndarray, gt: np.ndarray) -> float | None:
     p, g = pred > 0.5, gt > 0.5
     union = np.count_nonzero(p | g)
     return None if union == 0 else float(np.count_nonzero(p & g) / union)
+
+
+def mean_or_none(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None
 
 
 def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
@@ -136,13 +138,13 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]],
             ends = np.cumsum([len(version[n]["metallic"]) for n in test])
             scene_iou = {n: metal_iou(pred[e - len(version[n]["metallic"]):e, 1], version[n]["metallic"])
                          for n, e in zip(test, ends)}
-            per_class = lambda keep: [v for n, v in scene_iou.items() if v is not None and keep(n)]  # noqa: E731
+            class_mean = lambda keep: mean_or_none([v for n, v in scene_iou.items() if v is not None and keep(n)])  # noqa: E731
             rows.append({"metal_iou": metal_iou(pred[:, 1], metal),
                          "metal_iou_multi_part": metal_iou(pred[multi, 1], metal[multi]),
                          "roughness_psnr": psnr(pred[:, 0], rough),
                          "roughness_psnr_constant": psnr(np.full_like(rough, y_tr[:, 0].mean()), rough),
-                         "metal_iou_metal_class": float(np.mean(per_class(is_metal_class))) if per_class(is_metal_class) else None,
-                         "metal_iou_multi_part_scenes": float(np.mean(per_class(is_multi_part))) if per_class(is_multi_part) else None})
+                         "metal_iou_metal_class": class_mean(is_metal_class),
+                         "metal_iou_multi_part_scenes": class_mean(is_multi_part)})
         out[fs_name] = {k: float(np.mean([r[k] for r in rows if r[k] is not None])) for k in rows[0]
                         if any(r[k] is not None for r in rows)}
     return out

@@ -30,15 +30,14 @@ def highlight_summary(peak_gain: np.ndarray) -> dict[str, float]:
 
 
 def scene_highlights(scene_dir: Path, seed: int = 0) -> dict[str, float]:
-    from gspi.stage2.data import read_lattice_cameras, read_lattice_views
+    from experiments.view_dependence.stage0_probe import lattice_images, surface_subset
+    from gspi.stage2.data import read_lattice_cameras
     from gspi.stage2.view_statistics import cross_view_radiance
 
     _, cams = read_lattice_cameras(scene_dir)
-    rgb, depth = read_lattice_views(scene_dir)
-    with np.load(scene_dir / "gt_points.npz") as npz:
-        xyz = npz["xyz"]
-    keep = np.random.default_rng(seed).choice(len(xyz), min(POINTS_PER_SCENE, len(xyz)), replace=False)
-    stats = cross_view_radiance(rgb.astype(np.float64), depth, cams, xyz[keep].astype(np.float64))
+    rgb, depth = lattice_images(scene_dir)
+    xyz = surface_subset(scene_dir, POINTS_PER_SCENE, seed)["xyz"].astype(np.float64)
+    stats = cross_view_radiance(rgb, depth, cams, xyz)
     return highlight_summary(stats[:, 0])
 
 

@@ -168,7 +168,7 @@ DEMO = ROOT / "docs" / "log" / "demo"
 DEMO_CHANNELS = ("albedo", "roughness", "metallic", "relight")
 
 
-def stage0_only_table(demo_runs: dict[str, dict], pairs: dict[str, dict], *,
+def end_to_end_table(demo_runs: dict[str, dict], pairs: dict[str, dict], *,
                       intro: str = "the shipped Stage II", label=lambda name: f"recon={name}") -> str:
     """Per demo scene and channel: PSNR under recon=fast (the demo's committed run) and under each
     other run (``label(name)`` names its column), with no decomposition's; s004-style metal IoU; then
@@ -316,10 +316,10 @@ def tables() -> dict[str, str]:
             + targets_table(shipped))
     demo_runs, pairs = end_to_end_runs(PROBES / "stage0_only")
     if demo_runs:
-        out["stage0_only.md"] = stage0_only_table(demo_runs, pairs)
+        out["stage0_only.md"] = end_to_end_table(demo_runs, pairs)
     demo_runs, pairs = end_to_end_runs(PROBES / "retrained_end_to_end")  # <scores folder>__<run>: a retrained model
     if demo_runs or pairs:
-        out["retrained_end_to_end.md"] = stage0_only_table(
+        out["retrained_end_to_end.md"] = end_to_end_table(
             demo_runs, pairs, intro="the shipped Stage II under recon=fast against the Full models retrained at the "
             "shipped scale under `recon=fast_view_mild` (`docs/results/probes/retraining_shipped.md`; the column names "
             "the model's committed scores folder and run), each behind `recon=fast_view_mild`",

@@ -32,20 +32,27 @@ def lattice_images(scene_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     return rgb.astype(np.float64), depth
 
 
+def surface_subset(scene_dir: Path, count: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Every per-point array of the scene's GT points (``gt_points.npz``) at a seeded subset of
+    ``count`` of them (all if fewer): the one way issue 52's probes pick the points they measure."""
+    with np.load(scene_dir / "gt_points.npz") as npz:
+        total = len(npz["xyz"])
+        keep = np.random.default_rng(seed).choice(total, min(count, total), replace=False)
+        return {k: npz[k][keep] for k in npz.files}
+
+
 def scene_scores(source: Path, recon: Path, seed: int = 0) -> dict:
     """One scene: GT and asset cross-view statistics (medians over points) and recon.json's fit."""
     from gspi.stage2.data import read_lattice_cameras
     from gspi.stage2.view_statistics import cross_view_radiance
 
     _, cams = read_lattice_cameras(source)
-    with np.load(source / "gt_points.npz") as npz:
-        xyz = npz["xyz"].astype(np.float64)
-    keep = np.random.default_rng(seed).choice(len(xyz), min(POINTS_PER_SCENE, len(xyz)), replace=False)
+    xyz = surface_subset(source, POINTS_PER_SCENE, seed)["xyz"].astype(np.float64)
     gt_rgb, depth = lattice_images(source)
     asset_rgb, _ = lattice_images(recon)
     out = {}
     for name, images in (("gt", gt_rgb), ("asset", asset_rgb)):
-        stats = cross_view_radiance(images, depth, cams, xyz[keep])
+        stats = cross_view_radiance(images, depth, cams, xyz)
         out[f"{name}_peak_gain"] = float(np.median(stats[:, 0]))
         out[f"{name}_peak_gain_q90"] = float(np.quantile(stats[:, 0], 0.9))
         out[f"{name}_spread"] = float(np.median(stats[:, 1]))
