@@ -96,6 +96,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
             tol_pixels=float(data_cfg.visibility_tol_pixels), pixel_features=data_cfg.pixel_features,
             pixel_feature_spread=data_cfg.pixel_feature_spread,
             cross_view_radiance=getattr(data_cfg, "cross_view_radiance", False),  # checkpoints before issue 52 lack it
+            cross_view_neighbourhood=getattr(data_cfg, "cross_view_neighbourhood", False),  # before session 26
             device=device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 

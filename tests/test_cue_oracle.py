@@ -2,18 +2,19 @@
 import numpy as np
 import pytest
 
-from experiments.view_dependence.cue_oracle import nested_subsets, neighbourhood_mean
+from experiments.view_dependence.cue_oracle import nested_subsets
+from gspi.stage2.view_statistics import neighbourhood_mean
 
 
 def test_neighbourhood_mean_averages_the_k_nearest_points_itself_included():
     xyz = np.array([[0.0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]])
     values = np.array([[1.0], [3.0], [10.0], [20.0]])
     # k=2: each point with its nearest neighbour, the two pairs kept apart
-    np.testing.assert_allclose(neighbourhood_mean(xyz, values, 2)[:, 0], [2, 2, 15, 15])
+    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 2)[:, 0], [2, 2, 15, 15])
     # k beyond n: every point gets the mean of all
-    np.testing.assert_allclose(neighbourhood_mean(xyz, values, 99)[:, 0], np.full(4, 8.5))
+    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 99)[:, 0], np.full(4, 8.5))
     # k=1: the point itself
-    np.testing.assert_allclose(neighbourhood_mean(xyz, values, 1), values)
+    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 1), values)
 
 
 def test_nested_subsets_grow_by_adding_scenes_and_are_seeded():
@@ -35,3 +36,38 @@ def test_highlight_summary_counts_the_points_above_the_gain():
     assert out["share_highlit"] == pytest.approx(2 / 6)
     assert out["median"] == pytest.approx(np.median(gain))
     assert out["q90"] == pytest.approx(np.quantile(gain, 0.9))
+
+
+def test_object_features_pool_the_whole_object_for_every_point():
+    from experiments.view_dependence.cue_oracle import object_features
+
+    features = np.array([[0.0, 1.0], [1.0, 1.0], [2.0, 1.0], [3.0, 5.0]])
+    gain = np.array([0.0, 0.1, 0.5, 2.0])
+    out = object_features(features, gain, highlight_gain=0.2)
+    assert out.shape == (4, 5)
+    np.testing.assert_allclose(out, np.broadcast_to(out[0], out.shape))  # one row for all points
+    np.testing.assert_allclose(out[0, :2], [1.5, 2.0])                      # means
+    np.testing.assert_allclose(out[0, 2:4], np.quantile(features, 0.9, axis=0), rtol=1e-6)
+    assert out[0, 4] == pytest.approx(0.5)                                  # 2 of 4 points highlit
+
+
+def test_evaluate_reports_each_predicted_scenes_mean_and_needs_one_fold():
+    from experiments.view_dependence.cue_oracle import evaluate
+
+    rng = np.random.default_rng(0)
+
+    def scene(rough: float) -> dict:
+        n = 50
+        cue = np.full((n, 1), rough, dtype=np.float32)  # a feature that is the target: learnable
+        return {"top_rgb": cue, "onehot": np.zeros((n, 2), np.float32), "cross_view": cue,
+                "cross_view_object": cue, "roughness": np.full(n, rough, np.float32),
+                "metallic": (rng.random(n) > 0.5).astype(np.float32), "multi_part": np.zeros(n, bool)}
+
+    version = {f"p{i:04d}_sphere_metal": scene(r) for i, r in enumerate([0.1, 0.9, 0.2, 0.8])}
+    predict = {"glossy": scene(0.1), "matte": scene(0.9)}
+    out = evaluate(version, [(sorted(version)[:2], sorted(version)[2:])], steps=300,
+                   feature_sets=["R1 + cross-view + object"], predict=predict)
+    means = out["R1 + cross-view + object"]["scene_means"]
+    assert set(means) == {"glossy", "matte"} and means["glossy"]["roughness"] < means["matte"]["roughness"]
+    with pytest.raises(ValueError, match="needs one fold"):
+        evaluate(version, [(["p0000_sphere_metal"], ["p0001_sphere_metal"])] * 2, steps=1, predict=predict)

@@ -111,3 +111,22 @@ def test_cross_view_radiance_is_the_same(both_paths):
     differ = np.abs(infer[:, 35:] - train[:, 35:]).max(axis=1) > 1e-4  # float32 positions: a visibility may flip
     assert differ.mean() < 2e-3
     assert np.abs(train[:, 35:]).max() > 0  # the fixture's views differ: the statistic is not all zero
+
+
+def test_cross_view_neighbourhood_is_the_same(both_paths):
+    """stage2.data.cross_view_neighbourhood (issue 52, session 26): the statistic's and Top-RGB's
+    neighbourhood means, over the GT cloud's seeded subset in training and Stage I's at inference,
+    appended after the per-point statistic."""
+    scene, points, renders, _ = both_paths
+    idx = np.arange(scene.num_points)
+    train = local_condition(scene, idx, scene.xyz, "top_rgb_onehot", cross_view_radiance=True,
+                            cross_view_neighbourhood=True)
+    infer = point_conditions(points, "top_rgb_onehot", renders, cross_view_radiance=True,
+                             cross_view_neighbourhood=True)
+    assert train.shape == infer.shape == (scene.num_points, 35 + 5 + 16)
+    # float32 vs float64 positions: a visibility flip of one neighbour moves a mean by a 32nd of it
+    close = np.isclose(infer[:, 40:], train[:, 40:], rtol=1e-3, atol=1e-4).all(axis=1)
+    assert close.mean() > 0.99
+    assert np.abs(train[:, 40:45]).max() > 0  # the pooled statistic is not all zero
+    np.testing.assert_allclose(train[:, 45:48], np.broadcast_to(train[:, 45:48].mean(0), (scene.num_points, 3)),
+                               atol=0.5)  # a Top-RGB mean, within the colour range

@@ -330,3 +330,29 @@ def test_cross_view_radiance_trains_and_infers(dataset, tmp_path):
     assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all()
     with pytest.raises(ValueError, match=r"40-dim local condition.*cross_view_radiance=False.*gives 35"):
         predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg)
+
+
+def test_cross_view_neighbourhood_trains_and_infers(dataset, tmp_path):
+    """stage2.data.cross_view_neighbourhood (issue 52, session 26): + 16 after the statistic's 5, in
+    training and in Stage II inference; a model without it refuses the wider condition."""
+    from eval.layout import read_splits
+    from gspi.stage1.extract import unproject_renders
+    from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.infer import InferenceConfig, predict_generated_points
+    from tests.stage2_fixtures import gt_views_as_renders
+
+    out = tmp_path / "neighbourhood"
+    train(tiny_cfg(dataset, out, "stage2.data.cross_view_radiance=true", "stage2.data.cross_view_neighbourhood=true",
+                   "stage2.train.steps=2", "stage2.eval.enabled=false"), out)
+    model, saved = load_stage2_checkpoint(out / "checkpoint.pt")
+    assert saved["stage2"].data.cross_view_neighbourhood and model.config.local_cond_dim == 35 + 5 + 16
+    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
+    points = unproject_renders(renders, alpha_threshold=0.5)
+    encoder = build_encoder(saved["stage2"].prior)
+    cfg = InferenceConfig(num_steps=2, max_points=300)
+    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
+                                      cfg=cfg, cross_view_radiance=True, cross_view_neighbourhood=True)
+    assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all()
+    with pytest.raises(ValueError, match=r"56-dim local condition.*cross_view_neighbourhood=False.*gives 40"):
+        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg,
+                                 cross_view_radiance=True)

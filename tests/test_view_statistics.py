@@ -61,3 +61,53 @@ def test_a_matte_grey_and_a_metal_highlight():
 def test_chroma_has_unit_luminance_or_is_zero(rgb):
     c = chroma(np.array(rgb))
     assert c @ LUMINANCE == pytest.approx(0.0 if max(rgb) == 0 else 1.0)
+
+
+def test_neighbourhood_mean_equals_a_brute_force_k_nearest_mean():
+    from gspi.stage2.view_statistics import neighbourhood_mean
+
+    rng = np.random.default_rng(0)
+    subset, values, query = rng.random((200, 3)), rng.random((200, 4)), rng.random((50, 3))
+    dist = np.linalg.norm(query[:, None] - subset[None], axis=2)
+    expected = values[np.argsort(dist, axis=1)[:, :7]].mean(axis=1)
+    np.testing.assert_allclose(neighbourhood_mean(subset, values, query, 7, chunk=16), expected, rtol=1e-5)
+
+
+def test_neighbourhood_subset_is_seeded_and_a_share_of_the_cloud():
+    from gspi.stage2.view_statistics import NEIGHBOURHOOD_POINTS, neighbourhood_subset
+
+    sub = neighbourhood_subset(5 * NEIGHBOURHOOD_POINTS)
+    assert len(sub) == len(np.unique(sub)) == NEIGHBOURHOOD_POINTS and np.all(np.diff(sub) > 0)
+    np.testing.assert_array_equal(sub, neighbourhood_subset(5 * NEIGHBOURHOOD_POINTS))
+    np.testing.assert_array_equal(neighbourhood_subset(100), np.arange(100))  # fewer points: all of them
+
+
+def test_neighbourhood_condition_pools_the_statistic_and_top_rgb(monkeypatch):
+    """With every k beyond the cloud, each point gets the object's means: of the statistic (here a
+    stand-in per point) and of Top-RGB, once per k, in that order."""
+    from gspi.stage2 import view_statistics as vs
+
+    rng = np.random.default_rng(1)
+    xyz, top = rng.random((40, 3)), rng.random((40, 3)).astype(np.float32)
+    stat = rng.random((40, 5)).astype(np.float32)
+    monkeypatch.setattr(vs, "radiance_condition", lambda images, depth, cams, pts, tol_pixels: stat[:len(pts)])
+    monkeypatch.setattr(vs, "NEIGHBOURHOOD_KS", (1, 1000))
+    out = vs.neighbourhood_condition(None, None, None, xyz, top)
+    assert out.shape == (40, 16)
+    np.testing.assert_allclose(out[:, :8], np.concatenate([stat, top], axis=1), rtol=1e-6)  # k=1: itself
+    np.testing.assert_allclose(out[:, 8:], np.broadcast_to(np.concatenate([stat.mean(0), top.mean(0)]), (40, 8)),
+                               rtol=1e-5)
+
+
+def test_a_point_outside_the_subset_takes_its_nearest_subset_points_means(monkeypatch):
+    from gspi.stage2 import view_statistics as vs
+
+    rng = np.random.default_rng(2)
+    xyz, top = rng.random((60, 3)), rng.random((60, 3)).astype(np.float32)
+    monkeypatch.setattr(vs, "NEIGHBOURHOOD_POINTS", 12)
+    monkeypatch.setattr(vs, "radiance_condition", lambda images, depth, cams, pts, tol_pixels: pts[:, :1].repeat(5, 1))
+    sub_xyz, rows = vs.neighbourhood_table(None, None, None, xyz, top)
+    assert sub_xyz.shape == (12, 3) and rows.shape == (12, vs.NEIGHBOURHOOD_WIDTH)
+    out = vs.neighbourhood_condition(None, None, None, xyz, top)
+    nearest = np.argmin(np.linalg.norm(xyz[:, None] - sub_xyz[None], axis=2), axis=1)
+    np.testing.assert_allclose(out, rows[nearest], rtol=1e-6)

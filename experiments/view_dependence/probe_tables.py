@@ -15,6 +15,8 @@ scores of ``evaluate_points``), never typed:
   many of each member's surface points show a highlight in the exact lattice renders;
 * ``cue_oracle_curve.md`` from ``docs/log/probes/cue_oracle_curve.json``: the oracle's learning curve
   over training scenes, per feature set (with the neighbourhood features) and conditions;
+* ``cue_oracle_pooled.md`` from ``docs/log/probes/cue_oracle_pooled.json``: the oracle with the
+  object-pooled features, on the held-out scenes and on the controlled pairs;
 * ``retraining.md``: the Table 2 scores of ``gspi-reproduce table=2 scale=probe recon=<name>``
   (``docs/results/scores/table2_probe_<name>/``) or of its checkpoints measured before the last
   step (``docs/log/probes/retraining/<name>.json``), one row per Stage 0 config;
@@ -241,6 +243,32 @@ def oracle_curve_table(data: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def oracle_pooled_table(data: dict) -> str:
+    """Per conditions and feature set: the oracle's held-out measures and its verdicts on the
+    controlled pairs under the same conditions."""
+    pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
+    lines = ["| conditions | features | metal-class IoU | multi-part metal IoU | roughness - constant (dB) | "
+             "glossy/matte ordered | ordered by >= 0.3 | metal/dielectric separated |",
+             "|---|---|---|---|---|---|---|---|"]
+    for version, sets in data["versions"].items():
+        for fs, r in sets.items():
+            pair = data.get("pairs", {}).get(version, {}).get(fs)
+            verdicts = ([pct(pair["roughness"]["ordered"]), pct(pair["roughness"]["ordered_with_gap"]),
+                         pct(pair["metal"]["separated"])] if pair else ["-"] * 3)
+            lines.append(f"| {version} | {fs} | {r.get('metal_iou_metal_class', float('nan')):.2f} | "
+                         f"{r.get('metal_iou_multi_part_scenes', float('nan')):.2f} | "
+                         f"{r['roughness_psnr'] - r['roughness_psnr_constant']:+.2f} | " + " | ".join(verdicts) + " |")
+    n_pairs = next((f"{p['roughness']['pairs']} glossy/matte and {p['metal']['pairs']} metal/dielectric pairs"
+                    for sets in data.get("pairs", {}).values() for p in sets.values()), "the controlled pairs")
+    return (f"The per-point MLP of `cue_oracle_curve.md` ({data['steps']} steps, {data['points_per_scene']} points per "
+            "scene) fitted on all 224 matte-pool training scenes, scored on the 32 held-out parts-pool scenes and on "
+            f"{n_pairs} (`gspi-data preset=controlled_pairs`, seed 0) under the same conditions (exact renders, or "
+            "each scene reconstructed by `recon=fast_view_mild`); a pair's verdicts are "
+            "`benchmarks/bench_controlled_pairs.py`'s, from each scene's mean prediction over its surface points. "
+            "+ object = the object's mean and 90th percentile of the cross-view statistic and its share of highlit "
+            "points, the same for every point of it (`cue_oracle.object_features`).\n\n" + "\n".join(lines) + "\n")
+
+
 def pair_highlights_table(data: dict) -> str:
     """Per pair and member: the per-point gain's median and q90 and the share of highlit points; then
     the mean share per member kind."""
@@ -291,6 +319,9 @@ def tables() -> dict[str, str]:
     curve = PROBES / "cue_oracle_curve.json"
     if curve.is_file():
         out["cue_oracle_curve.md"] = oracle_curve_table(json.loads(curve.read_text()))
+    pooled = PROBES / "cue_oracle_pooled.json"
+    if pooled.is_file():
+        out["cue_oracle_pooled.md"] = oracle_pooled_table(json.loads(pooled.read_text()))
     by_recon: dict[str, list[dict]] = {}
     for p in sorted((ROOT / "docs" / "results" / "scores").glob("table2_probe_*/full_s*/scores.json")):
         by_recon.setdefault(p.parent.parent.name.removeprefix("table2_probe_"), []).append(json.loads(p.read_text()))

@@ -37,6 +37,11 @@ linear RGB and PBR ground truth. From it:
   minus the median, the luminance's spread and the highlight's tint (``gspi.stage2.view_statistics``,
   5 values), read from the linear lattice images: what a glossy or metal surface shows and a
   single view cannot tell.
+* **Its neighbourhood means** (``stage2.data.cross_view_neighbourhood``, issue 52's named departure,
+  session 26): the means of that statistic and of Top-RGB over each point's 32 and 256 nearest
+  points of a seeded 3000-point subset of the object (``view_statistics.neighbourhood_condition``,
+  +16; a point outside the subset takes its nearest subset point's), computed once per scene on
+  the unperturbed GT cloud: a point that shows no highlight itself takes its part's.
 * **Targets** f0 = ``pbr_to_model([albedo (sRGB-encoded, as stored), roughness, metallic])`` in [-1, 1].
 * **Global prior**: the scene's cached [32, D, 5, 5] encoder features as [32, 25, D] tokens;
   view-dropout keeps ``train_views`` (16) random views per item, with their lattice ids.
@@ -55,7 +60,8 @@ from torch import Tensor
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.lattice_cameras import LatticeCameras, pixel_footprint, project_to_views  # noqa: F401 (re-exported)
 from gspi.data.lattice import NUM_LATTICE_VIEWS
-from gspi.stage2.view_statistics import FIELDS as RADIANCE_FIELDS, radiance_condition
+from gspi.stage2.view_statistics import FIELDS as RADIANCE_FIELDS, NEIGHBOURHOOD_WIDTH, neighbourhood_lookup, \
+    neighbourhood_table, radiance_condition
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_to_model, to_unit_sphere, view_onehot
 
 LOCAL_CONDITIONS = {"top_rgb_onehot": 35, "top_rgb": 3, "multiview": 128}  # name -> width
@@ -120,6 +126,7 @@ class ScenePoints:
     _tree: Optional[cKDTree] = field(default=None, repr=False)
     _views: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
     _linear: Optional[np.ndarray] = field(default=None, repr=False)
+    _neighbourhood: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
 
     @property
     def num_points(self) -> int:
@@ -149,6 +156,15 @@ class ScenePoints:
         if self._linear is None:
             self._linear = read_lattice_views(self.root, depth=False)[0]
         return self._linear
+
+    def neighbourhood_features(self, idx: np.ndarray, tol_pixels: float = 2.0) -> np.ndarray:
+        """[n, 16] ``stage2.data.cross_view_neighbourhood`` of points ``idx`` of the unperturbed cloud
+        (``view_statistics.neighbourhood_condition``; its subset's table computed once per scene)."""
+        if self._neighbourhood is None:
+            _, depth = self.lattice_views()
+            self._neighbourhood = neighbourhood_table(self.lattice_linear(), depth, self.cameras, self.xyz,
+                                                      self.top_rgb, tol_pixels=tol_pixels)
+        return neighbourhood_lookup(self._neighbourhood, self.xyz[idx])
 
 
 def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor],
@@ -285,9 +301,11 @@ def sample_pixel_features(maps: Tensor, view: np.ndarray, pixel: np.ndarray, ima
 
 def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,
                     *, tol_pixels: float = 2.0, pixel_features: bool = False,
-                    pixel_feature_spread: bool = False, cross_view_radiance: bool = False) -> np.ndarray:
-    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + D with ``pixel_features``,
-    + D with ``pixel_feature_spread``, + 5 with ``cross_view_radiance``; see module docstring)."""
+                    pixel_feature_spread: bool = False, cross_view_radiance: bool = False,
+                    cross_view_neighbourhood: bool = False) -> np.ndarray:
+    """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + 5 with ``cross_view_radiance``,
+    + 16 with ``cross_view_neighbourhood``, + D with ``pixel_features``, + D with
+    ``pixel_feature_spread``, in that order; see module docstring)."""
     local_condition_dim(mode)
     if mode == "top_rgb":
         cond = scene.top_rgb[idx]
@@ -300,6 +318,8 @@ def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarr
         _, depth = scene.lattice_views()
         cond = np.concatenate([cond, radiance_condition(scene.lattice_linear(), depth, scene.cameras, xyz_perturbed,
                                                         tol_pixels=tol_pixels)], axis=1)
+    if cross_view_neighbourhood:
+        cond = np.concatenate([cond, scene.neighbourhood_features(idx, tol_pixels)], axis=1)
     if not (pixel_features or pixel_feature_spread):
         return cond
     if scene.feature_maps is None:
@@ -330,6 +350,7 @@ class PointDataConfig:
     pixel_features: bool = False  # + the prior's map at the source pixel (issue 42; not the paper)
     pixel_feature_spread: bool = False  # + its spread over the views that see the point (issue 42; not the paper)
     cross_view_radiance: bool = False  # + the point's radiance over the views that see it, 5 values (issue 52; not the paper)
+    cross_view_neighbourhood: bool = False  # + its and Top-RGB's means over the point's neighbours, 16 (issue 52; not the paper)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
@@ -343,7 +364,8 @@ class PointDataConfig:
         """The local condition's width with an encoder of ``feature_dim`` channels."""
         return (local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
                 + (feature_dim if self.pixel_feature_spread else 0)
-                + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0))
+                + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0)
+                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0))
 
     @property
     def needs_feature_maps(self) -> bool:
@@ -358,7 +380,8 @@ def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: n
                              sigma_pixels=cfg.perturb_pixels, rng=rng)
     cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
                            pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread,
-                           cross_view_radiance=cfg.cross_view_radiance)
+                           cross_view_radiance=cfg.cross_view_radiance,
+                           cross_view_neighbourhood=cfg.cross_view_neighbourhood)
     xyz_unit = to_unit_sphere(torch.from_numpy(xyz), scene.frame).numpy()
     return xyz_unit.astype(np.float32), cond.astype(np.float32), scene.f0[idx]
 
@@ -396,4 +419,5 @@ def whole_scene_inputs(scene: ScenePoints, cfg: PointDataConfig, rng: np.random.
     xyz = perturb_along_rays(scene.xyz, scene.view, scene.cameras, sigma_pixels=cfg.perturb_pixels, rng=rng)
     return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
                                 pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread,
-                                cross_view_radiance=cfg.cross_view_radiance)
+                                cross_view_radiance=cfg.cross_view_radiance,
+                                cross_view_neighbourhood=cfg.cross_view_neighbourhood)

@@ -11,6 +11,8 @@ visibility). The conditions are built exactly as in training (docs/STAGE2.md "Co
   sampled at the source pixel (``gspi.stage2.data.sample_pixel_features``, as in training);
 * ``cross_view_radiance``: the point's radiance over the renders that see it
   (``gspi.stage2.view_statistics``; the renders' linear radiance and depth);
+* ``cross_view_neighbourhood``: its means (and Top-RGB's) over the point's neighbours in a seeded
+  subset of the cloud (``view_statistics.neighbourhood_condition``), as in training;
 * ``pixel_feature_spread``: that map's spread over the renders that see the point, A5's
   visibility on the renders' depth (``gspi.stage2.data.feature_spread_over_views``);
 * global prior: the frozen encoder on the asset's lattice renders (sRGB of clamped linear).
@@ -38,7 +40,7 @@ from gspi.stage2.encoders import pool_grid
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving
 from gspi.stage2.sampler import mean_point_pbr
-from gspi.stage2.view_statistics import radiance_condition
+from gspi.stage2.view_statistics import neighbourhood_condition, radiance_condition
 
 
 @dataclass(frozen=True)
@@ -84,10 +86,11 @@ def prior_features(encoder, rgb_linear: np.ndarray, *, unpooled: bool = False) -
 def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
                      tol_pixels: float = 2.0, feature_maps: Optional[Tensor] = None,
                      pixel_features: bool = True, pixel_feature_spread: bool = False,
-                     cross_view_radiance: bool = False) -> np.ndarray:
+                     cross_view_radiance: bool = False, cross_view_neighbourhood: bool = False) -> np.ndarray:
     """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training); A5's
     multi-view colours come from Stage I's ``renders`` (their maps and cameras).
-    ``cross_view_radiance``: + 5, the point's radiance over the renders that see it (issue 52).
+    ``cross_view_radiance``: + 5, the point's radiance over the renders that see it (issue 52);
+    ``cross_view_neighbourhood``: + 16, its and Top-RGB's means over each point's neighbours.
     ``feature_maps`` [32, D, g, g]: the encoder's maps of the renders; with ``pixel_features``
     sampled at each point's source pixel and appended (+D), with ``pixel_feature_spread`` their
     spread over the renders that see the point appended (+D), in that order as in training."""
@@ -107,6 +110,10 @@ def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
     if cross_view_radiance:  # from the renders' linear radiance and depth, as training from the GT views'
         cond = np.concatenate([cond, radiance_condition(np.asarray(renders.rgb), np.asarray(renders.depth), cams,
                                                         points.xyz.astype(np.float64), tol_pixels=tol_pixels)], axis=1)
+    if cross_view_neighbourhood:  # over a seeded subset of Stage I's cloud, as training over the GT cloud's
+        cond = np.concatenate([cond, neighbourhood_condition(np.asarray(renders.rgb), np.asarray(renders.depth), cams,
+                                                             points.xyz.astype(np.float64), top,
+                                                             tol_pixels=tol_pixels)], axis=1)
     if feature_maps is None:
         return cond
     parts = [cond]
@@ -130,7 +137,7 @@ def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> 
 def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: LatticeRenders, *,
                              local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0,
                              pixel_features: bool = False, pixel_feature_spread: bool = False,
-                             cross_view_radiance: bool = False,
+                             cross_view_radiance: bool = False, cross_view_neighbourhood: bool = False,
                              device: Optional[torch.device] = None) -> tuple[np.ndarray, dict]:
     """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
     metallic) in [0, 1] + stats. ``device``: where the sampling runs (None: the model's, as before);
@@ -138,11 +145,13 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     ``pixel_features`` / ``pixel_feature_spread``: the model's ``stage2.data`` keys of those names."""
     t0 = time.perf_counter()
     data = PointDataConfig(local_condition=local_mode, pixel_features=pixel_features,
-                           pixel_feature_spread=pixel_feature_spread, cross_view_radiance=cross_view_radiance)
+                           pixel_feature_spread=pixel_feature_spread, cross_view_radiance=cross_view_radiance,
+                           cross_view_neighbourhood=cross_view_neighbourhood)
     width = data.condition_width(encoder.feature_dim)
     if model.config.local_cond_dim != width:
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
                          f"stage2.data.local_condition={local_mode!r} (cross_view_radiance={cross_view_radiance}, "
+                         f"cross_view_neighbourhood={cross_view_neighbourhood}, "
                          f"pixel_features={pixel_features}, "
                          f"pixel_feature_spread={pixel_feature_spread}) "
                          f"gives {width}")
@@ -156,7 +165,7 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     pts = points if sub is None else points.subset(sub)
     cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels, feature_maps=maps,
                             pixel_features=pixel_features, pixel_feature_spread=pixel_feature_spread,
-                            cross_view_radiance=cross_view_radiance)
+                            cross_view_radiance=cross_view_radiance, cross_view_neighbourhood=cross_view_neighbourhood)
     t_cond = time.perf_counter() - t0
     model = model if device is None else model.to(device)
 
