@@ -77,6 +77,7 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     """A seeded subset of the scene's GT points with their conditions and targets."""
     from gspi.stage2.data import read_lattice_cameras, srgb_top_rgb
     from gspi.stage2.view_statistics import condition_features, cross_view_radiance, neighbourhood_mean
+    from experiments.view_dependence.pair_highlights import HIGHLIGHT_GAIN
     from experiments.view_dependence.stage0_probe import lattice_images, surface_subset
 
     pts = surface_subset(scene_dir, POINTS_PER_SCENE, seed)
@@ -85,8 +86,6 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     xyz = pts["xyz"].astype(np.float64)
     stats = cross_view_radiance(images, depth, cams, xyz)
     gen = json.loads((scene_dir / "scene.json").read_text()).get("generator", {})
-    from experiments.view_dependence.pair_highlights import HIGHLIGHT_GAIN
-
     arrays = {"top_rgb": srgb_top_rgb(pts["rgb"]), "cross_view": condition_features(stats)}
     arrays["cross_view_object"] = object_features(arrays["cross_view"], stats[:, 0], HIGHLIGHT_GAIN)
     for k in NEIGHBOURHOODS:
