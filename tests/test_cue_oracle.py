@@ -43,7 +43,7 @@ def test_object_features_pool_the_whole_object_for_every_point():
 
     features = np.array([[0.0, 1.0], [1.0, 1.0], [2.0, 1.0], [3.0, 5.0]])
     gain = np.array([0.0, 0.1, 0.5, 2.0])
-    out = object_features(features, gain, highlight_gain=0.2)
+    out = object_features(features, gain)  # HIGHLIGHT_GAIN 0.2: two of the four points highlit
     assert out.shape == (4, 5)
     np.testing.assert_allclose(out, np.broadcast_to(out[0], out.shape))  # one row for all points
     np.testing.assert_allclose(out[0, :2], [1.5, 2.0])                      # means

@@ -249,16 +249,32 @@ def test_checkpoint_clock_and_run_log(dataset, tmp_path, monkeypatch):
     assert [x["commit"] for x in lines] == ["after-0-saves", "after-1-saves", "after-7-saves"]
 
 
-def test_pixel_features_train_resume_and_infer(dataset, tmp_path):
-    """stage2.data.pixel_features end to end: the model's condition is 35 + D wide, a resumed run
-    equals an uninterrupted one, and Stage II inference on the test scene's views (as Stage I's
-    renders) builds the same width; a caller that forgets the key is refused, naming it."""
+def stage2_on_test_scene(checkpoint: Path, dataset: Path):
+    """(model, saved config, Stage I's cloud, predict): the checkpoint's model and the dataset's test
+    scene with its views as Stage I's renders, unprojected; ``predict(**condition keys)`` runs Stage II
+    inference on that cloud (2 DDIM steps, 300 points) and returns its [P, 5] PBR."""
     from eval.layout import read_splits
     from gspi.stage1.extract import unproject_renders
     from gspi.stage2.encoders import build_encoder
     from gspi.stage2.infer import InferenceConfig, predict_generated_points
     from tests.stage2_fixtures import gt_views_as_renders
 
+    model, saved = load_stage2_checkpoint(checkpoint)
+    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
+    points = unproject_renders(renders, alpha_threshold=0.5)
+    encoder = build_encoder(saved["stage2"].prior)
+    cfg = InferenceConfig(num_steps=2, max_points=300)
+
+    def predict(**keys) -> np.ndarray:
+        return predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
+                                        cfg=cfg, **keys)[0]
+    return model, saved, points, predict
+
+
+def test_pixel_features_train_resume_and_infer(dataset, tmp_path):
+    """stage2.data.pixel_features end to end: the model's condition is 35 + D wide, a resumed run
+    equals an uninterrupted one, and Stage II inference on the test scene's views (as Stage I's
+    renders) builds the same width; a caller that forgets the key is refused, naming it."""
     extra = ("stage2.data.pixel_features=true", "stage2.train.steps=4", "stage2.eval.enabled=false")
     straight, resumed = tmp_path / "straight", tmp_path / "resumed"
     train(tiny_cfg(dataset, straight, *extra), straight)
@@ -268,91 +284,51 @@ def test_pixel_features_train_resume_and_infer(dataset, tmp_path):
     b = torch.load(resumed / "checkpoint.pt", weights_only=True)
     for name, value in a["ema"].items():
         assert torch.equal(value, b["ema"][name]), name
-    model, saved = load_stage2_checkpoint(straight / "checkpoint.pt")
+    model, saved, points, predict = stage2_on_test_scene(straight / "checkpoint.pt", dataset)
     assert saved["stage2"].data.pixel_features and model.config.local_cond_dim == 35 + 256
-    encoder = build_encoder(saved["stage2"].prior)
-    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
-    points = unproject_renders(renders, alpha_threshold=0.5)
-    cfg = InferenceConfig(num_steps=2, max_points=300)
-    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
-                                      cfg=cfg, pixel_features=True)
+    pbr = predict(pixel_features=True)
     assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all() and pbr.min() >= 0 and pbr.max() <= 1
     with pytest.raises(ValueError, match=r"291-dim local condition.*pixel_features=False, pixel_feature_spread=False\) gives 35"):
-        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg)
+        predict()
 
 
 def test_pixel_feature_spread_trains_and_infers(dataset, tmp_path):
     """stage2.data.pixel_feature_spread with pixel_features: the model's condition is 35 + 2 D
     wide, and Stage II inference (the test scene's views as Stage I's renders) builds that width."""
-    from eval.layout import read_splits
-    from gspi.stage1.extract import unproject_renders
-    from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.infer import InferenceConfig, predict_generated_points
-    from tests.stage2_fixtures import gt_views_as_renders
-
     out = tmp_path / "spread"
     train(tiny_cfg(dataset, out, "stage2.data.pixel_features=true", "stage2.data.pixel_feature_spread=true",
                    "stage2.train.steps=2", "stage2.eval.enabled=false"), out)
-    model, saved = load_stage2_checkpoint(out / "checkpoint.pt")
+    model, saved, points, predict = stage2_on_test_scene(out / "checkpoint.pt", dataset)
     assert saved["stage2"].data.pixel_feature_spread and model.config.local_cond_dim == 35 + 2 * 256
-    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
-    points = unproject_renders(renders, alpha_threshold=0.5)
-    cfg = InferenceConfig(num_steps=2, max_points=300)
-    encoder = build_encoder(saved["stage2"].prior)
-    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
-                                      cfg=cfg, pixel_features=True, pixel_feature_spread=True)
+    pbr = predict(pixel_features=True, pixel_feature_spread=True)
     assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all()
     with pytest.raises(ValueError, match=r"547-dim local condition.*pixel_feature_spread=False\) gives 291"):
-        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg,
-                                 pixel_features=True)
+        predict(pixel_features=True)
 
 
 def test_cross_view_radiance_trains_and_infers(dataset, tmp_path):
     """stage2.data.cross_view_radiance (issue 52): the model's condition is 35 + 5 wide, and
     Stage II inference on the test scene's views as Stage I's renders builds that width."""
-    from eval.layout import read_splits
-    from gspi.stage1.extract import unproject_renders
-    from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.infer import InferenceConfig, predict_generated_points
-    from tests.stage2_fixtures import gt_views_as_renders
-
     out = tmp_path / "radiance"
     train(tiny_cfg(dataset, out, "stage2.data.cross_view_radiance=true", "stage2.train.steps=2",
                    "stage2.eval.enabled=false"), out)
-    model, saved = load_stage2_checkpoint(out / "checkpoint.pt")
+    model, saved, points, predict = stage2_on_test_scene(out / "checkpoint.pt", dataset)
     assert saved["stage2"].data.cross_view_radiance and model.config.local_cond_dim == 35 + 5
-    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
-    points = unproject_renders(renders, alpha_threshold=0.5)
-    encoder = build_encoder(saved["stage2"].prior)
-    cfg = InferenceConfig(num_steps=2, max_points=300)
-    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
-                                      cfg=cfg, cross_view_radiance=True)
+    pbr = predict(cross_view_radiance=True)
     assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all()
     with pytest.raises(ValueError, match=r"40-dim local condition.*cross_view_radiance=False.*gives 35"):
-        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg)
+        predict()
 
 
 def test_cross_view_neighbourhood_trains_and_infers(dataset, tmp_path):
     """stage2.data.cross_view_neighbourhood (issue 52, session 26): + 16 after the statistic's 5, in
-    training and in Stage II inference; a model without it refuses the wider condition."""
-    from eval.layout import read_splits
-    from gspi.stage1.extract import unproject_renders
-    from gspi.stage2.encoders import build_encoder
-    from gspi.stage2.infer import InferenceConfig, predict_generated_points
-    from tests.stage2_fixtures import gt_views_as_renders
-
+    training and in Stage II inference; a caller that leaves the key out is refused, naming it."""
     out = tmp_path / "neighbourhood"
     train(tiny_cfg(dataset, out, "stage2.data.cross_view_radiance=true", "stage2.data.cross_view_neighbourhood=true",
                    "stage2.train.steps=2", "stage2.eval.enabled=false"), out)
-    model, saved = load_stage2_checkpoint(out / "checkpoint.pt")
+    model, saved, points, predict = stage2_on_test_scene(out / "checkpoint.pt", dataset)
     assert saved["stage2"].data.cross_view_neighbourhood and model.config.local_cond_dim == 35 + 5 + 16
-    renders = gt_views_as_renders(dataset / read_splits(dataset)["test"][0])
-    points = unproject_renders(renders, alpha_threshold=0.5)
-    encoder = build_encoder(saved["stage2"].prior)
-    cfg = InferenceConfig(num_steps=2, max_points=300)
-    pbr, _ = predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
-                                      cfg=cfg, cross_view_radiance=True, cross_view_neighbourhood=True)
+    pbr = predict(cross_view_radiance=True, cross_view_neighbourhood=True)
     assert pbr.shape == (len(points), 5) and np.isfinite(pbr).all()
     with pytest.raises(ValueError, match=r"56-dim local condition.*cross_view_neighbourhood=False.*gives 40"):
-        predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder, cfg=cfg,
-                                 cross_view_radiance=True)
+        predict(cross_view_radiance=True)

@@ -62,14 +62,15 @@ FEATURE_SETS = {"R1": ("top_rgb", "onehot"), "R1 + cross-view": ("top_rgb", "one
                 "R1 + cross-view + object": ("top_rgb", "onehot", "cross_view", "cross_view_object")}
 
 
-def object_features(features: np.ndarray, peak_gain: np.ndarray, highlight_gain: float) -> np.ndarray:
+def object_features(features: np.ndarray, peak_gain: np.ndarray) -> np.ndarray:
     """[n, 2d + 1] the same row for every point: the object's mean and 90th percentile of each of
-    the ``features`` [n, d] and the share of its points whose ``peak_gain`` exceeds ``highlight_gain``
-    (pair_highlights' definition of a highlit point). Pooled over the whole object, so a point takes
-    what its object shows anywhere: the condition that would carry gloss if a minority of points
-    shows it."""
+    the ``features`` [n, d] and its share of highlit points by their ``peak_gain``
+    (``pair_highlights.highlit_share``). Pooled over the whole object, so a point takes what its
+    object shows anywhere: the condition that would carry gloss if a minority of points shows it."""
+    from experiments.view_dependence.pair_highlights import highlit_share
+
     row = np.concatenate([features.mean(axis=0), np.quantile(features, 0.9, axis=0),
-                          [np.mean(peak_gain > highlight_gain)]]).astype(np.float32)
+                          [highlit_share(peak_gain)]]).astype(np.float32)
     return np.broadcast_to(row, (len(features), len(row))).copy()
 
 
@@ -77,7 +78,6 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     """A seeded subset of the scene's GT points with their conditions and targets."""
     from gspi.stage2.data import read_lattice_cameras, srgb_top_rgb
     from gspi.stage2.view_statistics import condition_features, cross_view_radiance, neighbourhood_mean
-    from experiments.view_dependence.pair_highlights import HIGHLIGHT_GAIN
     from experiments.view_dependence.stage0_probe import lattice_images, surface_subset
 
     pts = surface_subset(scene_dir, POINTS_PER_SCENE, seed)
@@ -87,7 +87,7 @@ def scene_arrays(scene_dir: Path, seed: int = 0) -> dict[str, np.ndarray]:
     stats = cross_view_radiance(images, depth, cams, xyz)
     gen = json.loads((scene_dir / "scene.json").read_text()).get("generator", {})
     arrays = {"top_rgb": srgb_top_rgb(pts["rgb"]), "cross_view": condition_features(stats)}
-    arrays["cross_view_object"] = object_features(arrays["cross_view"], stats[:, 0], HIGHLIGHT_GAIN)
+    arrays["cross_view_object"] = object_features(arrays["cross_view"], stats[:, 0])
     for k in NEIGHBOURHOODS:
         arrays.update({f"{f}_knn{k}": neighbourhood_mean(xyz, arrays[f], xyz, k)
                        for f in ("cross_view", "top_rgb")})

@@ -18,15 +18,21 @@ from pathlib import Path
 
 import numpy as np
 
+from gspi.data.controlled_pairs import read_manifest
+
 POINTS_PER_SCENE = 3000
 HIGHLIGHT_GAIN = 0.2  # linear luminance above the point's median view: a visible highlight
 
 
+def highlit_share(peak_gain: np.ndarray) -> float:
+    """The share of points whose gain exceeds ``HIGHLIGHT_GAIN``: what counts as a highlit point."""
+    return float(np.mean(peak_gain > HIGHLIGHT_GAIN))
+
+
 def highlight_summary(peak_gain: np.ndarray) -> dict[str, float]:
-    """Quantiles of the per-point gain and the share of points above ``HIGHLIGHT_GAIN``."""
+    """Quantiles of the per-point gain and the share of highlit points (``highlit_share``)."""
     q50, q90, q99 = np.quantile(peak_gain, [0.5, 0.9, 0.99])
-    return {"median": float(q50), "q90": float(q90), "q99": float(q99),
-            "share_highlit": float(np.mean(peak_gain > HIGHLIGHT_GAIN))}
+    return {"median": float(q50), "q90": float(q90), "q99": float(q99), "share_highlit": highlit_share(peak_gain)}
 
 
 def scene_highlights(scene_dir: Path, seed: int = 0) -> dict[str, float]:
@@ -46,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("data", type=Path, help="a gspi-data preset=controlled_pairs folder (pairs.json)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    pairs = json.loads((args.data / "pairs.json").read_text())["pairs"]
+    pairs = read_manifest(args.data)
     out = {"points_per_scene": POINTS_PER_SCENE, "highlight_gain": HIGHLIGHT_GAIN, "pairs": []}
     for pair in pairs:
         out["pairs"].append({"id": pair["id"], "kind": pair["kind"], "family": pair["family"],
