@@ -69,5 +69,32 @@ def test_evaluate_reports_each_predicted_scenes_mean_and_needs_one_fold():
                    feature_sets=["R1 + cross-view + object"], predict=predict)
     means = out["R1 + cross-view + object"]["scene_means"]
     assert set(means) == {"glossy", "matte"} and means["glossy"]["roughness"] < means["matte"]["roughness"]
+    gain = out["R1 + cross-view + object"]["roughness_scene_gain"]
+    assert gain["scenes"] == 2 and gain["ci95"][0] <= gain["mean"] <= gain["ci95"][1]
+    # roughness 0.2 and 0.8 against the training mean 0.5: the constant's per-scene PSNR is 10.46 dB;
+    # a reader of the cue beats it on both test scenes, so even the CI's lower end is above 0
+    assert gain["ci95"][0] > 0
     with pytest.raises(ValueError, match="needs one fold"):
         evaluate(version, [(["p0000_sphere_metal"], ["p0001_sphere_metal"])] * 2, steps=1, predict=predict)
+
+
+def test_real_objects_table_calls_a_model_ahead_only_above_no_decomposition_on_every_channel():
+    from experiments.view_dependence.probe_tables import REAL_CHANNELS, real_objects_table
+
+    def run(**psnr):  # two objects with the same scores per channel
+        return {"per_scene": {o: {c: {"psnr": psnr.get(c, 10.0)} for c in REAL_CHANNELS}
+                              for o in ("Avocado", "WaterBottle")}}
+
+    card = {"no_decomposition_same_data": dict.fromkeys(REAL_CHANNELS, 9.0),
+            "seed0": {"mean_psnr": dict.fromkeys(REAL_CHANNELS, 12.0), "WaterBottle_metallic_psnr": 4.0}}
+    runs = {"table2_cpu_x__full_s0": run(albedo=11.0, roughness=11.0, metallic=11.0, relight=11.0),
+            "table2_cpu_x__full_s1": run(albedo=11.0, roughness=11.0, metallic=11.0, relight=10.0)}
+    text = real_objects_table(runs, run(), card, "stage2_x")
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines() if line.startswith("| retrained")
+            or line.startswith("| `stage2_x")}
+    assert rows["retrained table2_cpu_x/full_s0"].endswith("| 11.00 | yes |")   # WaterBottle metallic 11
+    assert rows["retrained table2_cpu_x/full_s1"].endswith("| no (relight behind) |")  # a tie is not ahead
+    assert rows["`stage2_x.pt` (default), seed 0"].endswith("| 4.00 | yes |")
+    assert text.startswith("The 2 real objects")
+    with pytest.raises(ValueError, match="scores 1 objects, no decomposition's 2"):
+        real_objects_table({"a__b": {"per_scene": {"Avocado": run()["per_scene"]["Avocado"]}}}, run(), card, "stage2_x")

@@ -142,7 +142,12 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]],
     multi-part scenes' points, the roughness PSNR (model, training-mean constant), and, in the units
     of Table 2's measure and issue 52's targets, the mean over scenes of each scene's own metal IoU
     for the pool's metal class and for the multi-part scenes (``metal_iou_metal_class``,
-    ``metal_iou_multi_part_scenes``; a scene with no metal in truth or prediction has none)."""
+    ``metal_iou_multi_part_scenes``; a scene with no metal in truth or prediction has none), and
+    ``roughness_scene_gain``: each test scene's own roughness PSNR minus the training-mean
+    constant's, its mean over scenes and paired 95 % bootstrap CI (issue 52's roughness rule, in
+    the oracle's terms: does the best per-point reader of these conditions beat a constant with a
+    CI above 0?)."""
+    from eval.stats import paired_bootstrap_ci
     from experiments.view_dependence.probe_tables import is_metal_class, is_multi_part
 
     if predict and len(folds) != 1:
@@ -150,7 +155,7 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]],
     out = {}
     for fs_name in feature_sets or FEATURE_SETS:
         keys = FEATURE_SETS[fs_name]
-        rows, scene_means = [], {}
+        rows, scene_means, rough_gain = [], {}, {}
         for train, test in folds:
             cat = lambda names, k: np.concatenate([version[n][k] for n in names])  # noqa: E731
             x_tr = np.concatenate([cat(train, k) for k in keys], axis=1)
@@ -167,6 +172,10 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]],
             ends = np.cumsum([len(version[n]["metallic"]) for n in test])
             scene_iou = {n: metal_iou(pred[e - len(version[n]["metallic"]):e, 1], version[n]["metallic"])
                          for n, e in zip(test, ends)}
+            constant = float(y_tr[:, 0].mean())
+            rough_gain.update({n: psnr(pred[e - len(version[n]["roughness"]):e, 0], version[n]["roughness"])
+                               - psnr(np.full_like(version[n]["roughness"], constant), version[n]["roughness"])
+                               for n, e in zip(test, ends)})
             class_mean = lambda keep: mean_or_none([v for n, v in scene_iou.items() if v is not None and keep(n)])  # noqa: E731
             rows.append({"metal_iou": metal_iou(pred[:, 1], metal),
                          "metal_iou_multi_part": metal_iou(pred[multi, 1], metal[multi]),
@@ -176,6 +185,8 @@ def evaluate(version: dict[str, dict], folds: list[tuple[list[str], list[str]]],
                          "metal_iou_multi_part_scenes": class_mean(is_multi_part)})
         out[fs_name] = {k: float(np.mean([r[k] for r in rows if r[k] is not None])) for k in rows[0]
                         if any(r[k] is not None for r in rows)}
+        gain, lo, hi = paired_bootstrap_ci(rough_gain, dict.fromkeys(rough_gain, 0.0))
+        out[fs_name]["roughness_scene_gain"] = {"mean": gain, "ci95": [lo, hi], "scenes": len(rough_gain)}
         if scene_means:
             out[fs_name]["scene_means"] = scene_means
     return out

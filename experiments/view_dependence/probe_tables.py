@@ -29,6 +29,10 @@ scores of ``evaluate_points``), never typed:
   docs/log/demo/, whose assets are ``recon=fast``'s) and the controlled pairs
   (``docs/log/probes/stage0_only/controlled_pairs_<recon>.json`` against
   benchmarks/results/controlled_pairs_fast.json).
+* ``retrained_real_objects.md``: the 19 real objects end to end behind ``recon=fast_view_mild``
+  (``docs/log/probes/retrained_real_objects/real_<scores folder>__<run>.json``, and no
+  decomposition's ``real_no_decomposition.json`` on the same reconstructions) against the default
+  checkpoint's card (``recon=fast``).
 A table whose scores are not committed yet is left out.
 """
 from __future__ import annotations
@@ -214,6 +218,41 @@ def end_to_end_runs(folder: Path) -> tuple[dict[str, dict], dict[str, dict]]:
     return demo_runs, (pairs if len(pairs) > 1 else {})
 
 
+REAL_CHANNELS = ("albedo", "roughness", "metallic", "relight")
+
+
+def real_objects_table(runs: dict[str, dict], no_decomposition: dict, card: dict, default: str) -> str:
+    """Mean PSNR per channel over the real objects: the default's card (recon=fast) and each
+    retrained model behind recon=fast_view_mild, each against no decomposition on its own Stage 0;
+    "ahead" = above no decomposition on every channel's mean, relight included."""
+    means = lambda per_scene: {c: float(np.mean([v[c]["psnr"] for v in per_scene.values()])) for c in REAL_CHANNELS}  # noqa: E731
+    bottle = lambda per_scene: per_scene.get("WaterBottle", {}).get("metallic", {}).get("psnr")  # noqa: E731
+    nd = means(no_decomposition["per_scene"])
+    card_nd, n = card["no_decomposition_same_data"], len(no_decomposition["per_scene"])
+    rows = [("no decomposition", "recon=fast", card_nd, None, None),
+            (f"`{default}.pt` (default), seed 0", "recon=fast", card["seed0"]["mean_psnr"], card_nd,
+             card["seed0"].get("WaterBottle_metallic_psnr")),
+            ("no decomposition", "recon=fast_view_mild", nd, None, bottle(no_decomposition["per_scene"]))]
+    for name, run in runs.items():
+        if len(run["per_scene"]) != n:
+            raise ValueError(f"real_{name}.json scores {len(run['per_scene'])} objects, no decomposition's {n}")
+        rows.append(("retrained {}/{}".format(*name.split("__")), "recon=fast_view_mild", means(run["per_scene"]), nd,
+                     bottle(run["per_scene"])))
+    lines = ["| model | Stage 0 | " + " | ".join(f"{c} PSNR" for c in REAL_CHANNELS)
+             + " | WaterBottle metallic PSNR | ahead of no decomposition on every channel |",
+             "|---|---|" + "---|" * len(REAL_CHANNELS) + "---|---|"]
+    for model, recon, m, base, wb in rows:
+        verdict = "" if base is None else ("yes" if all(m[c] > base[c] for c in REAL_CHANNELS) else "no ("
+                                           + ", ".join(c for c in REAL_CHANNELS if m[c] <= base[c]) + " behind)")
+        lines.append(f"| {model} | {recon} | " + " | ".join(f"{m[c]:.2f}" for c in REAL_CHANNELS)
+                     + f" | {'-' if wb is None else f'{wb:.2f}'} | {verdict} |")
+    return (f"The {n} real objects (`gspi-data import.glb=../shared/data/real-objects preset=small`) end to end "
+            "(Stage III 300 iterations, `+experiment=real_objects`): the default's card (`recon=fast`) and the Full "
+            "models retrained under `recon=fast_view_mild` (docs/results/probes/retraining_shipped.md) behind that "
+            "Stage 0, each against no decomposition on the same reconstructions. Test data only.\n\n"
+            + "\n".join(lines) + "\n")
+
+
 def oracle_curve_table(data: dict) -> str:
     """Per measure, rows (conditions, features) and a column per training-scene count."""
     by_row: dict[tuple[str, str], dict[int, dict]] = {}
@@ -248,8 +287,8 @@ def oracle_pooled_table(data: dict) -> str:
     controlled pairs under the same conditions."""
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
     lines = ["| conditions | features | metal-class IoU | multi-part metal IoU | roughness - constant (dB) | "
-             "glossy/matte ordered | ordered by >= 0.3 | metal/dielectric separated |",
-             "|---|---|---|---|---|---|---|---|"]
+             "per scene [95 % CI] | glossy/matte ordered | ordered by >= 0.3 | metal/dielectric separated |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for version, sets in data["versions"].items():
         for fs, r in sets.items():
             pair = data.get("pairs", {}).get(version, {}).get(fs)
@@ -257,7 +296,9 @@ def oracle_pooled_table(data: dict) -> str:
                          pct(pair["metal"]["separated"])] if pair else ["-"] * 3)
             lines.append(f"| {version} | {fs} | {r.get('metal_iou_metal_class', float('nan')):.2f} | "
                          f"{r.get('metal_iou_multi_part_scenes', float('nan')):.2f} | "
-                         f"{r['roughness_psnr'] - r['roughness_psnr_constant']:+.2f} | " + " | ".join(verdicts) + " |")
+                         f"{r['roughness_psnr'] - r['roughness_psnr_constant']:+.2f} | "
+                         + (fmt_ci(g["mean"], *g["ci95"]) if (g := r.get("roughness_scene_gain")) else "-") + " | "
+                         + " | ".join(verdicts) + " |")
     n_pairs = next((f"{p['roughness']['pairs']} glossy/matte and {p['metal']['pairs']} metal/dielectric pairs"
                     for sets in data.get("pairs", {}).values() for p in sets.values()), "the controlled pairs")
     return (f"The per-point MLP of `cue_oracle_curve.md` ({data['steps']} steps, {data['points_per_scene']} points per "
@@ -266,7 +307,10 @@ def oracle_pooled_table(data: dict) -> str:
             "each scene reconstructed by `recon=fast_view_mild`); a pair's verdicts are "
             "`benchmarks/bench_controlled_pairs.py`'s, from each scene's mean prediction over its surface points. "
             "+ object = the object's mean and 90th percentile of the cross-view statistic and its share of highlit "
-            "points, the same for every point of it (`cue_oracle.object_features`).\n\n" + "\n".join(lines) + "\n")
+            "points, the same for every point of it (`cue_oracle.object_features`). Roughness - constant: over all "
+            "test points pooled; per scene: the mean over the held-out scenes of each scene's own PSNR minus the "
+            "training-mean constant's, with its paired 95 % bootstrap CI (issue 52's roughness rule in the oracle's "
+            "terms; - = not measured).\n\n" + "\n".join(lines) + "\n")
 
 
 def pair_highlights_table(data: dict) -> str:
@@ -355,6 +399,14 @@ def tables() -> dict[str, str]:
             "shipped scale under `recon=fast_view_mild` (`docs/results/probes/retraining_shipped.md`; the column names "
             "the model's committed scores folder and run), each behind `recon=fast_view_mild`",
             label=lambda name: "retrained {}/{}".format(*name.split("__")))
+    real = PROBES / "retrained_real_objects"
+    if (real / "real_no_decomposition.json").is_file():
+        from eval.tables.docs_results import DEFAULT_MODEL
+
+        card = json.loads((ROOT / "checkpoints" / f"{DEFAULT_MODEL}.json").read_text())["real_objects_19_small"]
+        runs = {p.stem.removeprefix("real_"): json.loads(p.read_text()) for p in sorted(real.glob("real_*__*.json"))}
+        out["retrained_real_objects.md"] = real_objects_table(
+            runs, json.loads((real / "real_no_decomposition.json").read_text()), card, DEFAULT_MODEL)
     return {name: f"<!-- generated by python -m experiments.view_dependence.probe_tables; do not edit -->\n{text}"
             for name, text in out.items()}
 
