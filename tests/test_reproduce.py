@@ -57,6 +57,30 @@ def test_a_failed_step_names_itself_and_its_log_and_leaves_no_marker(tmp_path):
     assert not step.done.exists()
 
 
+def test_a_step_another_call_is_running_is_refused_and_one_it_finished_is_skipped(tmp_path):
+    import fcntl
+
+    from gspi.reproduce.plan import run_step
+
+    out = tmp_path / "a.txt"
+    step = Step("train: full_s0", tmp_path / ".done" / "a", touch_command(out))
+    lock = tmp_path / ".locks" / "train_full_s0.lock"
+    lock.parent.mkdir()
+    with open(lock, "w") as held:  # another call holds the step (flock: per open file, even in one process)
+        held.write("pid 4242 since 2026-12-05T19:00:00Z\n")
+        held.flush()
+        fcntl.flock(held, fcntl.LOCK_EX)
+        with pytest.raises(StepFailed, match=r"step train: full_s0 is being run by another gspi-reproduce on this "
+                                             r"work folder \(pid 4242 since 2026-12-05T19:00:00Z; lock .*\): let it"):
+            run_plan([step], tmp_path / "log")
+        assert not out.exists() and not step.done.exists()
+    run_plan([step], tmp_path / "log")  # released: runs, and leaves the lock file empty for the next holder
+    assert out.read_text() == "x" and lock.read_text() == ""
+    out.unlink()
+    run_step(step, tmp_path / "log")  # finished by "another call" before this one got the lock: not run again
+    assert not out.exists()
+
+
 def test_a_step_repeats_until_done(tmp_path):
     counter = tmp_path / "n"
     bump = [sys.executable, "-c", f"import pathlib; p = pathlib.Path({str(counter)!r}); "

@@ -8,11 +8,21 @@ reconstruction finished assets, gspi-train its ``checkpoint.pt``). A step may ne
 of its command (a training run in chunks of ``stage2.train.stop_after_minutes``): ``repeat_until``
 says when it is done. Each command is logged before it runs, so the log reads as the commands a
 person would type.
+
+Two calls may share a work folder (two scales whose runs live side by side, or a second call
+with other ``variants=``/``seeds=`` to use a free core): each step runs under an exclusive lock
+(``<work>/.locks/<step>.lock``, ``fcntl.flock``, released by the OS when its process dies), so a
+step another call is running is refused with one line instead of being run twice; a step that
+the other call finished meanwhile is skipped. flock is per machine: on a cluster, give each job
+its own steps (SLURM: docs/REPRODUCE.md "On a cluster").
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import logging
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -92,7 +102,43 @@ class StepFailed(RuntimeError):
     """A step's command exited non-zero: the message names the step, the command and its log."""
 
 
+@contextlib.contextmanager
+def step_lock(step: Step, lock_dir: Path, *, wait: bool = False):
+    """Holds ``<lock_dir>/<step name>.lock`` for this process; another holder means another call
+    runs the step: ``StepFailed`` naming it (its pid and start), or, with ``wait``, waits for it."""
+    lock_dir.mkdir(parents=True, exist_ok=True)
+    path = lock_dir / (re.sub(r"[^A-Za-z0-9_.-]+", "_", step.name).strip("_") + ".lock")
+    with open(path, "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "pid unknown"
+            raise StepFailed(f"step {step.name} is being run by another gspi-reproduce on this work folder "
+                             f"({holder}; lock {path}): let it finish, or give this call other variants=/seeds=") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"pid {os.getpid()} since {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}\n")
+        fh.flush()
+        try:
+            yield
+        finally:
+            fh.seek(0)
+            fh.truncate()
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 def run_step(step: Step, log_file: Path) -> None:
+    """Runs ``step`` until it is done, under its lock (``step_lock``): skipped when another call
+    finished it while this one waited for its turn."""
+    with step_lock(step, log_file.parent / ".locks", wait=step.rebuild):
+        if step.is_done():
+            log.info("%s: done by another call meanwhile", step.name)
+            return
+        _run_step(step, log_file)
+
+
+def _run_step(step: Step, log_file: Path) -> None:
     """Runs ``step`` until it is done (its ``done`` file written by the command, ``after`` or here)."""
     calls = 0
     while True:
