@@ -33,6 +33,9 @@ scores of ``evaluate_points``), never typed:
   (``docs/log/probes/retrained_real_objects/real_<scores folder>__<run>.json``, and no
   decomposition's ``real_no_decomposition.json`` on the same reconstructions) against the default
   checkpoint's card (``recon=fast``).
+* ``guidance.md``: a retrained model's held-out scores under classifier-free guidance
+  (``docs/log/probes/guidance/<scores folder>__<run>__g<scale>.json``, ``evaluate_points
+  --guidance-scale``) against its committed unguided Table 2 scores, with issue 52's targets.
 A table whose scores are not committed yet is left out.
 """
 from __future__ import annotations
@@ -399,6 +402,17 @@ def tables() -> dict[str, str]:
             "shipped scale under `recon=fast_view_mild` (`docs/results/probes/retraining_shipped.md`; the column names "
             "the model's committed scores folder and run), each behind `recon=fast_view_mild`",
             label=lambda name: "retrained {}/{}".format(*name.split("__")))
+    guided: dict[str, dict[str, list[dict]]] = {}
+    for p in sorted((PROBES / "guidance").glob("*__*__g*.json")):  # <scores folder>__<run>__g<scale>
+        folder, run, scale = p.stem.split("__")
+        rows = guided.setdefault(f"{folder}/{run}", {"guidance 1 (Table 2's run)": [json.loads(
+            (ROOT / "docs" / "results" / "scores" / folder / run / "scores.json").read_text())]})
+        rows[f"guidance {scale.removeprefix('g')}"] = [json.loads(p.read_text())]
+    if guided:
+        out["guidance.md"] = "\n".join(
+            f"Classifier-free guidance on {model} (`evaluate_points --guidance-scale`, the 32 held-out scenes, "
+            f"10 DDIM steps, 20000 points; guidance 1 = off, the committed Table 2 run):\n\n"
+            + retraining_table(rows) + "\n" + targets_table(rows) for model, rows in guided.items())
     real = PROBES / "retrained_real_objects"
     if (real / "real_no_decomposition.json").is_file():
         from eval.tables.docs_results import DEFAULT_MODEL
