@@ -49,3 +49,13 @@ def test_highlight_stats_and_psnr_golden():
     assert stats["gt_frac_above_1"] == 0.5 and stats["asset_frac_above_1"] == 0.0
     # clamped: errors 0.75, 0.25 on two pixels, 0.25 on two background pixels -> mse 0.1875
     assert abs(display_psnr(gt, asset) - 10 * np.log10(1 / 0.1875)) < 1e-5  # float32 images
+
+
+def test_the_command_line_takes_overrides_before_or_after_its_options(monkeypatch, tmp_path):
+    import gspi.recon.reconstructed_pool as rp
+
+    calls = []
+    monkeypatch.setattr(rp, "reconstruct_pool", lambda src, out, **kw: calls.append(kw))
+    rp.main([str(tmp_path / "a"), str(tmp_path / "b"), "--recon", "fast_view_mild", "recon.iterations=1800"])
+    rp.main([str(tmp_path / "a"), str(tmp_path / "b"), "recon.iterations=1800", "--recon", "fast_view_mild"])
+    assert calls == [{"recon": "fast_view_mild", "workers": 1, "overrides": ("recon.iterations=1800",)}] * 2

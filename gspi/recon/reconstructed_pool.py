@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=1, help="scenes in parallel, one thread each")
     parser.add_argument("overrides", nargs="*", help="recon overrides, e.g. recon.iterations=300")
     parser.add_argument("--summary", action="store_true", help="print the per-class table of OUT and stop")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # overrides may follow --recon
     if args.summary:
         print(summary_table(args.out))
         return
