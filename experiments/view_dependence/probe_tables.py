@@ -5,6 +5,8 @@ scores of ``evaluate_points``), never typed:
     python -m experiments.view_dependence.probe_tables --check  # exit 1 when a committed table differs
 
 * ``stage0_view_dependence.md`` from ``docs/log/probes/stage0_view_dependence.json``;
+* ``stage0_length.md`` from ``docs/log/probes/stage0_length.json``: the same per class over
+  ``recon=fast_view_mild``'s length (iterations), on its glossy and metal scenes;
 * ``patch_inference.md``: ``docs/log/probes/patch_inference/<mode>.json`` (``whole``, ``patch512``),
   per scene and the paired differences (95 % bootstrap CI over scenes); the same for a retrained
   model, ``patch_inference_<scores folder>_<run>.md``: its 512-point-patch scores
@@ -341,6 +343,16 @@ def tables() -> dict[str, str]:
     stage0 = PROBES / "stage0_view_dependence.json"
     if stage0.is_file():
         out["stage0_view_dependence.md"] = class_table(json.loads(stage0.read_text()))
+    length = PROBES / "stage0_length.json"  # the same probe over Stage 0's length, glossy and metal scenes
+    if length.is_file():
+        out["stage0_length.md"] = (
+            "`recon=fast_view_mild` at 600 (its own), 1200 and 1800 iterations (`recon.iterations`, the "
+            "schedule otherwise unchanged) on the Stage 0 probe's 2 glossy-plastic and 3 metal scenes: what a "
+            "longer Stage 0 keeps of the exact renders' highlights (columns as in stage0_view_dependence.md; "
+            "`_q90`: the 90th percentile of the per-point gain, where a glossy object's few highlit points show).\n\n"
+            + class_table(json.loads(length.read_text()), ("gt_q99", "asset_q99", "gt_peak_gain", "asset_peak_gain",
+                                                           "gt_peak_gain_q90", "asset_peak_gain_q90", "lattice_db",
+                                                           "heldout_db", "seconds")))
     whole, patch = PROBES / "patch_inference" / "whole.json", PROBES / "patch_inference" / "patch512.json"
     if whole.is_file() and patch.is_file():
         out["patch_inference.md"] = patch_table(json.loads(whole.read_text()), json.loads(patch.read_text()))

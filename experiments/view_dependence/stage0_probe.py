@@ -77,10 +77,12 @@ def probe(source: Path, recons: dict[str, Path]) -> dict:
     return result
 
 
-def class_table(result: dict) -> str:
-    """Per Stage 0 config and material class: medians over scenes."""
-    cols = ["gt_q99", "asset_q99", "gt_peak_gain", "asset_peak_gain", "gt_spread", "asset_spread",
-            "lattice_db", "heldout_db", "seconds"]
+TABLE_COLUMNS = ("gt_q99", "asset_q99", "gt_peak_gain", "asset_peak_gain", "gt_spread", "asset_spread",
+                 "lattice_db", "heldout_db", "seconds")
+
+
+def class_table(result: dict, cols: tuple[str, ...] = TABLE_COLUMNS) -> str:
+    """Per Stage 0 config and material class: medians over scenes of ``cols`` (scene_scores keys)."""
     lines = ["| Stage 0 | class | scenes | " + " | ".join(cols) + " |", "|---" * (len(cols) + 3) + "|"]
     for config, scenes in result.items():
         by_class: dict[str, list[dict]] = {}
