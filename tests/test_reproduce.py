@@ -114,9 +114,10 @@ def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeyp
     steps, cfg, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu"])
     scores = ROOT / cfg["scores_dir"]
     committed = {p.parent.name for p in scores.glob("*/scores.json")}
-    assert {"full_s0", "full_s1", "a1_no_global_prior_s0"} <= committed
+    assert {"a2_no_view_onehot_s0"} <= committed
     trained = {s.name.split(": ", 1)[1] for s in steps if s.name.startswith("train: ")}
     assert trained.isdisjoint(committed) and "full_s2" in trained
+    assert "full_s0" not in trained  # the shipped checkpoint stands for it (checkpoints_from): measured at most
     assert steps[-1].name == "table"
     for p in scores.glob("*/scores.json"):
         text = p.read_text()
@@ -129,7 +130,9 @@ def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, 
     monkeypatch.setattr(cli, "REPO", ROOT)
     scores = tmp_path / "scores"
     argv = [f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={scores}", "seeds=[0]",
-            "variants=[full,a1_no_global_prior]"]
+            "variants=[full,a1_no_global_prior]", "checkpoints_from=null",
+            "scores_from={full_s0:docs/log/heldout/stage2_pool224_pixel_5k.json,"
+            "a1_no_global_prior_s0:docs/log/heldout/cpu_parts_pool_a1_no_global_prior_pixel_5k_224_s0.json}"]
     assert cli.main([*argv, "dry_run=true"]) == 0
     out = capsys.readouterr().out
     assert "adopt: full_s0" in out and "adopt: a1_no_global_prior_s0" in out
@@ -140,6 +143,22 @@ def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, 
     assert not MACHINE_PATH.search((scores / "full_s0" / "scores.json").read_text())
     steps, _, _ = cli.plan(argv)
     assert [s.name for s in steps] == ["table"]  # adopted runs are neither trained nor measured
+
+
+def test_a_committed_checkpoint_stands_for_its_run_measured_and_never_trained(tmp_path, monkeypatch):
+    """``checkpoints_from``: the shipped model is Full seed 0 of Table 2's recipe; with no committed
+    scores it is measured on the work folder's held-out scenes (its checkpoint, not a run folder's),
+    and a missing checkpoint is a one-line error naming the key."""
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    argv = [f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={tmp_path / 'scores'}", "seeds=[0]",
+            "variants=[full]"]
+    steps, cfg, _ = cli.plan(argv)
+    names = [s.name for s in steps]
+    assert "measure: full_s0" in names and not any(n.startswith("train: ") for n in names)
+    measure = steps[names.index("measure: full_s0")]
+    assert str(ROOT / "checkpoints" / "stage2_pool224_pixel_5k.pt") in measure.command
+    with pytest.raises(FileNotFoundError, match="checkpoints_from.full_s0: .*nope.pt does not exist"):
+        cli.plan([*argv, "checkpoints_from={full_s0:checkpoints/nope.pt}"])
 
 
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):

@@ -4,7 +4,8 @@ Table 2's measure on the held-out scenes, its scores committed -> the table (gsp
 
 Config: conf/reproduce/table2_<scale>.yaml (its comments name every key). A (variant, seed)
 whose scores are committed (``scores_dir``, or a file ``scores_from`` names) needs nothing
-else, and the data steps run only while some run still needs them.
+else; one whose checkpoint is committed (``checkpoints_from``) is measured, not trained; the data
+steps run only while some run still needs them.
 """
 from __future__ import annotations
 
@@ -84,22 +85,38 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     train = [tool("gspi-train"), f"data={work / f'rtrain_{recon}'}", f"out={run_dir}", f"stage2={cfg['stage2']}",
              f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
+    return [
+        Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
+             repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name),
+        measure_step(cfg, work, name, run_dir / "checkpoint.pt", run_dir / "eval", scores, root),
+    ]
+
+
+def measure_step(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: Path, eval_dir: Path, scores: Path,
+                 root: Path) -> Step:
+    """Table 2's measure of ``checkpoint`` on the held-out scenes; its scores committed (portable)."""
     m = cfg["measure"]
-    measure = [*python_module("gspi.stage2.evaluate_points"), str(run_dir / "checkpoint.pt"),
-               str(work / f"rheldout_{recon}"), str(run_dir / "eval"), "--num-steps", str(m["num_steps"]),
+    measure = [*python_module("gspi.stage2.evaluate_points"), str(checkpoint),
+               str(work / f"rheldout_{cfg['recon']}"), str(eval_dir), "--num-steps", str(m["num_steps"]),
                "--baseline-train", str(root / m["baseline"]) if m.get("baseline") else str(work / "baseline_train")]
     if m.get("max_points"):
         measure += ["--max-points", str(m["max_points"])]
     if m.get("patch_points"):
         measure += ["--patch-points", str(m["patch_points"])]
-    commit = lambda: write_portable_scores(run_dir / "eval" / "scores.json", scores,  # noqa: E731
-                                           data_label=m["data_label"], roots={"<work>": work})
-    return [
-        Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
-             repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name),
-        Step(f"measure: {name}", scores, measure, after=commit, env={"OMP_NUM_THREADS": "1"}, lane_group=name,
-             marker=False),
-    ]
+    commit = lambda: write_portable_scores(eval_dir / "scores.json", scores,  # noqa: E731
+                                           data_label=m["data_label"], roots={"<work>": work, "<repo>": root})
+    return Step(f"measure: {name}", scores, measure, after=commit, env={"OMP_NUM_THREADS": "1"}, lane_group=name,
+                marker=False)
+
+
+def checkpoint_steps(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: Path, scores: Path,
+                     root: Path) -> list[Step]:
+    """A committed checkpoint that stands for its run (``checkpoints_from``, e.g. the shipped model
+    as Full seed 0): measured on this work folder's held-out scenes, never trained."""
+    if not checkpoint.is_file():
+        raise FileNotFoundError(f"checkpoints_from.{name}: {checkpoint} does not exist")
+    runs = cfg.get("runs") or f"runs_{cfg['recon']}"
+    return [measure_step(cfg, work, name, checkpoint, work / runs / name / "eval", scores, root)]
 
 
 def table_step(cfg: Mapping[str, Any], scores_dir: Path, tables_dir: Path) -> Step:
@@ -113,12 +130,16 @@ def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     work = (root / cfg["work"]).resolve()
     scores_dir, tables_dir = root / cfg["scores_dir"], root / cfg["tables_dir"]
     adopted = adopt_steps(cfg, root, scores_dir)
+    shipped = cfg.get("checkpoints_from") or {}
     runs = []
     for seed in cfg["seeds"]:
         for variant in cfg["variants"]:
-            scores = scores_dir / run_name(variant, seed) / "scores.json"
-            if not scores.is_file() and run_name(variant, seed) not in adopted:
-                runs += run_steps(cfg, work, variant, seed, scores, root)
+            name = run_name(variant, seed)
+            scores = scores_dir / name / "scores.json"
+            if scores.is_file() or name in adopted:
+                continue
+            runs += (checkpoint_steps(cfg, work, name, root / shipped[name], scores, root) if name in shipped
+                     else run_steps(cfg, work, variant, seed, scores, root))
     steps = list(adopted.values()) + (pool_steps(cfg, work) if runs else []) + runs
     table = table_step(cfg, scores_dir, tables_dir)
     for step in steps:
