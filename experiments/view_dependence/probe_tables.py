@@ -350,7 +350,8 @@ def tables() -> dict[str, str]:
             "schedule otherwise unchanged) on the Stage 0 probe's 2 glossy-plastic and 3 metal scenes: what a "
             "longer Stage 0 keeps of the exact renders' highlights (columns as in stage0_view_dependence.md; "
             "`_q90`: the 90th percentile of the per-point gain, where a glossy object's few highlit points show).\n\n"
-            + class_table(json.loads(length.read_text()), ("gt_q99", "asset_q99", "gt_peak_gain", "asset_peak_gain",
+            + class_table(dict(sorted(json.loads(length.read_text()).items(),  # by iterations: <recon>_<n>
+                                      key=lambda kv: int(kv[0].rsplit("_", 1)[1]))), ("gt_q99", "asset_q99", "gt_peak_gain", "asset_peak_gain",
                                                            "gt_peak_gain_q90", "asset_peak_gain_q90", "lattice_db",
                                                            "heldout_db", "seconds")))
     whole, patch = PROBES / "patch_inference" / "whole.json", PROBES / "patch_inference" / "patch512.json"
