@@ -159,6 +159,7 @@ def test_a_committed_checkpoint_stands_for_its_run_measured_and_never_trained(tm
     assert str(ROOT / "checkpoints" / "stage2_pool224_pixel_5k.pt") in measure.command
     with pytest.raises(FileNotFoundError, match="checkpoints_from.full_s0: .*nope.pt does not exist"):
         cli.plan([*argv, "checkpoints_from={full_s0:checkpoints/nope.pt}"])
+    assert cli.main([*argv, "checkpoints_from={full_s0:checkpoints/nope.pt}", "dry_run=true"]) == 2  # one line
 
 
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from gspi.reproduce.plan import Step
+from eval.errors import MissingInputError
 from eval.portable import write_portable_scores
 
 BIN = Path(sys.executable).parent
@@ -114,7 +115,7 @@ def checkpoint_steps(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: 
     """A committed checkpoint that stands for its run (``checkpoints_from``, e.g. the shipped model
     as Full seed 0): measured on this work folder's held-out scenes, never trained."""
     if not checkpoint.is_file():
-        raise FileNotFoundError(f"checkpoints_from.{name}: {checkpoint} does not exist")
+        raise MissingInputError(f"checkpoints_from.{name}: {checkpoint} does not exist")
     runs = cfg.get("runs") or f"runs_{cfg['recon']}"
     return [measure_step(cfg, work, name, checkpoint, work / runs / name / "eval", scores, root)]
 
