@@ -105,6 +105,18 @@ def test_different_baselines_are_refused(folders):
         load_points_folders([folders])
 
 
+def test_scores_of_other_input_bytes_are_refused_by_their_checksums(folders):
+    """Two measures of the same scenes on rebuilt data (same baseline to the digit, other bytes):
+    the recorded input checksums name the scenes that differ; scores without checksums (measured
+    before session 27) fall back to the other checks."""
+    sums = lambda **changed: {"inputs": "x" + "".join(changed), "per_scene": {s: changed.get(s, "c") for s in SCENES}}  # noqa: E731
+    write_scores(folders / "one" / "eval", "full", train_seed=1, checksums=sums())
+    load_points_folders([folders])  # one measure with checksums among measures without: accepted
+    write_scores(folders / "two" / "eval", "full", train_seed=2, checksums=sums(**{SCENES[1]: "d"}))
+    with pytest.raises(ValueError, match=rf"input checksums differ for 1 scene\(s\), e\.g\. {SCENES[1]}: the data was rebuilt"):
+        load_points_folders([folders])
+
+
 def test_missing_field_names_the_file(tmp_path):
     folder = write_scores(tmp_path / "x", "full")
     data = json.loads((folder / "scores.json").read_text())

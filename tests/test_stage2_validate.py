@@ -107,6 +107,19 @@ def test_evaluate_points_baseline_constants_from_another_dataset(dataset, runs, 
     a, b = (json.loads((tmp_path / k / "scores.json").read_text()) for k in "ab")
     assert a["per_scene"] == b["per_scene"] and a["baseline_constants"] == b["baseline_constants"]
     assert a["baseline_train"] == str(dataset.resolve())
+    # what each measure read, by checksum: a copy's bytes are the same wherever it lives ...
+    assert a["checksums"] == b["checksums"] and sorted(a["checksums"]["per_scene"]) == sorted(splits["test"])
+    # ... and one changed byte of one scene changes that scene's checksum and the overall one, only
+    from gspi.stage2.evaluate_points import scene_inputs_checksums
+
+    scene = splits["test"][0]
+    npz = test_only / scene / "gt_points.npz"
+    data = bytearray(npz.read_bytes())
+    data[-1] ^= 1
+    npz.write_bytes(bytes(data))
+    changed = scene_inputs_checksums(test_only, splits["test"])
+    assert changed["inputs"] != a["checksums"]["inputs"]
+    assert [n for n in splits["test"] if changed["per_scene"][n] != a["checksums"]["per_scene"][n]] == [scene]
 
 
 

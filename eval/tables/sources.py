@@ -96,6 +96,15 @@ def _same_evaluation(scores: dict[Path, dict]) -> None:
     """All folders scored the same scenes of the same split and dataset, with the same
     baseline (else one table would compare models on different inputs)."""
     first_path, first = next(iter(scores.items()))
+    summed = {p: d["checksums"] for p, d in scores.items() if (d.get("checksums") or {}).get("inputs")}
+    if summed:  # recorded since session 27: the bytes each measure read
+        ref_path, ref = next(iter(summed.items()))
+        for path, sums in summed.items():
+            if sums["inputs"] != ref["inputs"]:
+                differ = sorted(n for n, c in sums["per_scene"].items() if c != ref["per_scene"].get(n))
+                raise ValueError(f"{path} and {ref_path}: measured on different bytes of the same scenes (input "
+                                 f"checksums differ for {len(differ)} scene(s), e.g. {', '.join(differ[:3])}: the "
+                                 "data was rebuilt?); tabulate one evaluation at a time")
     ident = lambda d: (sorted(d["scenes"]), d["split"], d["data"], d.get("num_steps"),  # noqa: E731
                        d.get("max_points"))
     for path, data in scores.items():

@@ -13,6 +13,7 @@ the sampling, so ``gspi-table`` builds Table 2 from such folders) and ``table.md
 from __future__ import annotations
 
 import argparse
+import hashlib
 import logging
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -68,13 +69,29 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
                               "data, or a scores.json that recorded them)") from exc
         rough, metal = training_constants(train_scenes)
     result = evaluate_scenes(scenes, lambda s: predict(s, scenes.index(s)), lambda s: baseline_prediction(s, rough, metal))
-    result.update(train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
+    result.update(checksums=scene_inputs_checksums(Path(data_dir), [s.name for s in scenes]),
+                  train_seed=cfg.get("seed"), data=str(Path(data_dir).resolve()),
                   split=split, scenes=[s.name for s in scenes], baseline_constants={"roughness": rough, "metallic": metal},
                   baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
                   lpips="AlexNet LPIPS v0.1 (eval.lpips.net), masked_mean", encoder=stage2.prior.encoder,
                   **dict(record))
     write_points_scores(out_dir, result)  # eval.records.points_scores: the format's one writer
     return result
+
+
+SCENE_INPUTS = ("scene.json", "gt_points.npz", "train")  # the truth and the lattice views the conditions come from
+
+
+def scene_inputs_checksums(data_dir: Path, names: list[str]) -> dict[str, Any]:
+    """SHA-256 of what each scene's measure read (``SCENE_INPUTS``: its GT points and the lattice
+    views its conditions are taken from, e.g. a Stage 0 asset's renders), and over all scenes: two
+    scores are one evaluation only if these agree (``eval.tables.sources``), which names the cause
+    when a dataset was rebuilt with other bits (issue 53, session 27)."""
+    from eval.checksums import ALGORITHM, files_sha256, tree_files
+
+    per_scene = {n: files_sha256(data_dir / n, tree_files(data_dir / n, SCENE_INPUTS)) for n in names}
+    overall = hashlib.sha256("\n".join(f"{n} {c}" for n, c in sorted(per_scene.items())).encode()).hexdigest()
+    return {"algorithm": f"{ALGORITHM}, over {', '.join(SCENE_INPUTS)}", "inputs": overall, "per_scene": per_scene}
 
 
 def recorded_constants(scores: Path) -> tuple[float, float]:
