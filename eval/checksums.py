@@ -49,10 +49,13 @@ def scene_checksums(gt_root: Path, pred_root: Path, split: str) -> dict:
             "predictions": files_sha256(pred_root, tree_files(pred_root, (split,)))}
 
 
+def over_scenes(per_scene: dict[str, str]) -> str:
+    """One checksum over every scene's: SHA-256 of the sorted '<scene> <checksum>' lines."""
+    lines = sorted(f"{scene} {checksum}" for scene, checksum in per_scene.items())
+    return hashlib.sha256("\n".join(lines).encode()).hexdigest()
+
+
 def combined(per_scene: dict[str, dict]) -> dict:
-    """One checksum per side over every scene: SHA-256 of the sorted '<scene> <checksum>' lines."""
-    out = {}
-    for side in ("ground_truth", "predictions"):
-        lines = sorted(f"{scene} {sums[side]}" for scene, sums in per_scene.items())
-        out[side] = hashlib.sha256("\n".join(lines).encode()).hexdigest()
-    return out
+    """One checksum per side (ground truth, predictions) over every scene (``over_scenes``)."""
+    return {side: over_scenes({scene: sums[side] for scene, sums in per_scene.items()})
+            for side in ("ground_truth", "predictions")}

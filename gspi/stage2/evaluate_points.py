@@ -13,7 +13,6 @@ the sampling, so ``gspi-table`` builds Table 2 from such folders) and ``table.md
 from __future__ import annotations
 
 import argparse
-import hashlib
 import logging
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -87,11 +86,11 @@ def scene_inputs_checksums(data_dir: Path, names: list[str]) -> dict[str, Any]:
     views its conditions are taken from, e.g. a Stage 0 asset's renders), and over all scenes: two
     scores are one evaluation only if these agree (``eval.tables.sources``), which names the cause
     when a dataset was rebuilt with other bits (issue 53, session 27)."""
-    from eval.checksums import ALGORITHM, files_sha256, tree_files
+    from eval.checksums import ALGORITHM, files_sha256, over_scenes, tree_files
 
     per_scene = {n: files_sha256(data_dir / n, tree_files(data_dir / n, SCENE_INPUTS)) for n in names}
-    overall = hashlib.sha256("\n".join(f"{n} {c}" for n, c in sorted(per_scene.items())).encode()).hexdigest()
-    return {"algorithm": f"{ALGORITHM}, over {', '.join(SCENE_INPUTS)}", "inputs": overall, "per_scene": per_scene}
+    return {"algorithm": f"{ALGORITHM}, over {', '.join(SCENE_INPUTS)}", "inputs": over_scenes(per_scene),
+            "per_scene": per_scene}
 
 
 def recorded_constants(scores: Path) -> tuple[float, float]:
