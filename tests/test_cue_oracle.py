@@ -98,3 +98,21 @@ def test_real_objects_table_calls_a_model_ahead_only_above_no_decomposition_on_e
     assert text.startswith("The 2 real objects")
     with pytest.raises(ValueError, match="scores 1 objects, no decomposition's 2"):
         real_objects_table({"a__b": {"per_scene": {"Avocado": run()["per_scene"]["Avocado"]}}}, run(), card, "stage2_x")
+
+
+def test_paired_difference_pairs_scenes_of_the_same_training_seed_only():
+    from experiments.view_dependence.probe_tables import paired_difference
+
+    def run(seed, rough):  # three scenes; albedo and metallic fixed
+        return {"train_seed": seed, "per_scene": {"stage2": {
+            s: {"albedo": {"psnr": 10.0}, "roughness": {"psnr": r}, "metallic": {"psnr": 20.0}}
+            for s, r in zip(("a", "b", "c"), rough)}}}
+
+    ref = [run(0, (10.0, 12.0, 14.0)), run(1, (11.0, 13.0, 15.0))]
+    # every scene 1 dB better than the same seed's: the difference is exactly +1 with no spread
+    better = [run(1, (12.0, 14.0, 16.0)), run(0, (11.0, 13.0, 15.0))]
+    diff = paired_difference(better, ref)
+    assert diff["roughness"] == "+1.00 [+1.00, +1.00]"
+    assert diff["avg"] == "+0.33 [+0.33, +0.33]" and diff["metallic"] == "+0.00 [+0.00, +0.00]"
+    # a seed with no reference is left out, not paired with another seed
+    assert paired_difference([run(2, (0.0, 0.0, 0.0)), better[1]], ref)["roughness"] == "+1.00 [+1.00, +1.00]"

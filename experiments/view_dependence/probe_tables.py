@@ -38,6 +38,12 @@ scores of ``evaluate_points``), never typed:
 * ``guidance.md``: a retrained model's held-out scores under classifier-free guidance
   (``docs/log/probes/guidance/<scores folder>__<run>__g<scale>.json``, ``evaluate_points
   --guidance-scale``) against its committed unguided Table 2 scores, with issue 52's targets.
+* ``inference_recon.md``: a retrained model behind another Stage 0 than the one it was trained
+  behind (no retraining): its held-out scores on the 32 held-out scenes reconstructed by that Stage 0
+  (``docs/log/probes/inference_recon/<scores folder>__<run>__<recon>.json``) against its committed
+  Table 2 scores, paired over (scene, seed); and end to end (demo, controlled pairs:
+  ``docs/log/probes/inference_recon/demo_<scores folder>__<run>__<recon>.json``,
+  ``controlled_pairs_...``) against its runs in ``retrained_end_to_end``.
 A table whose scores are not committed yet is left out.
 """
 from __future__ import annotations
@@ -335,6 +341,58 @@ def pair_highlights_table(data: dict) -> str:
             + "\n".join(lines) + "\n")
 
 
+def paired_difference(runs: list[dict], ref: list[dict]) -> dict[str, str]:
+    """Paired mean difference [95 % CI] of ``runs`` minus ``ref`` over (scene, training seed): avg,
+    roughness, metallic of the Stage II prediction."""
+    a, b = by_seed(runs), by_seed(ref)
+    seeds = sorted(set(a) & set(b))
+    pair = lambda get, d: {(s, seed): v for seed in seeds for s, v in get(d[seed]).items()}  # noqa: E731
+    return {name: fmt_ci(*paired_bootstrap_ci(pair(get, a), pair(get, b))) for name, get in (
+        ("avg", scene_avg), ("roughness", lambda d: channel(d, "roughness")),
+        ("metallic", lambda d: channel(d, "metallic")))}
+
+
+def inference_recon_tables(folder: Path) -> str:
+    """``inference_recon.md`` (see the module's docstring); "" when nothing is committed."""
+    held: dict[tuple[str, str], list[tuple[str, dict]]] = {}  # (scores folder, recon) -> [(run, scores)]
+    for p in sorted(folder.glob("*__*__*.json")):
+        if p.name.startswith(("demo_", "controlled_pairs_")):
+            continue
+        scores_folder, run, recon = p.stem.split("__")
+        held.setdefault((scores_folder, recon), []).append((run, json.loads(p.read_text())))
+    parts = []
+    for (scores_folder, recon), measured in held.items():
+        ref = [json.loads((ROOT / "docs" / "results" / "scores" / scores_folder / run / "scores.json").read_text())
+               for run, _ in measured]
+        rows = {f"{scores_folder}, behind its own Stage 0 (Table 2's runs)": ref,
+                f"{scores_folder}, behind recon={recon}": [m for _, m in measured]}
+        diff = paired_difference([m for _, m in measured], ref)
+        parts.append(
+            f"{scores_folder} ({', '.join(run for run, _ in measured)}) measured on the 32 held-out scenes reconstructed "
+            f"by `recon={recon}`, not retrained (`evaluate_points`, 10 DDIM steps, 20000 points):\n\n"
+            + retraining_table(rows) + f"\nrecon={recon} - its own Stage 0, paired over (scene, seed): avg {diff['avg']}, "
+            f"roughness {diff['roughness']}, metallic {diff['metallic']} dB.\n\n" + targets_table(rows))
+    demo_runs = {p.stem.removeprefix("demo_"): json.loads(p.read_text()) for p in sorted(folder.glob("demo_*.json"))}
+    if demo_runs:
+        own = PROBES / "retrained_end_to_end"
+        models = {name.rsplit("__", 1)[0] for name in demo_runs}
+        runs = {f"{m}__own": json.loads((own / f"demo_{m}.json").read_text()) for m in sorted(models)
+                if (own / f"demo_{m}.json").is_file()}
+        runs.update(demo_runs)
+        pairs = {"fast": json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())}
+        for name in runs:
+            p = (own / f"controlled_pairs_{name.removesuffix('__own')}.json" if name.endswith("__own")
+                 else folder / f"controlled_pairs_{name}.json")
+            if p.is_file():
+                pairs[name] = json.loads(p.read_text())
+        parts.append(end_to_end_table(
+            runs, pairs if len(pairs) > 1 else {}, intro="the shipped Stage II under recon=fast against retrained "
+            "models behind the Stage 0 they were trained behind (`own`) and behind another (`recon=...`), not retrained",
+            label=lambda name: "{}/{} behind {}".format(*name.split("__")[:2], "its own Stage 0" if name.endswith(
+                "__own") else f"recon={name.split('__')[2]}")))
+    return "\n".join(parts)
+
+
 def tables() -> dict[str, str]:
     """{file name: markdown} of every probe whose scores are committed."""
     from experiments.view_dependence.stage0_probe import class_table
@@ -426,6 +484,9 @@ def tables() -> dict[str, str]:
             f"Classifier-free guidance on {model} (`evaluate_points --guidance-scale`, the 32 held-out scenes, "
             f"10 DDIM steps, 20000 points; guidance 1 = off, the committed Table 2 run):\n\n"
             + retraining_table(rows) + "\n" + targets_table(rows) for model, rows in guided.items())
+    behind = inference_recon_tables(PROBES / "inference_recon")
+    if behind:
+        out["inference_recon.md"] = behind
     real = PROBES / "retrained_real_objects"
     if (real / "real_no_decomposition.json").is_file():
         from eval.tables.docs_results import DEFAULT_MODEL
