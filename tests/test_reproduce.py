@@ -176,7 +176,8 @@ def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("argv, message", [
     (["table=9", "scale=cpu"], "no conf/reproduce/table9_cpu.yaml; known: table=1 scale=cpu"),
-    (["table=2"], "table=2 scale=None"),
+    (["table=2"], "needs both table=N and scale=S"),
+    (["scale=cpu"], "needs both table=N and scale=S"),
     (["table=2", "scale=smoke", "seedz=[1]"], "table2_smoke"),
     (["table2"], "expected key=value"),
 ])

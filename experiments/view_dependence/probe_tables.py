@@ -40,8 +40,9 @@ scores of ``evaluate_points``), never typed:
   --guidance-scale``) against its committed unguided Table 2 scores, with issue 52's targets.
 * ``inference_recon.md``: a retrained model behind another Stage 0 than the one it was trained
   behind (no retraining): its held-out scores on the 32 held-out scenes reconstructed by that Stage 0
-  (``docs/log/probes/inference_recon/<scores folder>__<run>__<recon>.json``) against its committed
-  Table 2 scores, paired over (scene, seed); and end to end (demo, controlled pairs:
+  (``docs/log/probes/inference_recon/<scores folder>__<run>__<recon>.json``; ``<recon>`` = ``exact``:
+  the exact renders) against its committed Table 2 scores, paired over (scene, seed); and end to
+  end (demo, controlled pairs:
   ``docs/log/probes/inference_recon/demo_<scores folder>__<run>__<recon>.json``,
   ``controlled_pairs_...``) against its runs in ``retrained_end_to_end``.
 A table whose scores are not committed yet is left out.
@@ -364,13 +365,14 @@ def inference_recon_tables(folder: Path) -> str:
     for (scores_folder, recon), measured in held.items():
         ref = [json.loads((ROOT / "docs" / "results" / "scores" / scores_folder / run / "scores.json").read_text())
                for run, _ in measured]
+        conditions = "the exact renders (no Stage 0)" if recon == "exact" else f"recon={recon}"
         rows = {f"{scores_folder}, behind its own Stage 0 (Table 2's runs)": ref,
-                f"{scores_folder}, behind recon={recon}": [m for _, m in measured]}
+                f"{scores_folder}, behind {conditions}": [m for _, m in measured]}
         diff = paired_difference([m for _, m in measured], ref)
         parts.append(
-            f"{scores_folder} ({', '.join(run for run, _ in measured)}) measured on the 32 held-out scenes reconstructed "
-            f"by `recon={recon}`, not retrained (`evaluate_points`, 10 DDIM steps, 20000 points):\n\n"
-            + retraining_table(rows) + f"\nrecon={recon} - its own Stage 0, paired over (scene, seed): avg {diff['avg']}, "
+            f"{scores_folder} ({', '.join(run for run, _ in measured)}) measured on the 32 held-out scenes' conditions "
+            f"from {conditions}, not retrained (`evaluate_points`, 10 DDIM steps, 20000 points):\n\n"
+            + retraining_table(rows) + f"\n{conditions} - its own Stage 0, paired over (scene, seed): avg {diff['avg']}, "
             f"roughness {diff['roughness']}, metallic {diff['metallic']} dB.\n\n" + targets_table(rows))
     demo_runs = {p.stem.removeprefix("demo_"): json.loads(p.read_text()) for p in sorted(folder.glob("demo_*.json"))}
     if demo_runs:

@@ -52,9 +52,11 @@ def compose(argv: list[str]):
         pairs.setdefault(key, []).append(value)
     table, scale = pairs.pop("table", [None])[-1], pairs.pop("scale", [None])[-1]
     name = f"table{table}_{scale}"
-    if table is None or scale is None or name not in available():
-        raise ReproduceError(f"table={table} scale={scale}: no conf/reproduce/{name}.yaml; known: "
-                             + ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in available()))
+    known = ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in available())
+    if table is None or scale is None:
+        raise ReproduceError(f"needs both table=N and scale=S (e.g. table=2 scale=cpu); known: {known}")
+    if name not in available():
+        raise ReproduceError(f"table={table} scale={scale}: no conf/reproduce/{name}.yaml; known: {known}")
     overrides = [f"{k if k in ROOT_KEYS else 'reproduce.' + k}={v}" for k, vs in pairs.items() for v in vs]
     try:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
