@@ -24,7 +24,8 @@ scores of ``evaluate_points``), never typed:
   step (``docs/log/probes/retraining/<name>.json``), one row per Stage 0 config;
 * ``retraining_shipped.md``: the same at the shipped scale, Table 2's Full runs under ``recon=fast``
   (``docs/results/scores/table2_cpu/``) against ``scale=cpu_view``'s (``table2_cpu_<recon>/``, or a
-  checkpoint measured before its last step: ``docs/log/probes/retraining_shipped/<recon>_s<seed>.json``),
+  checkpoint measured before its last step: ``docs/log/probes/retraining_shipped/<recon>_s<seed>.json``;
+  ``<recon>`` = ``exact_<departures>``: trained and measured on the exact renders),
   with issue 52's held-out targets met or not;
 * ``stage0_only.md``: the shipped Stage II unchanged behind another Stage 0, end to end: the demo's
   four scenes (``docs/log/probes/stage0_only/demo_<recon>.json`` against the committed demo run,
@@ -463,7 +464,9 @@ def tables() -> dict[str, str]:
             "table=2 scale=cpu` (recon=fast) against `scale=cpu_view` (recon=fast_view_mild) and its departures "
             "(`_xv`: + the cross-view condition, `scale=cpu_view_xv`; `_whole`: whole-object training items, "
             "`scale=cpu_view_whole`; conf/reproduce/), each measured on the 32 held-out parts-pool scenes reconstructed "
-            "by its own Stage 0 (10 DDIM steps, 20000 points); a run measured before its last step shows that step.\n\n" + retraining_table(shipped) + "\nIssue 52's held-out targets:\n\n"
+            "by its own Stage 0 (10 DDIM steps, 20000 points); `exact_...`: the same recipe trained and measured on the "
+            "exact lattice renders, no Stage 0 (the ceiling of any Stage 0 for it); a run measured before its last step "
+            "shows that step.\n\n" + retraining_table(shipped) + "\nIssue 52's held-out targets:\n\n"
             + targets_table(shipped))
     demo_runs, pairs = end_to_end_runs(PROBES / "stage0_only")
     if demo_runs:
