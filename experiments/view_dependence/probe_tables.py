@@ -130,6 +130,17 @@ def patch_table(whole: dict, patch: dict, *, model: str = "The shipped checkpoin
     return head + "\n\n" + "\n".join(out) + "\n\nPer scene:\n\n" + "\n".join(lines) + "\n"
 
 
+def paired_difference(runs: list[dict], ref: list[dict]) -> dict[str, str]:
+    """Paired mean difference [95 % CI] of ``runs`` minus ``ref`` over (scene, training seed): avg,
+    roughness, metallic of the Stage II prediction."""
+    a, b = by_seed(runs), by_seed(ref)
+    seeds = sorted(set(a) & set(b))
+    pair = lambda get, d: {(s, seed): v for seed in seeds for s, v in get(d[seed]).items()}  # noqa: E731
+    return {name: fmt_ci(*paired_bootstrap_ci(pair(get, a), pair(get, b))) for name, get in (
+        ("avg", scene_avg), ("roughness", lambda d: channel(d, "roughness")),
+        ("metallic", lambda d: channel(d, "metallic")))}
+
+
 def retraining_table(by_recon: dict[str, list[dict]]) -> str:
     """One row per Stage 0 config: its Full model's held-out channels, metal class and multi-part."""
     lines = ["| conditions (Stage 0 and departures) | training step | seeds | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | metal IoU (scenes with metal) | metal IoU (metal class) | metal IoU (multi-part) |",
@@ -145,16 +156,12 @@ def retraining_table(by_recon: dict[str, list[dict]]) -> str:
         lines.append(f"| {recon} | {steps} | {len(runs)} | {ch['albedo']:.2f} | {ch['roughness']:.2f} | {ch['metallic']:.2f} | "
                      f"{np.mean(list(ch.values())):.2f} | {fmt_ci(*paired_bootstrap_ci(rough, base))} | "
                      f"{mean_iou(runs):.2f} | {mean_iou(runs, is_metal_class):.2f} | {mean_iou(runs, is_multi_part):.2f} |")
-    ref = by_seed(by_recon.get("fast", []))
+    ref = by_recon.get("fast", [])
     for recon, runs in by_recon.items():
-        seeds = sorted(set(ref) & set(by_seed(runs)))
+        seeds = sorted(set(by_seed(ref)) & set(by_seed(runs)))
         if recon == "fast" or not seeds:
             continue
-        other = by_seed(runs)
-        pair = lambda get, d: {(s, seed): v for seed in seeds for s, v in get(d[seed]).items()}  # noqa: E731
-        diff = {name: fmt_ci(*paired_bootstrap_ci(pair(get, other), pair(get, ref))) for name, get in (
-            ("avg", scene_avg), ("roughness", lambda d: channel(d, "roughness")),
-            ("metallic", lambda d: channel(d, "metallic")))}
+        diff = paired_difference(runs, ref)
         over = "the held-out scenes" if len(seeds) == 1 else f"(scene, seed) over seeds {', '.join(map(str, seeds))}"
         lines += ["", f"{recon} - fast, paired over {over}: avg {diff['avg']}, roughness {diff['roughness']}, "
                       f"metallic {diff['metallic']} dB."]
@@ -221,11 +228,16 @@ def end_to_end_table(demo_runs: dict[str, dict], pairs: dict[str, dict], *,
     return out + "\n"
 
 
+def fast_pairs() -> dict:
+    """The controlled-pairs benchmark of the shipped Stage II under recon=fast (committed)."""
+    return json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())
+
+
 def end_to_end_runs(folder: Path) -> tuple[dict[str, dict], dict[str, dict]]:
     """({name: demo run}, {name: controlled-pairs result}) of a folder's ``demo_<name>.json`` and
     ``controlled_pairs_<name>.json``, the pairs led by recon=fast's committed benchmark."""
     demo_runs = {p.stem.removeprefix("demo_"): json.loads(p.read_text()) for p in sorted(folder.glob("demo_*.json"))}
-    pairs = {"fast": json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())}
+    pairs = {"fast": fast_pairs()}
     pairs.update({p.stem.removeprefix("controlled_pairs_"): json.loads(p.read_text())
                   for p in sorted(folder.glob("controlled_pairs_*.json"))})
     return demo_runs, (pairs if len(pairs) > 1 else {})
@@ -343,17 +355,6 @@ def pair_highlights_table(data: dict) -> str:
             + "\n".join(lines) + "\n")
 
 
-def paired_difference(runs: list[dict], ref: list[dict]) -> dict[str, str]:
-    """Paired mean difference [95 % CI] of ``runs`` minus ``ref`` over (scene, training seed): avg,
-    roughness, metallic of the Stage II prediction."""
-    a, b = by_seed(runs), by_seed(ref)
-    seeds = sorted(set(a) & set(b))
-    pair = lambda get, d: {(s, seed): v for seed in seeds for s, v in get(d[seed]).items()}  # noqa: E731
-    return {name: fmt_ci(*paired_bootstrap_ci(pair(get, a), pair(get, b))) for name, get in (
-        ("avg", scene_avg), ("roughness", lambda d: channel(d, "roughness")),
-        ("metallic", lambda d: channel(d, "metallic")))}
-
-
 def inference_recon_tables(folder: Path) -> str:
     """``inference_recon.md`` (see the module's docstring); "" when nothing is committed."""
     held: dict[tuple[str, str], list[tuple[str, dict]]] = {}  # (scores folder, recon) -> [(run, scores)]
@@ -375,21 +376,15 @@ def inference_recon_tables(folder: Path) -> str:
             f"from {conditions}, not retrained (`evaluate_points`, 10 DDIM steps, 20000 points):\n\n"
             + retraining_table(rows) + f"\n{conditions} - its own Stage 0, paired over (scene, seed): avg {diff['avg']}, "
             f"roughness {diff['roughness']}, metallic {diff['metallic']} dB.\n\n" + targets_table(rows))
-    demo_runs = {p.stem.removeprefix("demo_"): json.loads(p.read_text()) for p in sorted(folder.glob("demo_*.json"))}
-    if demo_runs:
-        own = PROBES / "retrained_end_to_end"
-        models = {name.rsplit("__", 1)[0] for name in demo_runs}
-        runs = {f"{m}__own": json.loads((own / f"demo_{m}.json").read_text()) for m in sorted(models)
-                if (own / f"demo_{m}.json").is_file()}
-        runs.update(demo_runs)
-        pairs = {"fast": json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())}
-        for name in runs:
-            p = (own / f"controlled_pairs_{name.removesuffix('__own')}.json" if name.endswith("__own")
-                 else folder / f"controlled_pairs_{name}.json")
-            if p.is_file():
-                pairs[name] = json.loads(p.read_text())
+    demo_runs, pairs = end_to_end_runs(folder)
+    if demo_runs:  # led by the same models' runs behind their own Stage 0 (retrained_end_to_end), "<model>__own"
+        own_runs, own_pairs = end_to_end_runs(PROBES / "retrained_end_to_end")
+        models = sorted({name.rsplit("__", 1)[0] for name in demo_runs})
+        runs = {**{f"{m}__own": own_runs[m] for m in models if m in own_runs}, **demo_runs}
+        chosen = {**{f"{m}__own": own_pairs[m] for m in models if m in own_pairs},
+                  **{n: pairs[n] for n in demo_runs if n in pairs}}
         parts.append(end_to_end_table(
-            runs, pairs if len(pairs) > 1 else {}, intro="the shipped Stage II under recon=fast against retrained "
+            runs, {"fast": fast_pairs(), **chosen} if chosen else {}, intro="the shipped Stage II under recon=fast against retrained "
             "models behind the Stage 0 they were trained behind (`own`) and behind another (`recon=...`), not retrained",
             label=lambda name: "{}/{} behind {}".format(*name.split("__")[:2], "its own Stage 0" if name.endswith(
                 "__own") else f"recon={name.split('__')[2]}")))
