@@ -55,3 +55,45 @@ def test_exactly_one_card_says_it_is_the_default_and_it_is_gspi_runs():
     claiming = [card.name for card in CARDS if "default" in json.loads(card.read_text())]
     node = yaml.safe_load((ROOT / "conf" / "stage2" / f"{default_stage2()}.yaml").read_text())
     assert claiming == [Path(node["checkpoint"]).with_suffix(".json").name]
+
+
+def stored_strings(value):
+    """Every string inside a checkpoint's stored config (dicts, lists, tuples)."""
+    if isinstance(value, dict):
+        for item in value.values():
+            yield from stored_strings(item)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from stored_strings(item)
+    elif isinstance(value, str):
+        yield value
+
+
+@pytest.mark.parametrize("pt", sorted((ROOT / "checkpoints").glob("stage2_*.pt")), ids=lambda p: p.name)
+def test_no_shipped_checkpoint_names_a_machine_path(pt):
+    """A shipped file is tracked too (issue 53): its stored config names no machine's folders."""
+    from gspi.stage2.checkpoint import read_checkpoint
+    from tests.machine_paths import MACHINE_PATH
+
+    found = [s for s in stored_strings(read_checkpoint(pt)["config"]) if MACHINE_PATH.search(s)]
+    assert not found, f"{pt.name}: {found}"
+
+
+def test_the_export_makes_the_config_portable_and_keeps_the_weights(tmp_path):
+    import torch
+
+    from gspi.stage2.checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, ema_only, make_portable, save_atomic
+
+    elsewhere = "/" + "/".join(("work", "pool", "rpool224"))  # built: this file itself names no machine path
+    ckpt = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": 5, "rcw_config": {},
+            "config": {"data_dir": elsewhere, "out": str(ROOT / "runs" / "x_s0"), "seed": 0,
+                       "stage2": {"train": {"init_from": "checkpoints/stage2_small.pt"}}},
+            "ema": {"w": torch.arange(4.0)}, "model": {}, "optimizer": {}}
+    shipped = ema_only(ckpt)
+    assert shipped["config"] == {"data_dir": "<elsewhere>/pool/rpool224", "out": "runs/x_s0", "seed": 0,
+                                 "stage2": {"train": {"init_from": "checkpoints/stage2_small.pt"}}}
+    assert torch.equal(shipped["ema"]["w"], torch.arange(4.0)) and "optimizer" not in shipped
+    path = save_atomic(ckpt, tmp_path / "c.pt")
+    assert make_portable(path) and not make_portable(path)  # the second call finds nothing to rewrite
+    again = torch.load(path, weights_only=True)
+    assert again["config"]["data_dir"] == "<elsewhere>/pool/rpool224" and torch.equal(again["ema"]["w"], ckpt["ema"]["w"])

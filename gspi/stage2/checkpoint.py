@@ -107,13 +107,35 @@ def load_stage2_checkpoint(path: str | Path) -> tuple[RCWDenoiser, dict]:
     return model.eval().requires_grad_(False), cfg
 
 
+def portable_config(config: dict) -> dict:
+    """A checkpoint's stored config with every absolute path made portable: under the repository
+    by its relative path, elsewhere as ``<elsewhere>/<last two parts>`` (a shipped file names no
+    machine's folders, issue 53; the paths are a record only, nothing reads them back)."""
+    from eval.portable import portable
+
+    return portable(config, {"": Path(__file__).resolve().parents[2]})
+
+
 def ema_only(ckpt: dict, *, half: bool = False) -> dict:
-    """The shippable EMA-only content of a training checkpoint (optionally fp16 weights)."""
+    """The shippable EMA-only content of a training checkpoint (optionally fp16 weights), its
+    config's paths made portable."""
     ema = {k: (v.half() if half and v.is_floating_point() else v) for k, v in ckpt["ema"].items()}
     keep = {k: ckpt[k] for k in ("format", "version", "step", "rcw_config", "config", "elapsed_s") if k in ckpt}
+    keep["config"] = portable_config(keep["config"])
     return {**keep, "ema": ema, "weights": "ema" + ("-fp16" if half else "")}
 
 
 def export_ema_only(src: str | Path, dst: str | Path, *, half: bool = False) -> Path:
     """Writes the shippable EMA-only file of a training checkpoint (optionally fp16 weights)."""
     return save_atomic(ema_only(read_checkpoint(src), half=half), dst)
+
+
+def make_portable(path: str | Path) -> bool:
+    """Rewrites a Stage II checkpoint in place with :func:`portable_config` (weights and every
+    other entry unchanged); False when its config named no absolute path (file untouched)."""
+    ckpt = read_checkpoint(path)
+    config = portable_config(ckpt["config"])
+    if config == ckpt["config"]:
+        return False
+    save_atomic({**ckpt, "config": config}, path)
+    return True
