@@ -162,6 +162,26 @@ def test_a_committed_checkpoint_stands_for_its_run_measured_and_never_trained(tm
     assert cli.main([*argv, "checkpoints_from={full_s0:checkpoints/nope.pt}", "dry_run=true"]) == 2  # one line
 
 
+def test_a_dry_run_says_how_far_each_begun_training_got(tmp_path, monkeypatch, capsys):
+    """A training cut between chunks shows its last checkpoint's step; an unreadable checkpoint is
+    named as such instead of failing the plan; a run not begun shows nothing."""
+    import torch
+
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    argv = [f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={tmp_path / 'scores'}", "seeds=[5]",
+            "variants=[full,a2_no_view_onehot,a3_npts_1024]"]
+    runs = tmp_path / "reproduce" / "table2_cpu" / "runs_fast"
+    (runs / "full_s5").mkdir(parents=True)
+    torch.save({"step": 2750, "config": {"stage2": {"train": {"steps": 5000}}}}, runs / "full_s5" / "checkpoint.pt")
+    (runs / "a2_no_view_onehot_s5").mkdir()
+    (runs / "a2_no_view_onehot_s5" / "checkpoint.pt").write_bytes(b"half a file")
+    assert cli.main([*argv, "dry_run=true"]) == 0
+    begun = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("begun: "))
+    assert begun.startswith("begun: train: full_s5 (at step 2750 of 5000); "
+                            "train: a2_no_view_onehot_s5 (checkpoint unreadable: ")  # + the exception's class
+    assert "a3_npts_1024_s5" not in begun
+
+
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
     """A1 has no prior encoder, so no map to sample: its trainings turn the recipe's
     pixel_features off (variant_overrides), every other variant keeps the recipe."""

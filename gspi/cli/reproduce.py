@@ -2,7 +2,7 @@
 
     gspi-reproduce table=2 scale=cpu                  # rerun until it prints "done"
     gspi-reproduce table=2 scale=smoke                # the same steps at toy size (minutes; the test suite runs it)
-    gspi-reproduce table=2 scale=cpu dry_run=true     # the steps left, with their commands
+    gspi-reproduce table=2 scale=cpu dry_run=true     # the steps left, with their commands and how far begun trainings got
     gspi-reproduce table=2 scale=cpu seeds=[0,1] variants=[full] recon=fast_view   # any key of the table's config
     gspi-reproduce table=1 scale=cpu                  # Table 1 (the demo's sweep); table=3 the same for Table 3
 

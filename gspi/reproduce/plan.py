@@ -54,6 +54,7 @@ class Step:
     marker: bool = True  # ``done`` is a marker this module writes (with the command), not the step's output
     aliases: dict = field(default_factory=dict)  # path -> label in ``marker_text`` (e.g. the work folder -> <work>)
     rebuild: bool = False  # run on every call: its output is rebuilt from whatever exists (a table)
+    progress: Optional[Callable[[], Optional[str]]] = None  # how far an unfinished step got (e.g. a training's step)
 
     def describe(self) -> str:
         return shlex.join(map(str, self.command)) if self.command else f"({self.name}: in-process)"
@@ -173,12 +174,16 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
     ``only``: prefixes of step names to run (the others are left as they are). ``lanes``: how
     many ``lane_group``s of a block run side by side."""
     todo = [s for s in steps if not s.is_done() and (not only or any(s.name.startswith(p) for p in only))]
+    how_far = {s.name: s.progress() for s in todo if s.progress is not None}  # e.g. "at step 3000 of 5000"
+    begun = [f"{name} ({text})" for name, text in how_far.items() if text]
     for step in steps:
         state = "to do" if step in todo else ("done" if step.is_done() else "skipped (only=)")
-        log.info("[%s] %s", state, step.name)
+        log.info("[%s] %s%s", state, step.name, f" ({how_far[step.name]})" if how_far.get(step.name) else "")
     if dry_run:
         for step in todo:
             print(f"{step.name}: {step.describe()}")
+        if begun:
+            print("begun: " + "; ".join(begun))
         return [s.name for s in todo]
     log_file.parent.mkdir(parents=True, exist_ok=True)
     for block in blocks(todo):

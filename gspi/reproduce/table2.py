@@ -77,6 +77,20 @@ def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
     return steps
 
 
+def training_progress(run_dir: Path) -> str | None:
+    """``at step k of n`` from an unfinished run's last checkpoint (None before its first)."""
+    import torch
+
+    ckpt = run_dir / "checkpoint.pt"
+    if not ckpt.is_file():
+        return None
+    try:  # mmap: the step and config only, not the optimizer's tensors
+        saved = torch.load(ckpt, map_location="cpu", weights_only=True, mmap=True)
+        return f"at step {int(saved['step'])} of {int(saved['config']['stage2']['train']['steps'])}"
+    except Exception as exc:  # a plan line must not fail on a half-written or foreign file
+        return f"checkpoint unreadable: {type(exc).__name__}"
+
+
 def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path, root: Path) -> list[Step]:
     """Train one (variant, seed) in chunks, then measure it and commit its scores."""
     recon = cfg["recon"]
@@ -88,7 +102,8 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
     return [
         Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
-             repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name),
+             repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name,
+             progress=lambda: training_progress(run_dir)),
         measure_step(cfg, work, name, run_dir / "checkpoint.pt", run_dir / "eval", scores, root),
     ]
 
