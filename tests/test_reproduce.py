@@ -81,6 +81,27 @@ def test_a_step_another_call_is_running_is_refused_and_one_it_finished_is_skippe
     assert not out.exists()
 
 
+def test_a_run_another_call_holds_is_left_to_it_and_the_next_run_goes_on(tmp_path):
+    """Two lanes on one work folder: a run's group (training, then measure) whose training another
+    call holds is skipped whole, the other runs and the steps after them still run; an ungrouped
+    step (data, Stage 0: what later steps need) held by another call still stops the call."""
+    import fcntl
+
+    s = lambda name, group=None: Step(name, tmp_path / ".done" / name, touch_command(tmp_path / name),  # noqa: E731
+                                      lane_group=group)
+    steps = [s("train: r0", "r0"), s("measure: r0", "r0"), s("train: r1", "r1"), s("measure: r1", "r1"), s("table")]
+    (tmp_path / ".locks").mkdir()
+    with open(tmp_path / ".locks" / "train_r0.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        assert run_plan(steps, tmp_path / "log") == ["train: r1", "measure: r1", "table"]
+        assert not (tmp_path / "train: r0").exists() and not (tmp_path / "measure: r0").exists()
+        with open(tmp_path / ".locks" / "data.lock", "w") as data_held:
+            fcntl.flock(data_held, fcntl.LOCK_EX)
+            with pytest.raises(StepFailed, match="step data is being run by another gspi-reproduce"):
+                run_plan([s("data"), *steps], tmp_path / "log")
+    assert run_plan(steps, tmp_path / "log") == ["train: r0", "measure: r0"]  # released: its turn
+
+
 def test_a_step_repeats_until_done(tmp_path):
     counter = tmp_path / "n"
     bump = [sys.executable, "-c", f"import pathlib; p = pathlib.Path({str(counter)!r}); "

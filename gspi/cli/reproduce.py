@@ -98,8 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(ran)} step(s) to do" if ran else "done: nothing left to do")
         return 0
     left = [s.name for s in steps if s.name not in ran and not s.is_done()]
-    if left:  # only= left some out
-        print(f"{len(left)} step(s) left ({left[0]}, ...): run the same command without only= to go on")
+    if left:  # only= left some out, or another call runs them
+        print(f"{len(left)} step(s) left ({left[0]}, ...): left out by only= or run by another call "
+              f"(its log: {work / 'reproduce.log'}); run the same command again to go on")
         return 0
     tables = REPO / cfg["tables_dir"]
     print(f"done: table {cfg['table']} at scale {cfg['scale']}: {tables}/table{cfg['table']}.md")

@@ -11,9 +11,10 @@ person would type.
 
 Two calls may share a work folder (two scales whose runs live side by side, or a second call
 with other ``variants=``/``seeds=`` to use a free core): each step runs under an exclusive lock
-(``<work>/.locks/<step>.lock``, ``fcntl.flock``, released by the OS when its process dies), so a
-step another call is running is refused with one line instead of being run twice; a step that
-the other call finished meanwhile is skipped. flock is per machine: on a cluster, give each job
+(``<work>/.locks/<step>.lock``, ``fcntl.flock``, released by the OS when its process dies), so no
+step runs twice: a run (training and measure) another call is running is left to it and this call
+goes on with the next run; a data or Stage 0 step another call is running stops this call with one
+line (what follows needs it); a step the other call finished meanwhile is skipped. flock is per machine: on a cluster, give each job
 its own steps (SLURM: docs/REPRODUCE.md "On a cluster").
 """
 from __future__ import annotations
@@ -103,6 +104,10 @@ class StepFailed(RuntimeError):
     """A step's command exited non-zero: the message names the step, the command and its log."""
 
 
+class StepBusy(StepFailed):
+    """Another call holds the step's lock (it is running it right now)."""
+
+
 @contextlib.contextmanager
 def step_lock(step: Step, lock_dir: Path, *, wait: bool = False):
     """Holds ``<lock_dir>/<step name>.lock`` for this process; another holder means another call
@@ -115,7 +120,7 @@ def step_lock(step: Step, lock_dir: Path, *, wait: bool = False):
         except BlockingIOError:
             fh.seek(0)
             holder = fh.read().strip() or "pid unknown"
-            raise StepFailed(f"step {step.name} is being run by another gspi-reproduce on this work folder "
+            raise StepBusy(f"step {step.name} is being run by another gspi-reproduce on this work folder "
                              f"({holder}; lock {path}): let it finish, or give this call other variants=/seeds=") from None
         fh.seek(0)
         fh.truncate()
@@ -186,24 +191,37 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
             print("begun: " + "; ".join(begun))
         return [s.name for s in todo]
     log_file.parent.mkdir(parents=True, exist_ok=True)
+    ran: list[str] = []
     for block in blocks(todo):
         if len(block) == 1 or lanes <= 1:
             for group in block:
-                run_group(group, log_file)
+                ran += run_group(group, log_file)
             continue
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(lanes) as pool:  # each lane waits on its own subprocess
             for future in [pool.submit(run_group, group, log_file) for group in block]:
-                future.result()
-    return [s.name for s in todo]
+                ran += future.result()
+    return [s.name for s in todo if s.name in ran]
 
 
-def run_group(group: Sequence[Step], log_file: Path) -> None:
+def run_group(group: Sequence[Step], log_file: Path) -> list[str]:
+    """Runs a group's steps in order; returns their names. A lane's group (one run's training and
+    measure) that another call is running is left to it, whole, and this call goes on with the next
+    group: two calls on one work folder share out the runs instead of the second one stopping."""
+    ran = []
     for step in group:
         t0 = time.perf_counter()
-        run_step(step, log_file)
+        try:
+            run_step(step, log_file)
+        except StepBusy as exc:
+            if step.lane_group is None:
+                raise
+            log.warning("%s; going on with the next run", exc)
+            return ran
+        ran.append(step.name)
         log.info("%s: done in %.0f s", step.name, time.perf_counter() - t0)
+    return ran
 
 
 def blocks(steps: Sequence[Step]) -> list[list[list[Step]]]:
