@@ -203,6 +203,33 @@ def test_a_dry_run_says_how_far_each_begun_training_got(tmp_path, monkeypatch, c
     assert "a3_npts_1024_s5" not in begun
 
 
+def test_the_cpu_rate_of_each_variant_comes_from_its_runs_folder_chunks(tmp_path):
+    from gspi.reproduce.table2 import cpu_seconds_per_step
+
+    chunks = [("data/reproduce/table2_cpu/runs_fast/full_s0", [0, 100], 100.0),
+              ("data/reproduce/table2_cpu/runs_fast/full_s1", [100, 300], 500.0),
+              ("<elsewhere>/runs_fast/a3_npts_1024_s1", [0, 50], 75.0),       # another data root: same folder name
+              ("data/reproduce/table2_cpu/runs_fast_view/full_s0", [0, 10], 99.0),  # other conditions: not counted
+              ("data/reproduce/table2_cpu/runs_fast/full_s2", [40, 40], 3.0)]       # no step taken
+    log = tmp_path / "runs.jsonl"
+    log.write_text("".join(json.dumps({"out": out, "steps": steps, "cpu_s_this_run": cpu}) + "\n"
+                           for out, steps, cpu in chunks) + "\n")
+    assert cpu_seconds_per_step(log, "runs_fast") == {"full": 2.0, "a3_npts_1024": 1.5}
+    assert cpu_seconds_per_step(tmp_path / "none.jsonl", "runs_fast") == {}
+
+
+def test_the_dry_run_sums_what_the_estimated_trainings_still_cost(tmp_path):
+    from gspi.reproduce.plan import cost_line
+
+    s = lambda name, cost: Step(name, tmp_path / name, touch_command(tmp_path / name),  # noqa: E731
+                                cpu_s_left=(lambda: cost))
+    line = cost_line([s("train: a", 3600.0), s("train: b", 1800.0), s("train: c", None),
+                      Step("table", tmp_path / "t", touch_command(tmp_path / "t"))])
+    assert line == ("~1.5 CPU-hours for 2 of 3 training step(s) (each variant's CPU-seconds per step in the "
+                    "run log); no rate yet for train: c")
+    assert cost_line([Step("table", tmp_path / "t", touch_command(tmp_path / "t"))]).startswith("no CPU-time estimate")
+
+
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
     """A1 has no prior encoder, so no map to sample: its trainings turn the recipe's
     pixel_features off (variant_overrides), every other variant keeps the recipe."""

@@ -56,6 +56,7 @@ class Step:
     aliases: dict = field(default_factory=dict)  # path -> label in ``marker_text`` (e.g. the work folder -> <work>)
     rebuild: bool = False  # run on every call: its output is rebuilt from whatever exists (a table)
     progress: Optional[Callable[[], Optional[str]]] = None  # how far an unfinished step got (e.g. a training's step)
+    cpu_s_left: Optional[Callable[[], Optional[float]]] = None  # CPU-seconds it still needs (None: no estimate)
 
     def describe(self) -> str:
         return shlex.join(map(str, self.command)) if self.command else f"({self.name}: in-process)"
@@ -189,6 +190,7 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
             print(f"{step.name}: {step.describe()}")
         if begun:
             print("begun: " + "; ".join(begun))
+        print(cost_line(todo))
         return [s.name for s in todo]
     log_file.parent.mkdir(parents=True, exist_ok=True)
     ran: list[str] = []
@@ -203,6 +205,19 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
             for future in [pool.submit(run_group, group, log_file) for group in block]:
                 ran += future.result()
     return [s.name for s in todo if s.name in ran]
+
+
+def cost_line(todo: Sequence[Step]) -> str:
+    """What the estimated steps still cost: ``~H CPU-hours ...`` and the steps with no estimate."""
+    estimated = [s for s in todo if s.cpu_s_left is not None]
+    if not estimated:
+        return "no CPU-time estimate for these steps"
+    costs = {s.name: s.cpu_s_left() for s in estimated}
+    known = [c for c in costs.values() if c is not None]
+    unknown = [name for name, c in costs.items() if c is None]
+    line = (f"~{sum(known) / 3600:.1f} CPU-hours for {len(known)} of {len(costs)} training step(s) "
+            f"(each variant's CPU-seconds per step in the run log)")
+    return line + (f"; no rate yet for {', '.join(unknown)}" if unknown else "")
 
 
 def run_group(group: Sequence[Step], log_file: Path) -> list[str]:

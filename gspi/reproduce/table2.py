@@ -77,8 +77,9 @@ def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
     return steps
 
 
-def training_progress(run_dir: Path) -> str | None:
-    """``at step k of n`` from an unfinished run's last checkpoint (None before its first)."""
+def saved_step(run_dir: Path) -> tuple[int, int] | str | None:
+    """(step, of steps) of a run's last checkpoint; None before its first; a string saying why a
+    checkpoint could not be read (a plan line must not fail on a half-written or foreign file)."""
     import torch
 
     ckpt = run_dir / "checkpoint.pt"
@@ -86,9 +87,47 @@ def training_progress(run_dir: Path) -> str | None:
         return None
     try:  # mmap: the step and config only, not the optimizer's tensors
         saved = torch.load(ckpt, map_location="cpu", weights_only=True, mmap=True)
-        return f"at step {int(saved['step'])} of {int(saved['config']['stage2']['train']['steps'])}"
-    except Exception as exc:  # a plan line must not fail on a half-written or foreign file
+        return int(saved["step"]), int(saved["config"]["stage2"]["train"]["steps"])
+    except Exception as exc:
         return f"checkpoint unreadable: {type(exc).__name__}"
+
+
+def training_progress(run_dir: Path) -> str | None:
+    """``at step k of n`` from an unfinished run's last checkpoint (None before its first)."""
+    saved = saved_step(run_dir)
+    return f"at step {saved[0]} of {saved[1]}" if isinstance(saved, tuple) else saved
+
+
+def steps_taken(run_dir: Path) -> int:
+    saved = saved_step(run_dir)
+    return saved[0] if isinstance(saved, tuple) else 0
+
+
+def recipe_train(root: Path, stage2: str) -> dict:
+    """The ``train`` node of a flat recipe file (conf/stage2/<name>.yaml; {} when it has none)."""
+    import yaml
+
+    path = root / "conf" / "stage2" / f"{stage2}.yaml"
+    return (yaml.safe_load(path.read_text()) or {}).get("train") or {} if path.is_file() else {}
+
+
+def cpu_seconds_per_step(run_log: Path, runs: str) -> dict[str, float]:
+    """Each variant's CPU-seconds per training step over the chunks of ``runs`` (a runs folder,
+    e.g. ``runs_fast``) that gspi-train appended to the committed run log, all seeds together."""
+    cpu: dict[str, float] = {}
+    steps: dict[str, int] = {}
+    lines = run_log.read_text().splitlines() if run_log.is_file() else []
+    for line in filter(None, map(str.strip, lines)):
+        chunk = json.loads(line)
+        parts = Path(str(chunk.get("out", ""))).parts
+        if len(parts) < 2 or parts[-2] != runs or "_s" not in parts[-1]:
+            continue
+        variant = parts[-1].rsplit("_s", 1)[0]
+        first, last = chunk["steps"]
+        if last > first and chunk.get("cpu_s_this_run"):
+            cpu[variant] = cpu.get(variant, 0.0) + float(chunk["cpu_s_this_run"])
+            steps[variant] = steps.get(variant, 0) + last - first
+    return {v: cpu[v] / steps[v] for v in cpu}
 
 
 def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path, root: Path) -> list[Step]:
@@ -100,10 +139,16 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     train = [tool("gspi-train"), f"data={work / f'rtrain_{recon}'}", f"out={run_dir}", f"stage2={cfg['stage2']}",
              f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
+    recipe = recipe_train(root, cfg["stage2"])
+
+    def cpu_s_left() -> float | None:  # the run log's rate for this variant x the steps it has left
+        rate = cpu_seconds_per_step(root / recipe["run_log"], runs).get(variant) if recipe.get("run_log") else None
+        return None if rate is None or not recipe.get("steps") else rate * (int(recipe["steps"]) - steps_taken(run_dir))
+
     return [
         Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
              repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name,
-             progress=lambda: training_progress(run_dir)),
+             progress=lambda: training_progress(run_dir), cpu_s_left=cpu_s_left),
         measure_step(cfg, work, name, run_dir / "checkpoint.pt", run_dir / "eval", scores, root),
     ]
 
