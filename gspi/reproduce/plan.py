@@ -14,8 +14,8 @@ with other ``variants=``/``seeds=`` to use a free core): each step runs under an
 (``<work>/.locks/<step>.lock``, ``fcntl.flock``, released by the OS when its process dies), so no
 step runs twice: a run (training and measure) another call is running is left to it and this call
 goes on with the next run; a data or Stage 0 step another call is running stops this call with one
-line (what follows needs it); a step the other call finished meanwhile is skipped. flock is per machine: on a cluster, give each job
-its own steps (SLURM: docs/REPRODUCE.md "On a cluster").
+line (what follows needs it); a step the other call finished meanwhile is skipped. flock is per
+machine: on a cluster, give each job its own steps (SLURM: docs/REPRODUCE.md "On a cluster").
 """
 from __future__ import annotations
 
