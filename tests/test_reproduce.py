@@ -227,7 +227,7 @@ def test_the_dry_run_sums_what_the_estimated_trainings_still_cost(tmp_path):
                       Step("table", tmp_path / "t", touch_command(tmp_path / "t"))])
     assert line == ("~1.5 CPU-hours for 2 of 3 training step(s) (each variant's CPU-seconds per step in the "
                     "run log); no rate yet for train: c")
-    assert cost_line([Step("table", tmp_path / "t", touch_command(tmp_path / "t"))]).startswith("no CPU-time estimate")
+    assert cost_line([Step("table", tmp_path / "t", touch_command(tmp_path / "t"))]) == ""  # nothing to say
 
 
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):

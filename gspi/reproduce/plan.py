@@ -190,7 +190,9 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
             print(f"{step.name}: {step.describe()}")
         if begun:
             print("begun: " + "; ".join(begun))
-        print(cost_line(todo))
+        cost = cost_line(todo)
+        if cost:
+            print(cost)
         return [s.name for s in todo]
     log_file.parent.mkdir(parents=True, exist_ok=True)
     ran: list[str] = []
@@ -208,10 +210,11 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
 
 
 def cost_line(todo: Sequence[Step]) -> str:
-    """What the estimated steps still cost: ``~H CPU-hours ...`` and the steps with no estimate."""
+    """What the estimated steps still cost: ``~H CPU-hours ...`` and the steps with no estimate
+    ("" when no step has an estimator)."""
     estimated = [s for s in todo if s.cpu_s_left is not None]
     if not estimated:
-        return "no CPU-time estimate for these steps"
+        return ""
     costs = {s.name: s.cpu_s_left() for s in estimated}
     known = [c for c in costs.values() if c is not None]
     unknown = [name for name, c in costs.items() if c is None]
