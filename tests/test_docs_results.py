@@ -76,3 +76,10 @@ def test_committed_probe_tables_equal_the_generated_ones():
     from experiments.view_dependence.probe_tables import main
 
     assert main(["--check"]) == 0
+
+
+def test_table2_says_which_planned_runs_are_not_measured_yet():
+    line = docs_results.runs_line(["full_s0", "full_s1", "a1_s0"], ["full", "a1", "a4"], [0, 1], "plan.yaml", "go on")
+    assert line == ("- Runs measured: 3 of the 6 that plan.yaml plans (3 variants x seeds 0, 1); not yet: a1 s1; "
+                    "a4 (none yet). `go on` goes on with them.")
+    assert docs_results.runs_line(["a_s0"], ["a"], [0], "p", "c") == "- Runs measured: 1 of the 1 that p plans (1 variants x seeds 0)."
