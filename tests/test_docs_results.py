@@ -83,3 +83,11 @@ def test_table2_says_which_planned_runs_are_not_measured_yet():
     assert line == ("- Runs measured: 3 of the 6 that plan.yaml plans (3 variants x seeds 0, 1); not yet: a1 s1; "
                     "a4 (none yet). `go on` goes on with them.")
     assert docs_results.runs_line(["a_s0"], ["a"], [0], "p", "c") == "- Runs measured: 1 of the 1 that p plans (1 variants x seeds 0)."
+
+
+def test_table2_names_what_a_variant_changes_at_this_scale():
+    line = docs_results.departures_line({"a4": ["stage2.model.num_latents=48"], "a1": ["x=1", "y=2"]}, "p.yaml")
+    assert line == ("- Beyond its ablation config, at this scale (p.yaml, `variant_overrides`): "
+                    "a4: stage2.model.num_latents=48; a1: x=1, y=2.")
+    assert docs_results.departures_line({}, "p.yaml") == ""
+    assert "a4_npts_1024_nlat_384: stage2.model.num_latents=48" in docs_results.table2_file()

@@ -235,11 +235,14 @@ def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
     pixel_features off (variant_overrides), every other variant keeps the recipe."""
     monkeypatch.setattr(cli, "REPO", ROOT)
     steps, _, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", "seeds=[5]",
-                            "variants=[full,a1_no_global_prior]"])
+                            "variants=[full,a1_no_global_prior,a4_npts_1024_nlat_384]"])
     train = {s.name: list(map(str, s.command)) for s in steps if s.name.startswith("train: ")}
     assert "stage2.data.pixel_features=false" in train["train: a1_no_global_prior_s5"]
     assert not any("pixel_features" in a for a in train["train: full_s5"])
     assert "stage2=cpu_pool224_pixel_5k" in train["train: full_s5"]
+    # A4's "384 latents" are 1.5x the paper's Full (256): 1.5x the recipe's 32 = 48 (docs/STAGE2.md)
+    assert train["train: a4_npts_1024_nlat_384_s5"][-1] == "stage2.model.num_latents=48"
+    assert not any("num_latents" in a for a in train["train: full_s5"])
 
 
 @pytest.mark.parametrize("argv, message", [

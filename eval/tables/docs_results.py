@@ -149,7 +149,17 @@ def table2_file() -> str:
     plan = yaml.safe_load(TABLE2_PLAN.read_text())
     runs = runs_line([p.parent.name for p in paths], plan["variants"], plan["seeds"],
                      f"{TABLE2_PLAN.relative_to(ROOT)}", "gspi-reproduce table=2 scale=cpu")
-    return HEADER.format(source=source) + _relative(to_markdown(table, sweep)).rstrip("\n") + "\n" + runs + "\n"
+    departures = departures_line(plan.get("variant_overrides") or {}, f"{TABLE2_PLAN.relative_to(ROOT)}")
+    return (HEADER.format(source=source) + _relative(to_markdown(table, sweep)).rstrip("\n") + "\n"
+            + "".join(line + "\n" for line in (departures, runs) if line))
+
+
+def departures_line(overrides: dict, plan: str) -> str:
+    """A table's bullet naming what some variants change beyond their ablation config ("" if none)."""
+    if not overrides:
+        return ""
+    named = "; ".join(f"{variant}: {', '.join(keys)}" for variant, keys in overrides.items())
+    return f"- Beyond its ablation config, at this scale ({plan}, `variant_overrides`): {named}."
 
 
 def runs_line(measured: list[str], variants: list[str], seeds: list[int], plan: str, command: str) -> str:
