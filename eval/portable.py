@@ -4,7 +4,7 @@ A ``scores.json`` of ``gspi.stage2.evaluate_points`` names the dataset, the chec
 baseline's training data by absolute path. The committed copy names the measured data by a
 label (``data``: what ``gspi-table`` checks every row shares, e.g. ``parts_pool[224:256]/recon=fast``)
 and every other absolute path relative to a named root (``<work>/runs/full_s0/checkpoint.pt``),
-or by its last two parts when it lies under none.
+or by its last two parts (never its top-level folder) when it lies under none.
 """
 from __future__ import annotations
 
@@ -25,7 +25,9 @@ def portable_path(text: str, roots: Mapping[str, Path]) -> str:
         except ValueError:
             continue
         return f"{name}/{rel}" if name else str(rel)
-    return "<elsewhere>/" + "/".join(path.parts[-2:])
+    # its last two parts, never the top-level folder (a machine's mount: /work, /home, /Users)
+    kept = path.parts[max(2, len(path.parts) - 2):] or path.parts[-1:]
+    return "<elsewhere>/" + "/".join(kept)
 
 
 def portable(value: Any, roots: Mapping[str, Path]) -> Any:

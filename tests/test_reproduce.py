@@ -126,6 +126,8 @@ def test_committed_scores_name_no_absolute_path(tmp_path):
     assert portable_path(str(tmp_path / "w" / "runs" / "ckpt.pt"), roots) == "<work>/runs/ckpt.pt"
     assert portable_path("/somewhere/else/data/x", roots) == "<elsewhere>/data/x"
     assert portable({"a": ["/x/y/z", "rel", 3]}, {}) == {"a": ["<elsewhere>/y/z", "rel", 3]}
+    assert portable_path("/" + "work/pool192", {}) == "<elsewhere>/pool192"  # never the machine's top folder
+    assert portable_path("/top", {}) == "<elsewhere>/top"
 
 
 def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeypatch):
