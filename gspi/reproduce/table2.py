@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import json
 import sys
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from gspi.reproduce.plan import Step
 from eval.errors import MissingInputError
@@ -29,6 +29,11 @@ def tool(name: str) -> str:
 
 def python_module(module: str) -> list[str]:
     return [sys.executable, "-m", module]
+
+
+def runs_folder(cfg: Mapping[str, Any]) -> str:
+    """The work folder's subfolder of this table's run folders (one per Stage 0 conditions)."""
+    return cfg.get("runs") or f"runs_{cfg['recon']}"
 
 
 def run_name(variant: str, seed: int) -> str:
@@ -92,14 +97,13 @@ def saved_step(run_dir: Path) -> tuple[int, int] | str | None:
         return f"checkpoint unreadable: {type(exc).__name__}"
 
 
-def training_progress(run_dir: Path) -> str | None:
-    """``at step k of n`` from an unfinished run's last checkpoint (None before its first)."""
-    saved = saved_step(run_dir)
+def training_progress(saved: tuple[int, int] | str | None) -> str | None:
+    """``at step k of n`` from :func:`saved_step` (None before the run's first checkpoint)."""
     return f"at step {saved[0]} of {saved[1]}" if isinstance(saved, tuple) else saved
 
 
-def steps_taken(run_dir: Path) -> int:
-    saved = saved_step(run_dir)
+def steps_taken(saved: tuple[int, int] | str | None) -> int:
+    """The steps :func:`saved_step` says a run has taken (0 before its first checkpoint)."""
     return saved[0] if isinstance(saved, tuple) else 0
 
 
@@ -109,6 +113,14 @@ def recipe_train(root: Path, stage2: str) -> dict:
 
     path = root / "conf" / "stage2" / f"{stage2}.yaml"
     return (yaml.safe_load(path.read_text()) or {}).get("train") or {} if path.is_file() else {}
+
+
+def rates_and_steps(root: Path, stage2: str, runs: str) -> tuple[dict[str, float], int | None]:
+    """({variant: CPU-s per step} from the recipe's run log, the recipe's steps): what a training's
+    estimate needs, read once per plan (``table2_steps`` caches it) and only when asked."""
+    recipe = recipe_train(root, stage2)
+    rates = cpu_seconds_per_step(root / recipe["run_log"], runs) if recipe.get("run_log") else {}
+    return rates, int(recipe["steps"]) if recipe.get("steps") else None
 
 
 def cpu_seconds_per_step(run_log: Path, runs: str) -> dict[str, float]:
@@ -130,25 +142,28 @@ def cpu_seconds_per_step(run_log: Path, runs: str) -> dict[str, float]:
     return {v: cpu[v] / steps[v] for v in cpu}
 
 
-def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path, root: Path) -> list[Step]:
-    """Train one (variant, seed) in chunks, then measure it and commit its scores."""
+def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, scores: Path, root: Path,
+              rates: Callable[[], tuple[dict[str, float], int | None]]) -> list[Step]:
+    """Train one (variant, seed) in chunks, then measure it and commit its scores; ``rates``: the
+    plan's cached :func:`rates_and_steps`."""
     recon = cfg["recon"]
     name = run_name(variant, seed)
-    runs = cfg.get("runs") or f"runs_{recon}"
+    runs = runs_folder(cfg)
     run_dir = work / runs / name  # a work folder holds runs of several conditions
     train = [tool("gspi-train"), f"data={work / f'rtrain_{recon}'}", f"out={run_dir}", f"stage2={cfg['stage2']}",
              f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
-    recipe = recipe_train(root, cfg["stage2"])
+    saved = cache(partial(saved_step, run_dir))  # read once per plan: by the progress line and the estimate
 
     def cpu_s_left() -> float | None:  # the run log's rate for this variant x the steps it has left
-        rate = cpu_seconds_per_step(root / recipe["run_log"], runs).get(variant) if recipe.get("run_log") else None
-        return None if rate is None or not recipe.get("steps") else rate * (int(recipe["steps"]) - steps_taken(run_dir))
+        per_variant, steps = rates()
+        rate = per_variant.get(variant)
+        return None if rate is None or steps is None else rate * (steps - steps_taken(saved()))
 
     return [
         Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
              repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name,
-             progress=lambda: training_progress(run_dir), cpu_s_left=cpu_s_left),
+             progress=lambda: training_progress(saved()), cpu_s_left=cpu_s_left),
         measure_step(cfg, work, name, run_dir / "checkpoint.pt", run_dir / "eval", scores, root),
     ]
 
@@ -176,7 +191,7 @@ def checkpoint_steps(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: 
     as Full seed 0): measured on this work folder's held-out scenes, never trained."""
     if not checkpoint.is_file():
         raise MissingInputError(f"checkpoints_from.{name}: {checkpoint} does not exist")
-    runs = cfg.get("runs") or f"runs_{cfg['recon']}"
+    runs = runs_folder(cfg)
     return [measure_step(cfg, work, name, checkpoint, work / runs / name / "eval", scores, root)]
 
 
@@ -192,6 +207,7 @@ def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     scores_dir, tables_dir = root / cfg["scores_dir"], root / cfg["tables_dir"]
     adopted = adopt_steps(cfg, root, scores_dir)
     shipped = cfg.get("checkpoints_from") or {}
+    rates = cache(partial(rates_and_steps, root, cfg["stage2"], runs_folder(cfg)))
     runs = []
     for seed in cfg["seeds"]:
         for variant in cfg["variants"]:
@@ -200,7 +216,7 @@ def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
             if scores.is_file() or name in adopted:
                 continue
             runs += (checkpoint_steps(cfg, work, name, root / shipped[name], scores, root) if name in shipped
-                     else run_steps(cfg, work, variant, seed, scores, root))
+                     else run_steps(cfg, work, variant, seed, scores, root, rates))
     steps = list(adopted.values()) + (pool_steps(cfg, work) if runs else []) + runs
     table = table_step(cfg, scores_dir, tables_dir)
     for step in steps:
