@@ -35,7 +35,7 @@ from typing import Callable, Optional, Sequence
 log = logging.getLogger(__name__)
 # arguments that change how fast a command runs, not what it writes: left out of the markers, so a
 # rerun with another worker count or chunk length continues the same work
-SPEED_ONLY = ("data.workers=", "stage2.train.stop_after_minutes=")
+SPEED_ONLY = ("data.workers=", "stage2.train.stop_after_minutes=", "hydra.launcher.n_jobs=")
 SPEED_ONLY_FLAGS = ("--workers",)  # followed by their value
 
 

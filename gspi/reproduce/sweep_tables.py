@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Collection, Mapping
 
 from gspi.reproduce.plan import Step
 from eval.portable import portable
@@ -21,15 +21,19 @@ from gspi.reproduce.table2 import tool
 RECORD_FILES = ("result.json", "eval/eval_meta.json", "eval/summary.json", "points_eval/points_summary.json")
 
 
-def commit_sweep_records(runs: Path, scores_dir: Path, roots: Mapping[str, Path]) -> list[Path]:
-    """Copies every finished job of the sweep ``runs`` (its ``result.json``) to ``<scores_dir>/<job>/``:
-    the record, its gspi-eval summary and metadata, Table 2's points summary and each scene's
-    ``meta.json`` (runtimes), JSON with portable paths; no predictions, no images."""
+def commit_sweep_records(runs: Path, scores_dir: Path, roots: Mapping[str, Path],
+                         seeds: Collection[int] | None = None) -> list[Path]:
+    """Copies every finished job of the sweep ``runs`` (its ``result.json``; of ``seeds`` only, when
+    given) to ``<scores_dir>/<job>/``: the record, its gspi-eval summary and metadata, Table 2's
+    points summary and each scene's ``meta.json`` (runtimes), JSON with portable paths; no
+    predictions, no images."""
     import json
 
     written = []
     for record in sorted(runs.glob("*/result.json")):
         job = record.parent
+        if seeds is not None and int(json.loads(record.read_text())["seed"]) not in seeds:
+            continue
         dst = scores_dir / job.name
         if dst.exists():
             shutil.rmtree(dst)
@@ -42,22 +46,49 @@ def commit_sweep_records(runs: Path, scores_dir: Path, roots: Mapping[str, Path]
     return written
 
 
+def committed_seeds(scores_dir: Path) -> set[int]:
+    """The seeds whose records are committed under ``scores_dir`` (each record's ``result.json``
+    names its seed)."""
+    import json
+
+    return {int(json.loads(p.read_text())["seed"]) for p in scores_dir.glob("*/result.json")}
+
+
+def seeds_to_run(cfg: Mapping[str, Any], scores_dir: Path) -> list[int] | None:
+    """The sweep's seeds still to run: ``cfg.seeds`` less the committed ones ([] = nothing to run);
+    None where the config names no seeds (one run per job at the run config's seed, which stands
+    once any record is committed)."""
+    if cfg.get("seeds") is None:
+        return [] if any(scores_dir.glob("*/result.json")) else None
+    return sorted(set(int(s) for s in cfg["seeds"]) - committed_seeds(scores_dir))
+
+
 def sweep_table_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
-    """Data, the sweep, the committed scores and the table of Table 1 or 3 at ``cfg``'s scale."""
+    """Data, the sweep, the committed scores and the table of Table 1 or 3 at ``cfg``'s scale.
+
+    With ``cfg.seeds`` the sweep runs each job at the seeds whose records are not committed yet
+    (``seed=1,2``: Hydra names the job folders by it), so adding a seed to a committed table runs
+    that seed only; its steps' markers name the seeds, the commit copies the new jobs beside the
+    committed ones."""
     work = (root / cfg["work"]).resolve()
     data, runs = work / "data", work / "runs"
     scores_dir, tables_dir = root / cfg["scores_dir"], root / cfg["tables_dir"]
     name = f"table{cfg['table']}"
     done = work / ".done"
+    seeds = seeds_to_run(cfg, scores_dir)
+    seed_args = [f"seed={','.join(map(str, seeds))}"] if seeds else []
+    tag = f"_s{'_'.join(map(str, seeds))}" if seeds else ""
+    label = f" (seeds {', '.join(map(str, seeds))})" if seeds else ""
     steps = [
         Step("data", done / "data", [tool("gspi-data"), f"preset={cfg['preset']}", f"out={data}", "seed=0",
                                      *cfg["data_overrides"]]),
-        Step(f"{name}: sweep", done / "sweep", [tool("gspi-run"), "-m", f"data={data}", f"out={runs}",
-                                                f"+experiment={cfg['experiment']}", *cfg["run_overrides"]]),
-        Step(f"{name}: commit scores", done / "scores",
-             action=lambda: commit_sweep_records(runs, scores_dir, {"<work>": work, "<repo>": root})),
+        Step(f"{name}: sweep{label}", done / f"sweep{tag}",
+             [tool("gspi-run"), "-m", f"data={data}", f"out={runs}", f"+experiment={cfg['experiment']}",
+              *cfg["run_overrides"], *seed_args]),
+        Step(f"{name}: commit scores{label}", done / f"scores{tag}",
+             action=lambda: commit_sweep_records(runs, scores_dir, {"<work>": work, "<repo>": root}, seeds)),
     ]
-    if any(scores_dir.glob("*/result.json")):
+    if seeds == []:
         steps = []  # committed scores stand (written all at once after the sweep): nothing to recompute
     table = Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
                                                   f"table={name}"], rebuild=True)
