@@ -281,7 +281,11 @@ def scored_inputs(eval_info: Mapping[str, Any]) -> dict:
 
 
 def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
-    """Runs (or skips, when complete) one job; returns its result.json content."""
+    """Runs (or skips, when complete) one job; returns its result.json content. The job's
+    ``seed`` offsets every stage's own seed first (``gspi.run.seeds``)."""
+    from gspi.run.seeds import with_run_seed
+
+    cfg = with_run_seed(cfg)
     out, data_dir = Path(cfg["out"]), Path(cfg["data_dir"])
     cfg_hash = config_hash(cfg)
     if is_complete(out, cfg_hash):
