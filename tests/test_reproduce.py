@@ -149,6 +149,19 @@ def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeyp
         assert not MACHINE_PATH.search(text) and json.loads(text)["data"] == cfg["measure"]["data_label"], p
 
 
+def test_the_cpu_table2_plan_trains_the_runs_the_table_needs_before_a4s_later_seeds(tmp_path, monkeypatch):
+    """With no scores committed, every run is planned; A4's seeds 1 and 2 (run_last: the table
+    needs A4 at >= 1 seed) come after all 16 others, which keep the seed-by-seed order."""
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    steps, cfg, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={tmp_path / 'none'}",
+                              "checkpoints_from=null"])
+    order = [s.name.split(": ", 1)[1] for s in steps if s.name.startswith("train: ")]
+    a4 = "a4_npts_1024_nlat_384"
+    assert len(order) == 18 and order[-2:] == [f"{a4}_s1", f"{a4}_s2"]
+    seeds = [int(name.rsplit("_s", 1)[1]) for name in order[:-2]]
+    assert seeds == sorted(seeds) and order[0] == "full_s0" and f"{a4}_s0" in order[:6]
+
+
 def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, monkeypatch, capsys):
     """``scores_from`` into an empty scores folder: the dry run names one ``adopt:`` step per run
     and writes no file; ``only=[adopt]`` then copies them (portable) and plans no training for them."""

@@ -201,6 +201,16 @@ def table_step(cfg: Mapping[str, Any], scores_dir: Path, tables_dir: Path) -> St
                                                  "table=table2"], rebuild=True)
 
 
+def run_order(cfg: Mapping[str, Any]) -> list[tuple[str, int]]:
+    """The planned (variant, seed) runs in the order they train: seed by seed, variants in config
+    order, but the runs ``run_last`` names (variant -> seeds; e.g. A4's seeds 1 and 2, which
+    Table 2 may go without) after every other, so the runs a table needs come first; a run it
+    names that is not planned (a scale whose ``variants`` or ``seeds`` lack it) is ignored."""
+    last = {(variant, int(seed)) for variant, seeds in (cfg.get("run_last") or {}).items() for seed in seeds}
+    runs = [(variant, seed) for seed in cfg["seeds"] for variant in cfg["variants"]]
+    return [r for r in runs if r not in last] + [r for r in runs if r in last]
+
+
 def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     """Every step of Table 2 at ``cfg``'s scale; ``root``: the repository (committed paths)."""
     work = (root / cfg["work"]).resolve()
@@ -209,14 +219,13 @@ def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     shipped = cfg.get("checkpoints_from") or {}
     rates = cache(partial(rates_and_steps, root, cfg["stage2"], runs_folder(cfg)))
     runs = []
-    for seed in cfg["seeds"]:
-        for variant in cfg["variants"]:
-            name = run_name(variant, seed)
-            scores = scores_dir / name / "scores.json"
-            if scores.is_file() or name in adopted:
-                continue
-            runs += (checkpoint_steps(cfg, work, name, root / shipped[name], scores, root) if name in shipped
-                     else run_steps(cfg, work, variant, seed, scores, root, rates))
+    for variant, seed in run_order(cfg):
+        name = run_name(variant, seed)
+        scores = scores_dir / name / "scores.json"
+        if scores.is_file() or name in adopted:
+            continue
+        runs += (checkpoint_steps(cfg, work, name, root / shipped[name], scores, root) if name in shipped
+                 else run_steps(cfg, work, variant, seed, scores, root, rates))
     steps = list(adopted.values()) + (pool_steps(cfg, work) if runs else []) + runs
     table = table_step(cfg, scores_dir, tables_dir)
     for step in steps:
