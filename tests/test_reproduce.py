@@ -302,12 +302,13 @@ def test_an_interrupted_training_resumes_to_the_uninterrupted_scores(tmp_path):
     first = reproduce(*keys, f"data_root={tmp_path / 'b'}", "only=[data,stage]")
     assert first.returncode == 0, first.stderr[-3000:]
     work = tmp_path / "b" / "reproduce" / "table2_smoke"
-    cut = subprocess.run([str(BIN / "gspi-train"), f"data={work / 'rtrain_tiny'}", f"out={work / 'runs' / 'full_s0'}",
+    cut = subprocess.run([str(BIN / "gspi-train"), f"data={work / 'rtrain_tiny'}", f"out={work / 'runs_tiny' / 'full_s0'}",
                           "stage2=tiny", "ablation=full", "seed=0", "stage2.train.steps=6",
                           "stage2.data.num_points=32", "stage2.train.stop_at=3"], capture_output=True, text=True)
     assert cut.returncode == 0, cut.stderr[-3000:]
     resumed = reproduce(*keys, f"data_root={tmp_path / 'b'}")
     assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert json.loads((work / "runs_tiny" / "full_s0" / "stats.json").read_text())["resumed_from"] == 3
     a, b = (json.loads((tmp_path / r / "reproduce" / "table2_smoke" / "scores" / "full_s0" / "scores.json").read_text())
             for r in ("a", "b"))
     assert a["per_scene"] == b["per_scene"]

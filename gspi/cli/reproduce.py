@@ -5,6 +5,7 @@
     gspi-reproduce table=2 scale=cpu dry_run=true     # the steps left, with their commands and how far begun trainings got
     gspi-reproduce table=2 scale=cpu seeds=[0,1] variants=[full] recon=fast_view   # any key of the table's config
     gspi-reproduce table=1 scale=cpu                  # Table 1 (the demo's sweep); table=3 the same for Table 3
+    gspi-reproduce table=2 scale=cpu keep_state=true  # copy begun trainings' state to the repository (to commit)
 
 The table's config is conf/reproduce/table<N>_<scale>.yaml; ``data_root`` (default ``data`` under
 the repository, or $GSPI_DATA_ROOT) holds what is not committed. Every step is skipped when its
@@ -21,7 +22,7 @@ from eval.errors import EXIT_STATED, StatedError, one_line
 
 log = logging.getLogger("gspi-reproduce")
 REPO = Path(__file__).resolve().parents[2]
-ROOT_KEYS = ("data_root", "dry_run", "only")
+ROOT_KEYS = ("data_root", "dry_run", "only", "keep_state")
 
 
 class ReproduceError(StatedError, ValueError):
@@ -85,6 +86,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         steps, cfg, root_cfg = plan(argv)
         work = (REPO / cfg["work"]).resolve()
+        if root_cfg.keep_state:
+            from gspi.reproduce.table2 import keep_training_state
+
+            lines = keep_training_state(cfg, root=REPO) if int(cfg["table"]) == 2 else []
+            print("\n".join(lines) or "keep_state: no begun run to keep, no kept copy to remove")
+            return 0
         only = list(root_cfg.only or [])
         ran = run_plan(steps, work / "reproduce.log", only=only, dry_run=bool(root_cfg.dry_run),
                        lanes=int(cfg.get("lanes", 1)))

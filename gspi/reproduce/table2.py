@@ -17,6 +17,8 @@ from typing import Any, Callable, Mapping
 
 from gspi.reproduce.plan import Step
 from eval.errors import MissingInputError
+from gspi.reproduce.kept_state import restore
+from gspi.strict_config import ConfigError
 from eval.portable import write_portable_scores
 
 BIN = Path(sys.executable).parent
@@ -154,18 +156,41 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
              f"ablation={variant}", f"seed={seed}", f"stage2.train.stop_after_minutes={cfg['chunk_minutes']}",
              *cfg["train_overrides"], *(cfg.get("variant_overrides") or {}).get(variant, [])]
     saved = cache(partial(saved_step, run_dir))  # read once per plan: by the progress line and the estimate
+    kept = kept_run(cfg, root, runs, name)
+    restore_first = [] if kept is None else [  # a run begun elsewhere: its committed state (kept_state.py)
+        Step(f"restore: {name}", run_dir / "checkpoint.pt", action=partial(restore, kept, run_dir), marker=False,
+             lane_group=name)]
 
     def cpu_s_left() -> float | None:  # the run log's rate for this variant x the steps it has left
         per_variant, steps = rates()
         rate = per_variant.get(variant)
         return None if rate is None or steps is None else rate * (steps - steps_taken(saved()))
 
-    return [
+    return restore_first + [
         Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
              repeat_until=lambda: training_done(run_dir), env={"OMP_NUM_THREADS": "1"}, lane_group=name,
              progress=lambda: training_progress(saved()), cpu_s_left=cpu_s_left),
         measure_step(cfg, work, name, run_dir / "checkpoint.pt", run_dir / "eval", scores, root),
     ]
+
+
+def kept_run(cfg: Mapping[str, Any], root: Path, runs: str, name: str) -> Path | None:
+    """The committed training state of run ``name`` (``kept_state``), None when none is kept."""
+    kept = cfg.get("kept_state") and root / cfg["kept_state"] / runs / name
+    return kept if kept and (kept / "checkpoint.pt").is_file() else None
+
+
+def keep_training_state(cfg: Mapping[str, Any], *, root: Path) -> list[str]:
+    """``keep_state=true``: the state of every planned run not measured yet copied to
+    ``kept_state`` (to commit), the copies of measured runs removed; one line per change."""
+    from gspi.reproduce.kept_state import keep_state
+
+    if not cfg.get("kept_state"):
+        raise ConfigError(f"table={cfg['table']} scale={cfg['scale']}: keep_state=true needs a kept_state folder")
+    work, runs = (root / cfg["work"]).resolve(), runs_folder(cfg)
+    names = [run_name(variant, seed) for variant, seed in run_order(cfg)]
+    measured = {n for n in names if (root / cfg["scores_dir"] / n / "scores.json").is_file()}
+    return keep_state({n: work / runs / n for n in names}, measured, root / cfg["kept_state"])
 
 
 def measure_step(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: Path, eval_dir: Path, scores: Path,
