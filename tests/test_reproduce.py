@@ -268,11 +268,19 @@ def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
     (["scale=cpu"], "needs both table=N and scale=S"),
     (["table=2", "scale=smoke", "seedz=[1]"], "table2_smoke"),
     (["table2"], "expected key=value"),
+    (["table=2", "scale=smoke", "keep_state=maybe"], "keep_state='maybe': expected true or false"),
+    (["table=2", "scale=smoke", "dry_run=1"], "dry_run=1: expected true or false"),
 ])
 def test_a_bad_call_is_one_line_and_exit_2(argv, message, capsys):
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0] and err[0].startswith("gspi-reproduce: error:")
+
+
+def test_help_prints_the_commands_and_exits_0(capsys):
+    assert cli.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("gspi-reproduce:") and "gspi-reproduce table=2 scale=cpu keep_state=true" in out
 
 
 def reproduce(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:

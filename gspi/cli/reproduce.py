@@ -23,6 +23,7 @@ from eval.errors import EXIT_STATED, StatedError, one_line
 log = logging.getLogger("gspi-reproduce")
 REPO = Path(__file__).resolve().parents[2]
 ROOT_KEYS = ("data_root", "dry_run", "only", "keep_state")
+ROOT_FLAGS = ("dry_run", "keep_state")  # true or false
 
 
 class ReproduceError(StatedError, ValueError):
@@ -62,9 +63,13 @@ def compose(argv: list[str]):
     try:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             cfg = hydra_compose("gspi_reproduce", overrides=[f"reproduce={name}", *overrides])
-        return OmegaConf.to_container(cfg.reproduce, resolve=True), cfg
+        flags = {k: cfg[k] for k in ROOT_FLAGS}
     except (HydraException, OmegaConfBaseException, YAMLError) as exc:
         raise ReproduceError(f"{name}: {one_line(exc)} (keys: conf/reproduce/{name}.yaml)") from exc
+    bad = {k: v for k, v in flags.items() if not isinstance(v, bool)}
+    if bad:
+        raise ReproduceError(", ".join(f"{k}={v!r}" for k, v in bad.items()) + ": expected true or false")
+    return OmegaConf.to_container(cfg.reproduce, resolve=True), cfg
 
 
 def plan(argv: list[str]):
@@ -81,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
     from gspi.reproduce.plan import StepFailed, run_plan
 
     argv = sys.argv[1:] if argv is None else argv
+    if any(a in ("-h", "--help", "help") for a in argv):
+        print(__doc__.strip())
+        return 0
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     prog = "gspi-reproduce"
     try:
