@@ -4,6 +4,10 @@ run removed, and a run with no checkpoint in its work folder started from its ke
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,10 +15,16 @@ import torch
 
 from gspi.cli import reproduce as cli
 from gspi.reproduce.kept_state import keep, keep_state, restore
-from gspi.stage2.checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, save_atomic
+from gspi.stage2.checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, portable_config, save_atomic
 from tests.machine_paths import MACHINE_PATH
 
 ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def reproduce(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "gspi-reproduce"), *args], cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"},
+                          capture_output=True, text=True)
 
 
 def begun_run(run_dir: Path, step: int, logged_to: int, *, best_step: int | None = None) -> None:
@@ -39,6 +49,8 @@ def test_a_kept_copy_is_portable_and_stops_at_the_checkpoints_step(tmp_path):
     assert steps == list(range(1, 251))  # the resume appends from step 251: no row twice
     config = torch.load(kept / "checkpoint.pt", weights_only=True)["config"]
     assert not MACHINE_PATH.search(json.dumps(config)) and config["out"].endswith("runs_fast/full_s1")
+    original = torch.load(run / "checkpoint.pt", weights_only=True)["config"]
+    assert config == portable_config(original)  # what gspi.stage2.checkpoint.make_portable writes
     assert (kept / "best.pt").is_file()
     assert str(tmp_path) in torch.load(run / "checkpoint.pt", weights_only=True)["config"]["out"]  # run untouched
 
@@ -93,9 +105,6 @@ def test_keep_state_without_a_folder_is_one_line(tmp_path, capsys, monkeypatch):
 def test_a_run_cut_kept_and_restored_on_an_empty_work_folder_gives_the_uninterrupted_scores(tmp_path):
     """Smoke Table 2: Full s0 cut at step 3 of 6, its state kept, its run folder deleted (another
     machine), the same command run again: the scores equal a straight run's."""
-    from tests.test_reproduce import BIN, reproduce
-    import shutil
-    import subprocess
 
     keys = ["table=2", "scale=smoke", "variants=[full]", "seeds=[0]",
             "train_overrides=['stage2.train.steps=6','stage2.data.num_points=32']"]

@@ -97,7 +97,10 @@ def main(argv: list[str] | None = None) -> int:
         if root_cfg.keep_state:
             from gspi.reproduce.table2 import keep_training_state
 
-            lines = keep_training_state(cfg, root=REPO) if int(cfg["table"]) == 2 else []
+            if int(cfg["table"]) != 2 or not cfg.get("kept_state"):
+                raise ReproduceError(f"table={cfg['table']} scale={cfg['scale']}: keep_state=true needs a "
+                                     f"kept_state folder (a Table 2 config's key)")
+            lines = keep_training_state(cfg, root=REPO)
             print("\n".join(lines) or "keep_state: no begun run to keep, no kept copy to remove")
             return 0
         only = list(root_cfg.only or [])

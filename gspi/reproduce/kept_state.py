@@ -15,11 +15,13 @@ checkpoint's step, and ``best.pt`` when it belongs to that checkpoint (a recipe 
 """
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 from pathlib import Path
 
 log = logging.getLogger(__name__)
+REPO = Path(__file__).resolve().parents[2]  # the root under which stored paths become relative
 STATE_FILES = ("checkpoint.pt", "metrics.jsonl", "best.pt")
 
 
@@ -35,11 +37,10 @@ def restore(kept_run: Path, run_dir: Path) -> None:
 def keep(run_dir: Path, kept_run: Path) -> int | None:
     """Copies ``run_dir``'s training state to ``kept_run`` (portable checkpoint, metrics up to its
     step, its best.pt when it is that checkpoint's best); returns the step, None when the run has
-    no checkpoint yet (nothing is written)."""
+    no checkpoint yet (nothing is written). Written beside ``kept_run`` and renamed into place."""
     import torch
 
-    from gspi.stage2.checkpoint import make_portable
-    from gspi.stage2.train_log import JsonlMetrics
+    from eval.portable import portable
 
     ckpt = run_dir / "checkpoint.pt"
     if not ckpt.is_file():
@@ -48,12 +49,15 @@ def keep(run_dir: Path, kept_run: Path) -> int | None:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     shutil.copy2(ckpt, tmp / "checkpoint.pt")  # a copy first: the training may write a new one meanwhile
-    make_portable(tmp / "checkpoint.pt")
-    saved = torch.load(tmp / "checkpoint.pt", map_location="cpu", weights_only=True, mmap=True)
+    saved = torch.load(tmp / "checkpoint.pt", map_location="cpu", weights_only=True)
+    # gspi.stage2.checkpoint.make_portable's rewrite; this floor runs the stages, never imports them
+    # (tests/test_imports.py), so it applies eval.portable with the same root (the repository)
+    torch.save({**saved, "config": portable(saved["config"], {"": REPO})}, tmp / "checkpoint.pt")
     step = int(saved["step"])
-    if (run_dir / "metrics.jsonl").is_file():
-        shutil.copy2(run_dir / "metrics.jsonl", tmp / "metrics.jsonl")
-        JsonlMetrics(tmp / "metrics.jsonl").truncate_after(step)
+    if (run_dir / "metrics.jsonl").is_file():  # gspi.stage2.train_log's rows, as truncate_after keeps them
+        rows = (run_dir / "metrics.jsonl").read_text().splitlines()
+        (tmp / "metrics.jsonl").write_text("".join(line + "\n" for line in rows
+                                                   if line.strip() and json.loads(line)["step"] <= step))
     best = run_dir / "best.pt"
     if best.is_file() and saved.get("best"):
         if torch.load(best, map_location="cpu", weights_only=True, mmap=True).get("best") == saved["best"]:

@@ -18,7 +18,6 @@ from typing import Any, Callable, Mapping
 from gspi.reproduce.plan import Step
 from eval.errors import MissingInputError
 from gspi.reproduce.kept_state import restore
-from gspi.strict_config import ConfigError
 from eval.portable import write_portable_scores
 
 BIN = Path(sys.executable).parent
@@ -183,10 +182,9 @@ def kept_run(cfg: Mapping[str, Any], root: Path, runs: str, name: str) -> Path |
 def keep_training_state(cfg: Mapping[str, Any], *, root: Path) -> list[str]:
     """``keep_state=true``: the state of every planned run not measured yet copied to
     ``kept_state`` (to commit), the copies of measured runs removed; one line per change."""
+    assert cfg.get("kept_state"), "the caller checks that the table keeps state"
     from gspi.reproduce.kept_state import keep_state
 
-    if not cfg.get("kept_state"):
-        raise ConfigError(f"table={cfg['table']} scale={cfg['scale']}: keep_state=true needs a kept_state folder")
     work, runs = (root / cfg["work"]).resolve(), runs_folder(cfg)
     names = [run_name(variant, seed) for variant, seed in run_order(cfg)]
     measured = {n for n in names if (root / cfg["scores_dir"] / n / "scores.json").is_file()}
