@@ -45,11 +45,11 @@ def keep(run_dir: Path, kept_run: Path) -> int | None:
     ckpt = run_dir / "checkpoint.pt"
     if not ckpt.is_file():
         return None
+    # one read: gspi-train replaces its checkpoint by a rename (save_atomic), never rewrites it in place
+    saved = torch.load(ckpt, map_location="cpu", weights_only=True)
     tmp = kept_run.with_name(kept_run.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    shutil.copy2(ckpt, tmp / "checkpoint.pt")  # a copy first: the training may write a new one meanwhile
-    saved = torch.load(tmp / "checkpoint.pt", map_location="cpu", weights_only=True)
     # gspi.stage2.checkpoint.make_portable's rewrite; this floor runs the stages, never imports them
     # (tests/test_imports.py), so it applies eval.portable with the same root (the repository)
     torch.save({**saved, "config": portable(saved["config"], {"": REPO})}, tmp / "checkpoint.pt")
