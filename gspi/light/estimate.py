@@ -1,0 +1,97 @@
+"""Which light lit the views: the candidate environment, its turn about the up axis and its gain
+that let the per-point material fit (``gspi.light.readout``) explain the observations best.
+
+Each hypothesis is scored by the mean over points of the best cell's relative residual (a wrong
+light leaves every material a poor fit: issue 66 measured the true one first in 16 of 16
+scenes). The search is coarse to fine: every candidate at ``COARSE_ROTATIONS`` turns and
+``COARSE_GAINS``, then the ``REFINE_TOP`` best candidates around their best turn and gain.
+``margin`` (second-best candidate's score over the best's, >= 1) says how sure the choice is.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+import torch
+
+from eval.relight import PrefilteredEnvironment
+from gspi.light.observations import PointViews
+from gspi.light.readout import fit_terms
+from gspi.light.shading import view_terms
+
+IDENTIFY_ROUGHNESS = tuple(k / 10 for k in range(11))
+COARSE_ROTATIONS = tuple(15.0 * k for k in range(24))
+COARSE_GAINS = tuple(2.0 ** (k / 2) for k in range(-4, 5))   # 0.25 .. 4
+REFINE_TOP = 3
+REFINE_ROTATIONS = (-10.0, -7.5, -5.0, -2.5, 0.0, 2.5, 5.0, 7.5, 10.0)
+REFINE_GAINS = tuple(2.0 ** (k / 8) for k in range(-2, 3))
+MAX_POINTS = 2000
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    env: str
+    rotation_deg: float
+    gain: float
+    score: float  # mean relative residual of the points' best cells (lower is better)
+
+
+@dataclass(frozen=True)
+class LightEstimate:
+    """The best hypothesis, how far ahead of the next candidate it is, and every candidate's best."""
+
+    best: Hypothesis
+    margin: float                       # second candidate's score / best score (inf with one candidate)
+    ranking: tuple[Hypothesis, ...] = field(default=())  # each candidate's best, best first
+
+    @property
+    def env(self) -> str:
+        return self.best.env
+
+    @property
+    def rotation_deg(self) -> float:
+        return self.best.rotation_deg
+
+    @property
+    def gain(self) -> float:
+        return self.best.gain
+
+
+def score(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gains) -> list[float]:
+    """The score of ``pre`` turned by ``rotation_deg`` at each gain of ``gains``."""
+    rough = torch.as_tensor(IDENTIFY_ROUGHNESS, dtype=torch.float32)
+    terms = view_terms(pre, obs.normal[obs.point], obs.view_dir, rough, rotation_deg=rotation_deg)
+    seen = obs.views_per_point() > 0
+    return [float(fit_terms(obs, terms, rough, gain=g).best_error()[seen].mean()) for g in gains]
+
+
+def _best(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, gains) -> Hypothesis:
+    best = None
+    for rot in rotations:
+        for g, s in zip(gains, score(obs, pre, float(rot) % 360.0, gains)):
+            if best is None or s < best.score:
+                best = Hypothesis(name, float(rot) % 360.0, float(g), s)
+    return best
+
+
+def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironment], *,
+                   max_points: int = MAX_POINTS, seed: int = 0, rotations=COARSE_ROTATIONS,
+                   gains=COARSE_GAINS) -> LightEstimate:
+    """The light among ``candidates`` (name -> prefiltered map), turned and scaled, that explains
+    ``obs`` best (on a seeded subset of ``max_points`` points that some view sees)."""
+    if not candidates:
+        raise ValueError("estimate_light needs at least one candidate environment")
+    seen = np.flatnonzero(obs.views_per_point().numpy() > 0)
+    if len(seen) == 0:
+        raise ValueError("no view sees any point: the light cannot be read")
+    if len(seen) > max_points:
+        seen = np.sort(np.random.default_rng(seed).choice(seen, max_points, replace=False))
+    sub = obs.subset(seen)
+    coarse = sorted((_best(sub, name, pre, rotations, gains) for name, pre in candidates.items()),
+                    key=lambda h: h.score)
+    refined = [_best(sub, h.env, candidates[h.env], [h.rotation_deg + d for d in REFINE_ROTATIONS],
+                     [h.gain * f for f in REFINE_GAINS]) for h in coarse[:REFINE_TOP]]
+    ranking = tuple(sorted(refined, key=lambda h: h.score)) + tuple(coarse[REFINE_TOP:])
+    margin = ranking[1].score / max(ranking[0].score, 1e-12) if len(ranking) > 1 else float("inf")
+    return LightEstimate(best=ranking[0], margin=margin, ranking=ranking)

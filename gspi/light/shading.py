@@ -1,0 +1,88 @@
+"""The split-sum shader (``eval.relight.split_sum``) as an affine map of the linear albedo.
+
+For fixed roughness r and metallic m, with ``S = S(R, r)`` the prefiltered environment in the
+mirror direction, (A, B) the DFG terms at (n.v, r) and E(n) the irradiance::
+
+    c = albedo * P + Q,   P = (1 - m) E(n) / pi + m S A,   Q = S (0.04 (1 - m) A + B)
+
+per channel. ``view_terms`` evaluates E, S, A, B once per roughness of a grid (they do not
+depend on m or the albedo); ``affine_coefficients`` forms (P, Q) for any metallic value. The
+identity is tested against ``split_sum`` itself (tests/test_light.py).
+
+An environment turned by ``rotation_deg`` about the up axis (+z) is read as the unturned map at
+the directions turned back: ``L_psi(d) = L(Rz(-psi) d)`` (``turn_directions``). Rolling a
+lat-long map by k columns turns it by ``psi = -360 k / W`` (``rotate_latlong``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from eval.brdf_lut import lookup_dfg
+from eval.envmap import sample_latlong
+from eval.relight import PrefilteredEnvironment, sample_specular
+
+DIELECTRIC_F0 = 0.04  # the shader's F0 of a dielectric (eval.relight)
+
+
+@dataclass(frozen=True)
+class ViewTerms:
+    """The shader's terms at every observation for each roughness of a grid.
+
+    Attributes:
+        diffuse: [M, 3] E(n) / pi.
+        specular: [R, M, 3] S(R, r_k).
+        dfg_a, dfg_b: [R, M] the DFG terms at (n.v, r_k).
+    """
+
+    diffuse: Tensor
+    specular: Tensor
+    dfg_a: Tensor
+    dfg_b: Tensor
+
+
+def turn_directions(d: Tensor, rotation_deg: float) -> Tensor:
+    """[..., 3] directions turned by -rotation_deg about +z (where a turned map is read)."""
+    if rotation_deg == 0:
+        return d
+    a = math.radians(-rotation_deg)
+    c, s = math.cos(a), math.sin(a)
+    x, y, z = d.unbind(-1)
+    return torch.stack([c * x - s * y, s * x + c * y, z], dim=-1)
+
+
+def rotate_latlong(envmap: Tensor, columns: int) -> Tensor:
+    """The lat-long map turned by ``-360 * columns / W`` degrees about +z (a roll of its columns)."""
+    return torch.roll(envmap, shifts=int(columns), dims=1)
+
+
+def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, roughness: Tensor, *,
+               rotation_deg: float = 0.0) -> ViewTerms:
+    """E, S, A, B at observations with unit ``normal`` and ``view_dir`` [M, 3] (surface -> camera),
+    for each roughness of ``roughness`` [R], under ``pre`` turned by ``rotation_deg``."""
+    n = turn_directions(normal, rotation_deg)
+    wo = turn_directions(view_dir, rotation_deg)
+    n_dot_wo = (n * wo).sum(-1, keepdim=True)
+    refl = 2 * n_dot_wo * n - wo
+    n_dot_v = n_dot_wo[:, 0].clamp(1e-4, 1.0)
+    diffuse = sample_latlong(pre.irradiance, n) / math.pi
+    spec, dfg_a, dfg_b = [], [], []
+    for r in roughness.tolist():
+        rk = torch.full((len(n),), float(r), dtype=n.dtype)
+        spec.append(sample_specular(pre, refl, rk.clamp(0, 1)))
+        a, b = lookup_dfg(pre.lut, n_dot_v, rk.clamp(0, 1))
+        dfg_a.append(a)
+        dfg_b.append(b)
+    return ViewTerms(diffuse=diffuse, specular=torch.stack(spec), dfg_a=torch.stack(dfg_a),
+                     dfg_b=torch.stack(dfg_b))
+
+
+def affine_coefficients(terms: ViewTerms, metallic: float) -> tuple[Tensor, Tensor]:
+    """(P, Q), each [R, M, 3]: the shaded radiance is ``albedo * P + Q`` at every roughness."""
+    a, b = terms.dfg_a[..., None], terms.dfg_b[..., None]
+    p = (1 - metallic) * terms.diffuse[None] + metallic * terms.specular * a
+    q = terms.specular * (DIELECTRIC_F0 * (1 - metallic) * a + b)
+    return p, q

@@ -1,0 +1,165 @@
+"""gspi.light: the shader's affine identity, a toy whose materials the grid fit recovers exactly,
+the neighbourhood pooling and posterior, the light's identification, and the records' checks."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from eval.relight import prefilter_environment, split_sum
+from gspi.data.environments import make_environment
+from gspi.light.estimate import estimate_light
+from gspi.light.observations import PointViews
+from gspi.light.readout import (ROUGHNESS_GRID, fit_grid, pool_neighbours, posterior, read_best,
+                                read_posterior)
+from gspi.light.shading import affine_coefficients, rotate_latlong, view_terms
+
+H = 32  # small maps keep the prefilter fast
+
+
+@pytest.fixture(scope="module")
+def envs():
+    return {name: make_environment(name, H, supersample=1) for name in ("studio_rgb", "sunset", "window_room")}
+
+
+@pytest.fixture(scope="module")
+def pre(envs):
+    return {name: prefilter_environment(env) for name, env in envs.items()}
+
+
+def unit(x):
+    return torch.nn.functional.normalize(torch.as_tensor(x, dtype=torch.float32), dim=-1)
+
+
+def toy_views(num_points: int, views: int, seed: int = 0):
+    """Normals on the upper sphere and ``views`` directions per point within 80 degrees of it."""
+    g = torch.Generator().manual_seed(seed)
+    normal = unit(torch.randn(num_points, 3, generator=g))
+    point = torch.arange(num_points).repeat_interleave(views)
+    n = normal[point]
+    d = unit(n + 0.9 * unit(torch.randn(len(point), 3, generator=g)))
+    d = torch.where((d * n).sum(-1, keepdim=True) > 0.15, d, n)
+    return point, d, normal
+
+
+def shade(albedo, rough, metal, normal, view_dir, env):
+    return split_sum(albedo, rough[:, None], metal[:, None], normal, view_dir, env)
+
+
+def test_affine_identity_equals_the_shader(pre):
+    """albedo * P + Q is split_sum itself at every roughness of the grid, metal and dielectric."""
+    p_env = pre["studio_rgb"]
+    point, view_dir, normal = toy_views(50, 4)
+    n = normal[point]
+    rough = torch.as_tensor(ROUGHNESS_GRID)
+    terms = view_terms(p_env, n, view_dir, rough)
+    albedo = torch.rand(len(point), 3, generator=torch.Generator().manual_seed(1))
+    for m in (0.0, 1.0):
+        p, q = affine_coefficients(terms, m)
+        for k, r in enumerate(ROUGHNESS_GRID):
+            want = shade(albedo, torch.full((len(point),), r), torch.full((len(point),), m), n, view_dir, p_env)
+            torch.testing.assert_close(albedo * p[k] + q[k], want, rtol=2e-5, atol=1e-5)  # float32 sums
+
+
+def test_turned_directions_equal_a_rolled_map(envs):
+    """Reading a map turned by psi = the map rolled by -psi W / 360 columns (a shift the coarsest
+    prefiltered level also takes whole)."""
+    env = envs["sunset"]
+    cols = env.shape[1] // 8                       # 45 degrees
+    point, view_dir, normal = toy_views(40, 3, seed=2)
+    n = normal[point]
+    rough = torch.tensor([0.0, 0.3, 1.0])
+    turned = view_terms(prefilter_environment(env), n, view_dir, rough, rotation_deg=-360.0 * cols / env.shape[1])
+    rolled = view_terms(prefilter_environment(rotate_latlong(env, cols)), n, view_dir, rough)
+    torch.testing.assert_close(turned.specular, rolled.specular, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(turned.diffuse, rolled.diffuse, rtol=1e-4, atol=1e-5)
+
+
+def toy_scene(p_env, num_points=300, views=8, seed=0, gain=1.0, rotation_deg=0.0):
+    """Points whose materials lie on the grid, shaded by the shader itself."""
+    g = torch.Generator().manual_seed(seed)
+    point, view_dir, normal = toy_views(num_points, views, seed)
+    rough = torch.as_tensor(ROUGHNESS_GRID)[torch.randint(len(ROUGHNESS_GRID), (num_points,), generator=g)]
+    metal = torch.randint(2, (num_points,), generator=g).float()
+    albedo = 0.1 + 0.8 * torch.rand(num_points, 3, generator=g)
+    from gspi.light.shading import turn_directions
+    colour = gain * shade(albedo[point], rough[point], metal[point], turn_directions(normal[point], rotation_deg),
+                          turn_directions(view_dir, rotation_deg), p_env)
+    xyz = normal.clone()  # points on the unit sphere
+    obs = PointViews(point=point, colour=colour, view_dir=view_dir, normal=normal, xyz=xyz)
+    return obs, albedo, rough, metal
+
+
+def test_grid_fit_recovers_a_toy_exactly(pre):
+    obs, albedo, rough, metal = toy_scene(pre["studio_rgb"])
+    grid = fit_grid(obs, pre["studio_rgb"])
+    a, r, m = read_best(grid)
+    assert torch.equal(m, metal)
+    # roughness: exact where the views pin it (a dielectric's highlight may miss every view)
+    assert (r - rough).abs().le(1e-6).float().mean() > 0.9
+    assert (r - rough)[metal == 1].abs().max() < 1e-6
+    torch.testing.assert_close(a[metal == 1], albedo[metal == 1], rtol=1e-3, atol=1e-3)
+    assert grid.best_error().max() < 1e-4
+
+
+def test_wrong_light_fits_worse(pre):
+    obs, *_ = toy_scene(pre["studio_rgb"])
+    right = fit_grid(obs, pre["studio_rgb"]).best_error().mean()
+    wrong = fit_grid(obs, pre["sunset"]).best_error().mean()
+    turned = fit_grid(obs, pre["studio_rgb"], rotation_deg=90.0).best_error().mean()
+    assert wrong > 20 * right and turned > 20 * right
+
+
+def test_pooling_and_posterior(pre):
+    obs, *_ = toy_scene(pre["window_room"], num_points=120)
+    grid = fit_grid(obs, pre["window_room"])
+    torch.testing.assert_close(pool_neighbours(grid, obs.xyz, k=1), grid.error)
+    pooled = pool_neighbours(grid, obs.xyz, k=8)
+    assert pooled.shape == grid.error.shape
+    w = posterior(pooled)
+    torch.testing.assert_close(w.flatten(1).sum(1), torch.ones(len(w)))
+    torch.testing.assert_close(posterior(pooled * 7.0), w)  # scale free
+    a, r, m = read_posterior(grid, grid.error, temperature=1e-4)  # a sharp posterior is the best cell
+    a0, r0, m0 = read_best(grid)
+    assert torch.equal(m.round(), m0) and (r - r0).abs().max() < 1e-3
+
+
+def test_unseen_points_take_their_neighbours():
+    """A point no view sees: error 1 in its own grid, its neighbours' after pooling."""
+    p_env = prefilter_environment(make_environment("studio_rgb", H, supersample=1))
+    obs, *_ = toy_scene(p_env, num_points=30, views=4)
+    keep = obs.point != 0
+    blind = PointViews(point=obs.point[keep], colour=obs.colour[keep], view_dir=obs.view_dir[keep],
+                       normal=obs.normal, xyz=obs.xyz)
+    grid = fit_grid(blind, p_env)
+    assert grid.views[0] == 0 and torch.all(grid.error[0] == 1.0)
+    assert pool_neighbours(grid, blind.xyz, k=4)[0].max() < 1.0
+
+
+def test_identifies_env_turn_and_gain(pre):
+    truth = pre["sunset"]
+    obs, *_ = toy_scene(truth, num_points=400, views=10, seed=3, gain=1.7, rotation_deg=65.0)
+    est = estimate_light(obs, pre, max_points=300)
+    assert est.env == "sunset"
+    assert abs((est.rotation_deg - 65.0 + 180) % 360 - 180) <= 5.0
+    assert abs(math.log2(est.gain / 1.7)) < 0.3
+    assert est.margin > 2.0
+    assert [h.env for h in est.ranking][0] == "sunset" and len(est.ranking) == 3
+
+
+def test_point_views_checks():
+    ok = dict(point=torch.tensor([0, 1]), colour=torch.ones(2, 3), view_dir=unit(torch.ones(2, 3)),
+              normal=unit(torch.ones(2, 3)), xyz=torch.zeros(2, 3))
+    PointViews(**ok)
+    with pytest.raises(ValueError, match="one row per observation"):
+        PointViews(**{**ok, "colour": torch.ones(3, 3)})
+    with pytest.raises(ValueError, match=r"point indices must lie in \[0, 2\)"):
+        PointViews(**{**ok, "point": torch.tensor([0, 2])})
+    with pytest.raises(ValueError, match="NaN or inf"):
+        PointViews(**{**ok, "colour": torch.tensor([[0.0, float("nan"), 0], [1, 1, 1]])})
+    with pytest.raises(ValueError, match="at least one candidate"):
+        estimate_light(PointViews(**ok), {})
+    sub = PointViews(**ok).subset(np.array([1]))
+    assert sub.num_points == 1 and sub.point.tolist() == [0]
