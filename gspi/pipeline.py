@@ -48,6 +48,34 @@ class Stage2Context:
     info: dict
     run_cfg: Any  # gspi.stage2.config.Stage2Config of the run
 
+    def predict(self, points, renders, asset: Gaussians2D, device) -> tuple[np.ndarray, dict]:
+        """[P, 5] PBR of a Stage I cloud (albedo sRGB, roughness, metallic) and stats."""
+        from gspi.stage2.infer import predict_generated_points
+
+        data_cfg = self.model_cfg["stage2"].data
+        return predict_generated_points(
+            self.model, points, renders, local_mode=data_cfg.local_condition, encoder=self.encoder,
+            cfg=self.run_cfg.inference,
+            tol_pixels=float(data_cfg.visibility_tol_pixels), pixel_features=data_cfg.pixel_features,
+            pixel_feature_spread=data_cfg.pixel_feature_spread,
+            cross_view_radiance=getattr(data_cfg, "cross_view_radiance", False),  # checkpoints before issue 52 lack it
+            cross_view_neighbourhood=getattr(data_cfg, "cross_view_neighbourhood", False),  # before session 26
+            device=device)
+
+
+@dataclass
+class LightFitContext:
+    """``method=light_fit``'s materials in Stage II's place: the training-free read-out against the
+    light estimated among ``candidates`` (``gspi.stage2.light_fit``)."""
+
+    cfg: Any          # gspi.stage2.light_fit.LightFitConfig
+    candidates: dict  # {name: eval.relight.PrefilteredEnvironment}
+
+    def predict(self, points, renders, asset: Gaussians2D, device) -> tuple[np.ndarray, dict]:
+        from gspi.stage2.light_fit import predict_light_fit
+
+        return predict_light_fit(points, renders, asset.detach().to("cpu"), self.cfg, self.candidates)
+
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:
     """GT surface samples of a generated scene (for Stage I's filter report), else None."""
@@ -59,19 +87,19 @@ def gt_reference(scene: Scene) -> Optional[np.ndarray]:
 
 
 def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: Mapping[str, Any], *,
-                   stage1: Stage1Config, stage2: Stage2Context, stage3: Stage3Config, clock: StageClock,
+                   stage1: Stage1Config, stage2: Stage2Context | LightFitContext, stage3: Stage3Config, clock: StageClock,
                    work_dir: Path, split: str = "test", progress: bool = False) -> dict:
     """Runs Stages I-III on ``asset`` and writes the material maps of ``scene``'s ``split`` views.
 
-    ``stage1``, ``stage2``, ``stage3``: the run's checked stage configs (and Stage II's model),
-    built once per run by the method's ``prepare``; ``cfg`` is read for ``device`` only.
+    ``stage1``, ``stage2``, ``stage3``: the run's checked stage configs (and Stage II's model, or
+    the light read-out in its place), built once per run by the method's ``prepare``; ``cfg`` is
+    read for ``device`` only.
 
     Returns:
         {"stage1": report, "stage2": stats, "stage3": stats, "points_scores": Table 2's
         measure on the generated cloud (None when the lattice size differs from the scene's)}.
     """
     from gspi.stage1.extract import extract_point_cloud
-    from gspi.stage2.infer import predict_generated_points
     from gspi.stage3.distill import distill
     from gspi.stage3.export import write_scene_predictions
     from gspi.stage3.targets import stage_targets
@@ -88,16 +116,8 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
         points.save(work_dir / "points.npz")
     write_json_atomic(work_dir / "stage1.json", s1)
 
-    data_cfg = stage2.model_cfg["stage2"].data
     with clock.stage("stage2"):
-        pbr, s2 = predict_generated_points(
-            stage2.model, points, renders, local_mode=data_cfg.local_condition, encoder=stage2.encoder,
-            cfg=stage2.run_cfg.inference,
-            tol_pixels=float(data_cfg.visibility_tol_pixels), pixel_features=data_cfg.pixel_features,
-            pixel_feature_spread=data_cfg.pixel_feature_spread,
-            cross_view_radiance=getattr(data_cfg, "cross_view_radiance", False),  # checkpoints before issue 52 lack it
-            cross_view_neighbourhood=getattr(data_cfg, "cross_view_neighbourhood", False),  # before session 26
-            device=device)
+        pbr, s2 = stage2.predict(points, renders, asset, device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None

@@ -7,11 +7,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gspi.run.methods import (ExternalMethod, GspiMethod, InhouseMethod, Method, MethodUnavailable,
-                              build_method)
+from gspi.run.methods import (ExternalMethod, GspiMethod, InhouseMethod, LightFitMethod, Method,
+                              MethodUnavailable, build_method)
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "method"
-EXPECTED = {"gspi": GspiMethod, "no_decomposition": InhouseMethod, "joint_ir": InhouseMethod,
+EXPECTED = {"gspi": GspiMethod, "light_fit": LightFitMethod, "no_decomposition": InhouseMethod, "joint_ir": InhouseMethod,
             "gs_ir": ExternalMethod, "r3dg": ExternalMethod, "gaussianshader": ExternalMethod,
             "irgs": ExternalMethod, "lumigauss": ExternalMethod, "materialanything": ExternalMethod}
 

@@ -19,6 +19,7 @@ METHOD_LABELS = {
     "materialanything": "MaterialAnything",
     "joint_ir": "Joint IR (GS-IR-style)",
     "no_decomposition": "No decomposition",
+    "light_fit": "Light read-out (training-free)",
     "gspi": "Ours",
 }
 

@@ -3,6 +3,7 @@
 ``_target_`` in conf/method/<name>.yaml names the implementation (:func:`build_method`):
 
 * :class:`GspiMethod`: GS-PI itself (gspi/pipeline.py): needs the scene's 2DGS asset and Stage II.
+* :class:`LightFitMethod`: GS-PI's Stages I and III around the training-free light read-out.
 * :class:`InhouseMethod`: baselines that run here (baselines/no_decomposition.py,
   baselines/joint_ir.py): need the asset; their code is ``baselines.<name>.predict_scene``, and
   an optional ``baselines.<name>.prepare(cfg, data_dir)`` does their per-run work.
@@ -73,6 +74,24 @@ class GspiMethod(Method):
         return run_gspi_scene(scene, asset, out_scene_dir, self.run_cfg, stage1=self.shared["stage1"],
                               stage2=self.shared["stage2"], stage3=self.shared["stage3"],
                               clock=clock, work_dir=work_dir, split=split, progress=progress)
+
+
+class LightFitMethod(GspiMethod):
+    """GS-PI's Stages I and III around the training-free read-out in Stage II's place: the capture
+    light estimated among ``method.candidates``, each point's material read against it
+    (gspi/stage2/light_fit.py; conf/method/light_fit.yaml)."""
+
+    def prepare(self) -> dict:
+        from gspi.pipeline import LightFitContext
+        from gspi.stage1.config import Stage1Config
+        from gspi.stage2.light_fit import LightFitConfig, candidate_lights
+        from gspi.stage3.config import Stage3Config
+
+        cfg = LightFitConfig.from_mapping(self.cfg)
+        self.shared["stage2"] = LightFitContext(cfg=cfg, candidates=candidate_lights(cfg.candidates, cfg.env_height))
+        self.shared["stage1"] = Stage1Config.from_dict(dict(self.run_cfg["stage1"]))
+        self.shared["stage3"] = Stage3Config.from_dict(dict(self.run_cfg["stage3"]))
+        return {"light_fit": {"candidates": sorted(self.shared["stage2"].candidates)}}
 
 
 class InhouseMethod(Method):

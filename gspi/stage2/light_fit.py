@@ -1,0 +1,115 @@
+"""The training-free read-out as a method's materials (``method=light_fit``, issue 66): on a
+Stage I cloud and its lattice renders, estimate the capture light among candidate environments
+(``gspi.light.estimate``), then read each point's material against it (``gspi.light.readout``:
+the grid fit pooled over neighbours, posterior mean). Normals are the asset's surfel normals.
+
+``predict_light_fit`` returns what Stage II's ``predict_generated_points`` returns ([P, 5]: albedo
+sRGB, roughness, metallic; stats), so the pipeline's Stage III takes either.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from functools import cache
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from eval.colorspace import linear_to_srgb
+from eval.relight import PrefilteredEnvironment, prefilter_environment
+from gspi.data.env_sets import make_named_environment, resolve_env_set
+from gspi.gaussians.model import Gaussians2D
+from gspi.light.estimate import estimate_light
+from gspi.light.readout import NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, pool_neighbours, read_posterior
+from gspi.point_cloud import PointCloud, nearest_fill
+from gspi.stage2.infer import subsample_indices
+from gspi.stage2.lattice_cameras import LatticeCameras
+from gspi.stage2.light_views import observe_points
+
+SURFELS_PER_POINT = 8  # surfels whose normals (facing the source camera, weighted by opacity) a point takes
+
+
+@dataclass(frozen=True)
+class LightFitConfig:
+    """conf/method/light_fit.yaml's keys (the read-out's settings are ``gspi.light.readout``'s)."""
+
+    candidates: Any = "procedural"   # the lights it may pick: procedural | polyhaven | [names or EXR paths]
+    env_height: int = 64             # rows of each candidate's lat-long map
+    max_points: int | None = 20000   # points read (seeded subset, 1-NN fill); None: all
+    identify_points: int = 2000      # points the light is identified on
+    neighbours: int = NEIGHBOURS
+    temperature: float = POSTERIOR_TEMPERATURE
+    tol_pixels: float = 2.0          # the views' depth test (as Stage II's conditions)
+    seed: int = 0
+
+    @classmethod
+    def from_mapping(cls, cfg) -> "LightFitConfig":
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(cfg) - known - {"name", "_target_"})
+        if unknown:
+            raise ValueError(f"method.{unknown[0]}: unknown light_fit key; allowed: {', '.join(sorted(known))}")
+        values = {k: cfg[k] for k in known if k in cfg}
+        if isinstance(values.get("candidates"), (list, tuple)):
+            values["candidates"] = tuple(str(c) for c in values["candidates"])
+        return cls(**values)
+
+
+@cache
+def _candidate(name: str, source: str, height: int) -> PrefilteredEnvironment:
+    return prefilter_environment(make_named_environment(name, source, height))
+
+
+def candidate_lights(spec, height: int) -> dict[str, PrefilteredEnvironment]:
+    """{name: prefiltered map} of the candidate set (``gspi.data.env_sets`` names its options)."""
+    spec = list(spec) if isinstance(spec, tuple) else spec
+    return {name: _candidate(name, source, int(height)) for name, source in resolve_env_set(spec, "capture").items()}
+
+
+def surfel_normals(asset: Gaussians2D, xyz: np.ndarray, source_center: np.ndarray) -> np.ndarray:
+    """[n, 3] unit normals at ``xyz`` [n, 3]: the asset's nearest surfels' normals, each turned to
+    face the point's source camera ``source_center`` [n, 3], averaged with opacity weights."""
+    means = asset.means.detach().cpu().numpy().astype(np.float64)
+    normals = asset.normals.detach().cpu().numpy().astype(np.float64)
+    opacity = asset.opacities.detach().cpu().numpy().reshape(-1).astype(np.float64)
+    k = min(SURFELS_PER_POINT, len(means))
+    _, nn = cKDTree(means).query(xyz, k=k)
+    nn = np.asarray(nn).reshape(len(xyz), k)
+    nrm = normals[nn]                                          # [n, k, 3]
+    facing = np.sign(np.einsum("nkc,nc->nk", nrm, source_center - xyz))
+    facing[facing == 0] = 1.0
+    mean = (nrm * (facing * opacity[nn])[..., None]).sum(axis=1)
+    length = np.linalg.norm(mean, axis=1, keepdims=True)
+    return np.where(length > 1e-9, mean / np.maximum(length, 1e-12), source_center - xyz)
+
+
+def predict_light_fit(points: PointCloud, renders, asset: Gaussians2D, cfg: LightFitConfig,
+                      candidates: dict[str, PrefilteredEnvironment]) -> tuple[np.ndarray, dict]:
+    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found)."""
+    t0 = time.perf_counter()
+    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
+                          width=renders.rgb.shape[2], height=renders.rgb.shape[1])
+    sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
+    pts = points if sub is None else points.subset(sub)
+    xyz = pts.xyz.astype(np.float64)
+    normal = surfel_normals(asset, xyz, cams.centers[pts.view])
+    obs = observe_points(renders.rgb, renders.depth, cams, xyz, normal, tol_pixels=cfg.tol_pixels)
+    t_obs = time.perf_counter()
+    light = estimate_light(obs, candidates, max_points=cfg.identify_points, seed=cfg.seed)
+    t_light = time.perf_counter()
+    grid = fit_grid(obs, candidates[light.env], rotation_deg=light.rotation_deg, gain=light.gain)
+    albedo, rough, metal = read_posterior(grid, pool_neighbours(grid, obs.xyz, k=cfg.neighbours), cfg.temperature)
+    pbr = torch.cat([linear_to_srgb(albedo), rough[:, None], metal[:, None]], dim=1).numpy().astype(np.float32)
+    if sub is not None:
+        pbr = nearest_fill(pts.xyz, pbr, points.xyz).astype(np.float32)
+    t_end = time.perf_counter()
+    stats = {"light": {"env": light.env, "rotation_deg": round(light.rotation_deg, 2), "gain": round(light.gain, 4),
+                       "score": light.best.score, "margin": round(light.margin, 3),
+                       "ranking": [[h.env, round(h.score, 6)] for h in light.ranking]},
+             "points": len(points), "points_read": len(pts),
+             "median_views_per_point": float(np.median(obs.views_per_point().numpy())),
+             "seconds": {"observe": round(t_obs - t0, 2), "light": round(t_light - t_obs, 2),
+                         "readout": round(t_end - t_light, 2)},
+             "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()}}
+    return pbr, stats
