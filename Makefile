@@ -68,7 +68,6 @@ demo: install
 # (docs/log/demo/, docs/log/heldout/; docs/RESULTS.md); tests/test_docs_results.py checks them.
 results: install
 	$(PY) -m eval.tables.docs_results
-	$(PY) -m experiments.view_dependence.probe_tables   # issue 52's probe tables (docs/results/probes/)
 
 # Headless Chromium for the report's browser test (tests/test_report_browser.py; skipped without).
 chromium:

@@ -70,14 +70,6 @@ def test_every_candidate_card_is_read_with_both_seeds():
         assert set(card.real[0]) >= {"albedo", "roughness", "metallic", "relight"}, card.model
 
 
-def test_committed_probe_tables_equal_the_generated_ones():
-    """docs/results/probes/ (issue 52's probes) is generated from docs/log/probes/ and the probe
-    retrainings' committed scores, like the result tables."""
-    from experiments.view_dependence.probe_tables import main
-
-    assert main(["--check"]) == 0
-
-
 def test_table2_says_which_planned_runs_are_not_measured_yet():
     line = docs_results.runs_line(["full_s0", "full_s1", "a1_s0"], ["full", "a1", "a4"], [0, 1], "plan.yaml", "go on")
     assert line == ("- Runs measured: 3 of the 6 that plan.yaml plans (3 variants x seeds 0, 1); not yet: a1 s1; "

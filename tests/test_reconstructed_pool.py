@@ -56,6 +56,6 @@ def test_the_command_line_takes_overrides_before_or_after_its_options(monkeypatc
 
     calls = []
     monkeypatch.setattr(rp, "reconstruct_pool", lambda src, out, **kw: calls.append(kw))
-    rp.main([str(tmp_path / "a"), str(tmp_path / "b"), "--recon", "fast_view_mild", "recon.iterations=1800"])
-    rp.main([str(tmp_path / "a"), str(tmp_path / "b"), "recon.iterations=1800", "--recon", "fast_view_mild"])
-    assert calls == [{"recon": "fast_view_mild", "workers": 1, "overrides": ("recon.iterations=1800",)}] * 2
+    rp.main([str(tmp_path / "a"), str(tmp_path / "b"), "--recon", "tiny", "recon.iterations=1800"])
+    rp.main([str(tmp_path / "a"), str(tmp_path / "b"), "recon.iterations=1800", "--recon", "tiny"])
+    assert calls == [{"recon": "tiny", "workers": 1, "overrides": ("recon.iterations=1800",)}] * 2

@@ -111,3 +111,16 @@ def test_a_point_outside_the_subset_takes_its_nearest_subset_points_means(monkey
     out = vs.neighbourhood_condition(None, None, None, xyz, top)
     nearest = np.argmin(np.linalg.norm(xyz[:, None] - sub_xyz[None], axis=2), axis=1)
     np.testing.assert_allclose(out, rows[nearest], rtol=1e-6)
+
+
+def test_neighbourhood_mean_averages_the_k_nearest_points_itself_included():
+    from gspi.stage2.view_statistics import neighbourhood_mean
+
+    xyz = np.array([[0.0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]])
+    values = np.array([[1.0], [3.0], [10.0], [20.0]])
+    # k=2: each point with its nearest neighbour, the two pairs kept apart
+    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 2)[:, 0], [2, 2, 15, 15])
+    # k beyond n: every point gets the mean of all
+    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 99)[:, 0], np.full(4, 8.5))
+    # k=1: the point itself
+    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 1), values)

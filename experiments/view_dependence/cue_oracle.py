@@ -7,11 +7,11 @@ trained on half of a dataset's scenes and scored on the other half (two folds by
 on the conditions of one or more versions of the same scenes: the exact renders (GT) and Stage 0
 reconstructions (``gspi.recon.reconstructed_pool`` folders). Per fold and version it reports the
 held-out points' metallic IoU at 0.5 (all scenes with metal, and the multi-part ones alone) and
-the roughness PSNR against the training mean's. Writes a JSON (committed: docs/log/probes/) and
+the roughness PSNR against the training mean's. Writes a JSON (committed: experiments/view_dependence/log/) and
 prints markdown.
 
     python -m experiments.view_dependence.cue_oracle exact=HELDOUT32 fast=RHELD_FAST fast_view=RHELD_VIEW \
-        --out docs/log/probes/cue_oracle.json
+        --out experiments/view_dependence/log/cue_oracle.json
 
 Two questions the first table left open (session 25), both from ``NAME=TRAIN_FOLDER,TEST_FOLDER``:
 
@@ -26,7 +26,7 @@ Two questions the first table left open (session 25), both from ``NAME=TRAIN_FOL
 
     python -m experiments.view_dependence.cue_oracle exact=TRAIN_VIEW,HELDOUT_TEST \
         fast_view_mild=RTRAIN_VIEW_MILD,RHELDOUT_VIEW_MILD --train-scenes 32,64,128,224 --steps 5000 \
-        --out docs/log/probes/cue_oracle_curve.json
+        --out experiments/view_dependence/log/cue_oracle_curve.json
 
 A third question (session 26), for gloss: **is the cue there once pooled over the whole object?**
 The controlled pairs' glossy member shows a highlight on a minority of its points
@@ -39,7 +39,7 @@ training scenes on those pairs with the benchmark's own verdicts
 
     python -m experiments.view_dependence.cue_oracle exact=TRAIN_VIEW,HELDOUT_TEST,PAIRS18 \
         fast_view_mild=RTRAIN_VIEW_MILD,RHELDOUT_VIEW_MILD,RPAIRS18_VIEW_MILD --steps 5000 \
-        --out docs/log/probes/cue_oracle_pooled.json
+        --out experiments/view_dependence/log/cue_oracle_pooled.json
 """
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def fit_mlp(x: np.ndarray, y: np.ndarray, *, seed: int = 0, steps: int = 1500) -
     Not the ladder's ``PointMLP`` (experiments/ladder/regressors.py: 4 layers of 256, all five f0
     channels in [-1, 1]): the oracle asks only whether two channels are separable per point from a
     handful of inputs, so a small net fits its 3000 points per scene in seconds; its committed
-    figures (docs/log/probes/cue_oracle.json) were measured with this one."""
+    figures (experiments/view_dependence/log/cue_oracle.json) were measured with this one."""
     torch.manual_seed(seed)
     model = nn.Sequential(nn.Linear(x.shape[1], 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, y.shape[1]))
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)

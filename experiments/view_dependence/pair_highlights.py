@@ -8,7 +8,7 @@ each scene's surface points: its median, 90th and 99th percentiles, and the shar
 gain exceeds ``HIGHLIGHT_GAIN``. If the median glossy point looks like a matte one, no per-point
 reader can order the pair; the cue is in a few points and has to be pooled over the surface.
 
-    python -m experiments.view_dependence.pair_highlights PAIRS_DATA --out docs/log/probes/pair_highlights.json
+    python -m experiments.view_dependence.pair_highlights PAIRS_DATA --out experiments/view_dependence/log/pair_highlights.json
 """
 from __future__ import annotations
 

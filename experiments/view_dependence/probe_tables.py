@@ -1,50 +1,51 @@
-"""Issue 52's probe tables, generated from their committed scores (docs/log/probes/, and Table 2
-scores of ``evaluate_points``), never typed:
+"""Issue 52's probe tables, generated from their committed scores (log/, and Table 2 scores of
+``evaluate_points``), never typed. Paths are under this study's folder (experiments/view_dependence/)
+unless they start with docs/ or benchmarks/ (the product's committed scores):
 
-    python -m experiments.view_dependence.probe_tables          # writes docs/results/probes/*.md
+    python -m experiments.view_dependence.probe_tables          # writes results/*.md
     python -m experiments.view_dependence.probe_tables --check  # exit 1 when a committed table differs
 
-* ``stage0_view_dependence.md`` from ``docs/log/probes/stage0_view_dependence.json``;
-* ``stage0_length.md`` from ``docs/log/probes/stage0_length.json``: the same per class over
+* ``stage0_view_dependence.md`` from ``log/stage0_view_dependence.json``;
+* ``stage0_length.md`` from ``log/stage0_length.json``: the same per class over
   ``recon=fast_view_mild``'s length (iterations), on its glossy and metal scenes;
-* ``patch_inference.md``: ``docs/log/probes/patch_inference/<mode>.json`` (``whole``, ``patch512``),
+* ``patch_inference.md``: ``log/patch_inference/<mode>.json`` (``whole``, ``patch512``),
   per scene and the paired differences (95 % bootstrap CI over scenes); the same for a retrained
   model, ``patch_inference_<scores folder>_<run>.md``: its 512-point-patch scores
-  ``docs/log/probes/patch_inference_retrained/<scores folder>__<run>.json`` against its committed
+  ``log/patch_inference_retrained/<scores folder>__<run>.json`` against its committed
   whole-cloud Table 2 scores;
-* ``cue_oracle.md`` from ``docs/log/probes/cue_oracle.json``;
-* ``pair_highlights.md`` from ``docs/log/probes/pair_highlights.json``: per controlled pair, how
+* ``cue_oracle.md`` from ``log/cue_oracle.json``;
+* ``pair_highlights.md`` from ``log/pair_highlights.json``: per controlled pair, how
   many of each member's surface points show a highlight in the exact lattice renders;
-* ``cue_oracle_curve.md`` from ``docs/log/probes/cue_oracle_curve.json``: the oracle's learning curve
+* ``cue_oracle_curve.md`` from ``log/cue_oracle_curve.json``: the oracle's learning curve
   over training scenes, per feature set (with the neighbourhood features) and conditions;
-* ``cue_oracle_pooled.md`` from ``docs/log/probes/cue_oracle_pooled.json``: the oracle with the
+* ``cue_oracle_pooled.md`` from ``log/cue_oracle_pooled.json``: the oracle with the
   object-pooled features, on the held-out scenes and on the controlled pairs;
-* ``retraining.md``: the Table 2 scores of ``gspi-reproduce table=2 scale=probe recon=<name>``
-  (``docs/results/scores/table2_probe_<name>/``) or of its checkpoints measured before the last
-  step (``docs/log/probes/retraining/<name>.json``), one row per Stage 0 config;
+* ``retraining.md``: the Table 2 scores of ``gspi-reproduce study=view_dependence table=2 scale=probe recon=<name>``
+  (``results/scores/table2_probe_<name>/``) or of its checkpoints measured before the last
+  step (``log/retraining/<name>.json``), one row per Stage 0 config;
 * ``retraining_shipped.md``: the same at the shipped scale, Table 2's Full runs under ``recon=fast``
-  (``docs/results/scores/table2_cpu/``) against ``scale=cpu_view``'s (``table2_cpu_<recon>/``, or a
-  checkpoint measured before its last step: ``docs/log/probes/retraining_shipped/<recon>_s<seed>.json``;
+  (``docs/results/scores/table2_cpu/``) against ``scale=cpu_view``'s (``results/scores/table2_cpu_<recon>/``, or a
+  checkpoint measured before its last step: ``log/retraining_shipped/<recon>_s<seed>.json``;
   ``<recon>`` = ``exact_<departures>``: trained and measured on the exact renders),
   with issue 52's held-out targets met or not;
 * ``stage0_only.md``: the shipped Stage II unchanged behind another Stage 0, end to end: the demo's
-  four scenes (``docs/log/probes/stage0_only/demo_<recon>.json`` against the committed demo run,
+  four scenes (``log/stage0_only/demo_<recon>.json`` against the committed demo run,
   docs/log/demo/, whose assets are ``recon=fast``'s) and the controlled pairs
-  (``docs/log/probes/stage0_only/controlled_pairs_<recon>.json`` against
+  (``log/stage0_only/controlled_pairs_<recon>.json`` against
   benchmarks/results/controlled_pairs_fast.json).
 * ``retrained_real_objects.md``: the 19 real objects end to end behind ``recon=fast_view_mild``
-  (``docs/log/probes/retrained_real_objects/real_<scores folder>__<run>.json``, and no
+  (``log/retrained_real_objects/real_<scores folder>__<run>.json``, and no
   decomposition's ``real_no_decomposition.json`` on the same reconstructions) against the default
   checkpoint's card (``recon=fast``).
 * ``guidance.md``: a retrained model's held-out scores under classifier-free guidance
-  (``docs/log/probes/guidance/<scores folder>__<run>__g<scale>.json``, ``evaluate_points
+  (``log/guidance/<scores folder>__<run>__g<scale>.json``, ``evaluate_points
   --guidance-scale``) against its committed unguided Table 2 scores, with issue 52's targets.
 * ``inference_recon.md``: a retrained model behind another Stage 0 than the one it was trained
   behind (no retraining): its held-out scores on the 32 held-out scenes reconstructed by that Stage 0
-  (``docs/log/probes/inference_recon/<scores folder>__<run>__<recon>.json``; ``<recon>`` = ``exact``:
+  (``log/inference_recon/<scores folder>__<run>__<recon>.json``; ``<recon>`` = ``exact``:
   the exact renders) against its committed Table 2 scores, paired over (scene, seed); and end to
   end (demo, controlled pairs:
-  ``docs/log/probes/inference_recon/demo_<scores folder>__<run>__<recon>.json``,
+  ``log/inference_recon/demo_<scores folder>__<run>__<recon>.json``,
   ``controlled_pairs_...``) against its runs in ``retrained_end_to_end``.
 A table whose scores are not committed yet is left out.
 """
@@ -60,9 +61,18 @@ import numpy as np
 from eval.stats import paired_bootstrap_ci
 
 ROOT = Path(__file__).resolve().parents[2]
-PROBES = ROOT / "docs" / "log" / "probes"
-OUT = ROOT / "docs" / "results" / "probes"
+STUDY = Path(__file__).resolve().parent
+PROBES = STUDY / "log"  # the probes' committed scores
+OUT = STUDY / "results"  # the tables this module writes
+SCORES = STUDY / "results" / "scores"  # the study's Table 2 scores (gspi-reproduce study=view_dependence)
+PRODUCT_SCORES = ROOT / "docs" / "results" / "scores"  # the product's Table 2 scores (table2_cpu: the shipped recipe)
 CHANNELS = ("albedo", "roughness", "metallic")
+
+
+def scores_file(folder: str, run: str) -> Path:
+    """A run's committed Table 2 scores: the study's folder, or the product's (``table2_cpu``)."""
+    own = SCORES / folder / run / "scores.json"
+    return own if own.parent.is_dir() else PRODUCT_SCORES / folder / run / "scores.json"
 
 
 def scene_avg(per_scene: dict) -> dict[str, float]:
@@ -273,7 +283,7 @@ def real_objects_table(runs: dict[str, dict], no_decomposition: dict, card: dict
                      + f" | {'-' if wb is None else f'{wb:.2f}'} | {verdict} |")
     return (f"The {n} real objects (`gspi-data import.glb=../shared/data/real-objects preset=small`) end to end "
             "(Stage III 300 iterations, `+experiment=real_objects`): the default's card (`recon=fast`) and the Full "
-            "models retrained under `recon=fast_view_mild` (docs/results/probes/retraining_shipped.md) behind that "
+            "models retrained under `recon=fast_view_mild` (retraining_shipped.md) behind that "
             "Stage 0, each against no decomposition on the same reconstructions. Test data only.\n\n"
             + "\n".join(lines) + "\n")
 
@@ -365,7 +375,7 @@ def inference_recon_tables(folder: Path) -> str:
         held.setdefault((scores_folder, recon), []).append((run, json.loads(p.read_text())))
     parts = []
     for (scores_folder, recon), measured in held.items():
-        ref = [json.loads((ROOT / "docs" / "results" / "scores" / scores_folder / run / "scores.json").read_text())
+        ref = [json.loads(scores_file(scores_folder, run).read_text())
                for run, _ in measured]
         conditions = "the exact renders (no Stage 0)" if recon == "exact" else f"recon={recon}"
         rows = {f"{scores_folder}, behind its own Stage 0 (Table 2's runs)": ref,
@@ -415,7 +425,7 @@ def tables() -> dict[str, str]:
         out["patch_inference.md"] = patch_table(json.loads(whole.read_text()), json.loads(patch.read_text()))
     for patch in sorted((PROBES / "patch_inference_retrained").glob("*__*.json")):  # <scores folder>__<run>.json
         folder, run = patch.stem.split("__")  # its whole-cloud scores: the run's committed Table 2 scores
-        whole = ROOT / "docs" / "results" / "scores" / folder / run / "scores.json"
+        whole = scores_file(folder, run)
         out[f"patch_inference_{folder}_{run}.md"] = patch_table(
             json.loads(whole.read_text()), json.loads(patch.read_text()),
             model=f"{run} of `{folder}`, retrained at the shipped scale", scenes="all")
@@ -439,7 +449,7 @@ def tables() -> dict[str, str]:
     if pooled.is_file():
         out["cue_oracle_pooled.md"] = oracle_pooled_table(json.loads(pooled.read_text()))
     by_recon: dict[str, list[dict]] = {}
-    for p in sorted((ROOT / "docs" / "results" / "scores").glob("table2_probe_*/full_s*/scores.json")):
+    for p in sorted(SCORES.glob("table2_probe_*/full_s*/scores.json")):
         by_recon.setdefault(p.parent.parent.name.removeprefix("table2_probe_"), []).append(json.loads(p.read_text()))
     for p in sorted((PROBES / "retraining").glob("*.json")):  # runs measured before their last step (cut for time)
         by_recon.setdefault(p.stem, []).append(json.loads(p.read_text()))
@@ -448,8 +458,8 @@ def tables() -> dict[str, str]:
                                 "Stage 0's conditions and measured on the 32 held-out scenes reconstructed by the same "
                                 "Stage 0 (10 DDIM steps, 20000 points).\n\n" + retraining_table(by_recon))
     shipped: dict[str, list[dict]] = {"fast": [json.loads(p.read_text()) for p in sorted(
-        (ROOT / "docs" / "results" / "scores" / "table2_cpu").glob("full_s*/scores.json"))]}
-    for p in sorted((ROOT / "docs" / "results" / "scores").glob("table2_cpu_*/full_s*/scores.json")):
+        (PRODUCT_SCORES / "table2_cpu").glob("full_s*/scores.json"))]}
+    for p in sorted(SCORES.glob("table2_cpu_*/full_s*/scores.json")):
         shipped.setdefault(p.parent.parent.name.removeprefix("table2_cpu_"), []).append(json.loads(p.read_text()))
     for p in sorted((PROBES / "retraining_shipped").glob("*.json")):  # <recon>_s<seed>: measured before the last step
         shipped.setdefault(p.stem.rsplit("_s", 1)[0], []).append(json.loads(p.read_text()))
@@ -470,14 +480,14 @@ def tables() -> dict[str, str]:
     if demo_runs or pairs:
         out["retrained_end_to_end.md"] = end_to_end_table(
             demo_runs, pairs, intro="the shipped Stage II under recon=fast against the Full models retrained at the "
-            "shipped scale under `recon=fast_view_mild` (`docs/results/probes/retraining_shipped.md`; the column names "
+            "shipped scale under `recon=fast_view_mild` (`retraining_shipped.md`; the column names "
             "the model's committed scores folder and run), each behind `recon=fast_view_mild`",
             label=lambda name: "retrained {}/{}".format(*name.split("__")))
     guided: dict[str, dict[str, list[dict]]] = {}
     for p in sorted((PROBES / "guidance").glob("*__*__g*.json")):  # <scores folder>__<run>__g<scale>
         folder, run, scale = p.stem.split("__")
         rows = guided.setdefault(f"{folder}/{run}", {"guidance 1 (Table 2's run)": [json.loads(
-            (ROOT / "docs" / "results" / "scores" / folder / run / "scores.json").read_text())]})
+            scores_file(folder, run).read_text())]})
         rows[f"guidance {scale.removeprefix('g')}"] = [json.loads(p.read_text())]
     if guided:
         out["guidance.md"] = "\n".join(

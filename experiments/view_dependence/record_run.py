@@ -1,5 +1,5 @@
 """One end-to-end ``gspi-run``'s per-scene scores as a committed probe record (issue 52):
-``docs/log/probes/<probe>/demo_<name>.json``, which ``probe_tables`` reads into its end-to-end tables.
+``experiments/view_dependence/log/<probe>/demo_<name>.json``, which ``probe_tables`` reads into its end-to-end tables.
 
     python -m experiments.view_dependence.record_run RUN OUT --recon fast_view_mild \
         --checkpoint '<the model>' --command '<the gspi-run line>' --machine '<what else ran>'

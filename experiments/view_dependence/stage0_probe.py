@@ -6,12 +6,12 @@ folders, one per Stage 0 config), per surface point (the GT cloud, a seeded subs
 lattice views that see it (``gspi.stage2.view_statistics``): the brightest view's luminance
 minus the median (``peak_gain``) and the luminance's spread, in the exact renders (GT) and in
 the asset's; and per scene the q99 radiance and the fit to the lattice and to held-out photos
-(``asset/recon.json``). Writes one JSON of per-scene scores (committed: docs/log/probes/) and
+(``asset/recon.json``). Writes one JSON of per-scene scores (committed: experiments/view_dependence/log/) and
 prints the per-class medians as markdown.
 
     python -m experiments.view_dependence.stage0_probe SOURCE fast=RECON_FAST fast_view=RECON_VIEW \
-        --out docs/log/probes/stage0_view_dependence.json
-    python -m experiments.view_dependence.stage0_probe --table docs/log/probes/stage0_view_dependence.json
+        --out experiments/view_dependence/log/stage0_view_dependence.json
+    python -m experiments.view_dependence.stage0_probe --table experiments/view_dependence/log/stage0_view_dependence.json
 """
 from __future__ import annotations
 

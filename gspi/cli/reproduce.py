@@ -3,11 +3,15 @@
     gspi-reproduce table=2 scale=cpu                  # rerun until it prints "done"
     gspi-reproduce table=2 scale=smoke                # the same steps at toy size (minutes; the test suite runs it)
     gspi-reproduce table=2 scale=cpu dry_run=true     # the steps left, with their commands and how far begun trainings got
-    gspi-reproduce table=2 scale=cpu seeds=[0,1] variants=[full] recon=fast_view   # any key of the table's config
+    gspi-reproduce table=2 scale=cpu seeds=[0,1] variants=[full] recon=tiny   # any key of the table's config
     gspi-reproduce table=1 scale=cpu                  # Table 1 (the demo's sweep); table=3 the same for Table 3
     gspi-reproduce table=2 scale=cpu keep_state=true  # copy begun trainings' state to the repository (to commit)
 
-The table's config is conf/reproduce/table<N>_<scale>.yaml; ``data_root`` (default ``data`` under
+The table's config is conf/reproduce/table<N>_<scale>.yaml; ``scale`` is its size (smoke, cpu).
+``study=<name>`` adds a study's configs (``experiments/<name>/conf``, principle 10 of the style
+guide: the product names no study) to the search path of this call and of every command it runs, so
+a study's reproduce files (``<study conf>/reproduce/table<N>_<scale>.yaml``) and Stage 0 or Stage II
+options are found beside the product's. ``data_root`` (default ``data`` under
 the repository, or $GSPI_DATA_ROOT) holds what is not committed. Every step is skipped when its
 output exists and resumes where it stopped, so a recipe longer than one session is the same
 command run again (gspi/reproduce/plan.py). Ctrl-C loses nothing that finished.
@@ -24,20 +28,38 @@ log = logging.getLogger("gspi-reproduce")
 REPO = Path(__file__).resolve().parents[2]
 ROOT_KEYS = ("data_root", "dry_run", "only", "keep_state")
 ROOT_FLAGS = ("dry_run", "keep_state")  # true or false
+STUDIES = REPO / "experiments"  # a study's configs: STUDIES / <study> / "conf" (its groups beside conf/'s)
 
 
 class ReproduceError(StatedError, ValueError):
     """A bad gspi-reproduce call: names the key and what is expected."""
 
 
-def available() -> list[str]:
+def conf_dirs(study: str | None) -> list[Path]:
+    """The config folders of a call: conf/, then the study's (``study=<name>``)."""
     from eval.config import CONF_DIR
 
-    return sorted(p.stem for p in (Path(CONF_DIR) / "reproduce").glob("table*_*.yaml"))
+    if study is None:
+        return [Path(CONF_DIR)]
+    conf = STUDIES / study / "conf"
+    if not study or "/" in study or not conf.is_dir():
+        known = ", ".join(sorted(p.parent.name for p in STUDIES.glob("*/conf"))) or "none"
+        raise ReproduceError(f"study={study}: no {conf.relative_to(REPO)} folder; known: {known}")
+    return [Path(CONF_DIR), conf]
+
+
+def searchpath_override(study: str | None) -> list[str]:
+    """The ``hydra.searchpath`` override that adds the study's configs (none without a study)."""
+    return [f"hydra.searchpath=[file://{d}]" for d in conf_dirs(study)[1:]]
+
+
+def available(study: str | None = None) -> list[str]:
+    """The reproduce files a call can name: conf/reproduce's, and the study's with ``study=``."""
+    return sorted({p.stem for d in conf_dirs(study) for p in (d / "reproduce").glob("table*_*.yaml")})
 
 
 def compose(argv: list[str]):
-    """(table config, root config) of ``table=N scale=S [key=value ...]``."""
+    """(table config, root config) of ``table=N scale=S [study=NAME] [key=value ...]``."""
     from hydra import compose as hydra_compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf import OmegaConf
@@ -53,23 +75,32 @@ def compose(argv: list[str]):
         key, value = arg.split("=", 1)
         pairs.setdefault(key, []).append(value)
     table, scale = pairs.pop("table", [None])[-1], pairs.pop("scale", [None])[-1]
+    study = pairs.pop("study", [None])[-1]
     name = f"table{table}_{scale}"
-    known = ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in available())
+    found = available(study)
+    known = ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in found)
     if table is None or scale is None:
         raise ReproduceError(f"needs both table=N and scale=S (e.g. table=2 scale=cpu); known: {known}")
-    if name not in available():
-        raise ReproduceError(f"table={table} scale={scale}: no conf/reproduce/{name}.yaml; known: {known}")
+    if name not in found:
+        files = " nor ".join(str(d.relative_to(REPO) / "reproduce" / f"{name}.yaml") for d in conf_dirs(study))
+        raise ReproduceError(f"table={table} scale={scale}: no {files}; known: {known}")
     overrides = [f"{k if k in ROOT_KEYS else 'reproduce.' + k}={v}" for k, vs in pairs.items() for v in vs]
+    searchpath = searchpath_override(study)
     try:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-            cfg = hydra_compose("gspi_reproduce", overrides=[f"reproduce={name}", *overrides])
+            cfg = hydra_compose("gspi_reproduce", overrides=[*searchpath, f"reproduce={name}", *overrides])
         flags = {k: cfg[k] for k in ROOT_FLAGS}
     except (HydraException, OmegaConfBaseException, YAMLError) as exc:
-        raise ReproduceError(f"{name}: {one_line(exc)} (keys: conf/reproduce/{name}.yaml)") from exc
+        source = next(d for d in conf_dirs(study) if (d / "reproduce" / f"{name}.yaml").is_file())
+        raise ReproduceError(f"{name}: {one_line(exc)} (keys: {source.relative_to(REPO)}/reproduce/{name}.yaml)") from exc
     bad = {k: v for k, v in flags.items() if not isinstance(v, bool)}
     if bad:
         raise ReproduceError(", ".join(f"{k}={v!r}" for k, v in bad.items()) + ": expected true or false")
-    return OmegaConf.to_container(cfg.reproduce, resolve=True), cfg
+    table_cfg = OmegaConf.to_container(cfg.reproduce, resolve=True)
+    for key in ("recon_overrides", "train_overrides"):  # the commands it runs find the study's options too
+        if key in table_cfg:
+            table_cfg[key] = [*searchpath, *table_cfg[key]]
+    return table_cfg, cfg
 
 
 def plan(argv: list[str]):

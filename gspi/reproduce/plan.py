@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 # rerun with another worker count or chunk length continues the same work
 SPEED_ONLY = ("data.workers=", "stage2.train.stop_after_minutes=", "hydra.launcher.n_jobs=")
 SPEED_ONLY_FLAGS = ("--workers",)  # followed by their value
+# arguments that say where configs are found, not what they say (a study's folder: gspi-reproduce
+# study=): left out of the markers too, so a checkout elsewhere continues the same work
+WHERE_ONLY = ("hydra.searchpath=",)
 
 
 @dataclass
@@ -63,7 +66,7 @@ class Step:
 
     def marker_text(self) -> str:
         """The command as recorded in the marker: the program by name, paths by their labels and no
-        ``SPEED_ONLY`` argument, so a moved work folder, another checkout or another worker count
+        ``SPEED_ONLY`` or ``WHERE_ONLY`` argument, so a moved work folder, another checkout or another worker count
         still recognises its own steps."""
         if self.command is None:
             return self.describe()
@@ -88,10 +91,10 @@ class Step:
 
 
 def without_speed_only(command: str) -> str:
-    """``command`` (shell words) without the ``SPEED_ONLY`` arguments."""
+    """``command`` (shell words) without the ``SPEED_ONLY`` and ``WHERE_ONLY`` arguments."""
     kept, skip = [], False
     for arg in shlex.split(command):
-        if skip or arg.startswith(SPEED_ONLY):
+        if skip or arg.startswith(SPEED_ONLY + WHERE_ONLY):
             skip = False
             continue
         if arg in SPEED_ONLY_FLAGS:

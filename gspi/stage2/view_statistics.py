@@ -15,16 +15,15 @@ Luminance is Rec. 709's (``LUMINANCE``). A point seen by fewer than two views ge
 2DGS asset's renders alike, so the probe can say what Stage 0 takes away.
 
 **Neighbourhood means** (``stage2.data.cross_view_neighbourhood``): a glossy surface shows its
-highlight on a minority of its points (experiments/view_dependence/pair_highlights.py), so a point
+highlight on a minority of its points (measured on the controlled pairs' exact renders), so a point
 takes the mean of the statistic, and of Top-RGB, over its k nearest points of the object
 (``NEIGHBOURHOOD_KS``: about 1 % and 8 % of its surface). The neighbours are counted in a seeded
 subset of ``NEIGHBOURHOOD_POINTS`` of the object's own points, in training (the GT cloud) as at
 inference (Stage I's cloud): the same share of the surface whatever the cloud's density; a point
 outside the subset takes its nearest subset point's means (the cloud holds ~10^5 points, the means
-are smooth over ~1 % of the surface, and computing them per point would cost ~50x more). The cue
-oracle found these means lift the metal class and the roughness read per point
-(docs/results/probes/cue_oracle_curve.md) and order the controlled pairs by a wider gap
-(cue_oracle_pooled.md).
+are smooth over ~1 % of the surface, and computing them per point would cost ~50x more). A per-point
+reader (issue 52's cue oracle) reads the metal class and roughness better with these means, and
+orders the controlled pairs by a wider gap.
 """
 from __future__ import annotations
 

@@ -3,18 +3,6 @@ import numpy as np
 import pytest
 
 from experiments.view_dependence.cue_oracle import nested_subsets
-from gspi.stage2.view_statistics import neighbourhood_mean
-
-
-def test_neighbourhood_mean_averages_the_k_nearest_points_itself_included():
-    xyz = np.array([[0.0, 0, 0], [1, 0, 0], [10, 0, 0], [11, 0, 0]])
-    values = np.array([[1.0], [3.0], [10.0], [20.0]])
-    # k=2: each point with its nearest neighbour, the two pairs kept apart
-    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 2)[:, 0], [2, 2, 15, 15])
-    # k beyond n: every point gets the mean of all
-    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 99)[:, 0], np.full(4, 8.5))
-    # k=1: the point itself
-    np.testing.assert_allclose(neighbourhood_mean(xyz, values, xyz, 1), values)
 
 
 def test_nested_subsets_grow_by_adding_scenes_and_are_seeded():
