@@ -5,7 +5,7 @@ gain; ``gspi.light.estimate.estimate_light`` must name the environment, the turn
 degrees) and the gain. Writes one JSON (per scene: truth, estimate, margin, seconds) and prints
 the summary.
 
-    python -m experiments.light_fit.identify HELDOUT_TEST VIEWS --out results/identify_exact.json
+    python -m experiments.known_light.identify HELDOUT_TEST VIEWS --out results/identify_exact.json
 
 VIEWS: the folder whose lattice views are read (the exact renders, or a reconstructed pool's).
 Normals: GT (``--normals gt``) or a reconstructed pool's surfel normals are not read yet.
@@ -22,8 +22,8 @@ import numpy as np
 import torch
 
 from eval.layout import read_scene, read_splits
-from experiments.light_fit.known_light import POOL_ENVS
-from experiments.light_fit.scene_fit import env_path, gt_normals, observations, subset
+from experiments.known_light.fit import POOL_ENVS
+from experiments.known_light.scene_fit import env_path, gt_normals, observations, subset
 from eval.imageio import read_exr
 from eval.relight import prefilter_environment
 from gspi.light.estimate import MAX_POINTS, estimate_light

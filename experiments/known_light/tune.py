@@ -2,7 +2,7 @@
 scenes (never the held-out ones): per-point PSNR of albedo, roughness and metallic against the GT
 points, averaged over scenes, for each setting; prints a markdown table.
 
-    python -m experiments.light_fit.tune POOL_DIR [--out experiments/light_fit/results/tune.json]
+    python -m experiments.known_light.tune POOL_DIR [--out experiments/known_light/results/tune.json]
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from eval.colorspace import linear_to_srgb
-from experiments.light_fit.scene_fit import env_path, gt_normals, observations, prefiltered, subset
+from experiments.known_light.scene_fit import env_path, gt_normals, observations, prefiltered, subset
 from gspi.light.readout import fit_grid, pool_neighbours, read_best, read_posterior
 from gspi.stage2.data import load_scene_points
 from gspi.stage2.normalize import pbr_from_model

@@ -3,8 +3,8 @@ dataset's test scenes, scored by Table 2's measure (``gspi.stage2.evaluate_point
 one ``scores.json`` per read-out (``map``: the best cell; ``knn_post``: the posterior mean of the
 grid pooled over 16 neighbours), beside the no-decomposition baseline of the same measure.
 
-    python -m experiments.light_fit.known_light HELDOUT_TEST VIEWS OUT --baseline SCORES.json \
-        [--light true|rotated90|other]
+    python -m experiments.known_light.fit HELDOUT_TEST VIEWS OUT --baseline SCORES.json \
+        [--light true|rotated90|other] [--results experiments/known_light/results/<cond> --label NAME]
 
 HELDOUT_TEST: the GT scenes (points, normals, environments); VIEWS: the folder whose lattice views
 are read (the same folder for the exact renders, or a reconstructed pool's); ``--light``: the
@@ -23,7 +23,7 @@ import torch
 
 from eval.layout import read_scene
 from gspi.stage2.encoders import PriorConfig
-from experiments.light_fit.scene_fit import READOUTS, Light, predict
+from experiments.known_light.scene_fit import READOUTS, Light, predict
 
 POOL_ENVS = ("overcast", "sky_morning", "sky_noon", "studio_rgb", "studio_softbox", "sunset", "warehouse",
              "window_room")  # the procedural capture set the pool cycles over (gspi.data.environments)
@@ -54,6 +54,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--baseline", type=Path, required=True, help="a scores.json whose baseline constants to reuse")
     ap.add_argument("--light", default="true")
     ap.add_argument("--temperature", type=float, default=None)
+    ap.add_argument("--results", type=Path, default=None,
+                    help="also write each read-out's scores here with portable paths (the committed copy)")
+    ap.add_argument("--label", default=None, help="the measured data's name in the committed copy")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
@@ -79,6 +82,13 @@ def main(argv: list[str] | None = None) -> None:
         result = score_split(prediction(readout), cfg, args.views, "test", args.out / readout,
                              baseline_train=args.baseline, record=record)
         print(readout, json.dumps({c: round(v["psnr"], 2) for c, v in result["mean"]["stage2"].items()}))
+        if args.results:
+            from eval.portable import write_portable_scores
+
+            root = Path(__file__).resolve().parents[2]
+            write_portable_scores(args.out / readout / "scores.json", args.results / readout / "scores.json",
+                                  data_label=args.label or args.views.name,
+                                  roots={"<work>": args.data.resolve().parent, "<repo>": root})
 
 
 if __name__ == "__main__":

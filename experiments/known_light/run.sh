@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The known-light study end to end, resumable (each step skipped when its output exists):
+#   experiments/known_light/run.sh [WORK]        # WORK defaults to $GSPI_DATA_ROOT/known_light or ~/.cache/gspi/known_light
+# ~10 min of data, ~40 min of Stage 0 (recon=fast) and ~10 min per fit condition on one thread of the 2-core VM.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+WORK=${1:-${GSPI_DATA_ROOT:-$HOME/.cache/gspi}/known_light}
+PY=${PY:-.venv/bin/python}
+RES=experiments/known_light/results
+BASE=experiments/view_dependence/log/retraining_shipped/exact_whole_xv_nbhd_s0.json   # its no-decomposition constants
+KEYS="data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3"
+export OMP_NUM_THREADS=1
+mkdir -p "$WORK"
+# the held-out pool of Table 2 (parts pool [224:256]; its checksums equal Table 2's records) and
+# 12 training-pool scenes [0:12] to choose the read-out's settings on (tune.py)
+[ -f "$WORK/heldout_pool/p0255_capsule_rough_plastic/complete.json" ] || \
+  .venv/bin/gspi-data preset=stage2_pool out="$WORK/heldout_pool" seed=0 'data.pool_indices=[[224,256]]' data.workers=1 $KEYS
+[ -d "$WORK/heldout_test" ] || $PY -m gspi.data.pool.split "$WORK/heldout_pool" "$WORK/heldout_test" --test 224:256
+[ -f "$WORK/tune_pool/p0011_superquadric_glossy_plastic/complete.json" ] || \
+  .venv/bin/gspi-data preset=stage2_pool out="$WORK/tune_pool" seed=0 'data.pool_indices=[[0,12]]' data.workers=1 $KEYS
+[ -f "$RES/tune.json" ] || $PY -m experiments.known_light.tune "$WORK/tune_pool" --out "$RES/tune.json"
+fit() {  # fit CONDITION VIEWS LIGHT LABEL
+  [ -f "$RES/$1/knn_post/scores.json" ] || $PY -m experiments.known_light.fit "$WORK/heldout_test" "$2" \
+    "$WORK/runs/$1" --baseline "$BASE" --light "$3" --results "$RES/$1" --label "$4"
+}
+fit exact_true "$WORK/heldout_test" true "parts_pool[224:256] (exact renders)"
+[ -f "$RES/identify_exact.json" ] || $PY -m experiments.known_light.identify "$WORK/heldout_test" "$WORK/heldout_test" --out "$RES/identify_exact.json"
+fit exact_rotated90 "$WORK/heldout_test" rotated90 "parts_pool[224:256] (exact renders)"
+fit exact_other "$WORK/heldout_test" other "parts_pool[224:256] (exact renders)"
+$PY -m gspi.recon.reconstructed_pool "$WORK/heldout_test" "$WORK/rheldout_fast" --recon fast --workers 1
+fit fast_true "$WORK/rheldout_fast" true "parts_pool[224:256]/recon=fast"
+[ -f "$RES/identify_fast.json" ] || $PY -m experiments.known_light.identify "$WORK/heldout_test" "$WORK/rheldout_fast" --out "$RES/identify_fast.json"
+$PY -m experiments.known_light.tables
