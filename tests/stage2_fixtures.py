@@ -21,8 +21,10 @@ from eval.config import CONF_DIR
 SIZE = 32  # px: the smallest size eval.metrics' LPIPS accepts
 
 
-def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0) -> Path:
-    """A sphere scene whose train split is the canonical 32-view lattice, with gt_points.npz."""
+def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0, lit: str | None = None) -> Path:
+    """A sphere scene whose train split is the canonical 32-view lattice, with gt_points.npz.
+    ``lit``: a procedural capture environment: the views are shaded under it by the split-sum
+    shader (``envmaps/<lit>.exr`` and ``normal.exr`` written), as a generated scene's are."""
     from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
     from gspi.data.lattice import lattice_cameras
     from gspi.data.point_clouds import write_scene_point_cloud
@@ -31,8 +33,16 @@ def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0
     K, w2c = lattice_cameras(num_views=32, radius=3.0, fov_deg=45.0, width=size, height=size)
     views = {"train": [View(f"{k:03d}", "train", K[k], w2c[k]) for k in range(32)]}
     scene = Scene(root=root / name, name=name, width=size, height=size, views=views,
-                  capture_env="cap", relight_envs=[])
+                  capture_env=lit or "cap", relight_envs=[])
     write_scene_json(scene)
+    env = None
+    if lit:
+        from eval.imageio import write_exr
+        from gspi.data.environments import make_environment
+
+        env = make_environment(lit, 32, supersample=1)
+        (scene.root / "envmaps").mkdir(parents=True, exist_ok=True)
+        write_exr(scene.envmap_path(lit), env.numpy())
     for v in views["train"]:
         maps = render_sphere_maps(v.K, v.w2c, size, seed)
         vdir = scene.view_dir("train", v.id)
@@ -40,9 +50,36 @@ def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0
             write_material(vdir, channel, maps[channel])
         write_view_file(vdir, "depth.exr", maps["depth"])
         write_view_file(vdir, "mask.png", maps["mask"])
-        write_view_file(vdir, "rgb.exr", (maps["albedo"] ** 2.2 * 0.8).astype(np.float32))
+        write_view_file(vdir, "rgb.exr", (maps["albedo"] ** 2.2 * 0.8).astype(np.float32) if env is None
+                        else shade_sphere(maps, v.w2c, env))
+        if env is not None:
+            write_view_file(vdir, "normal.exr", maps["normal"])
     write_scene_point_cloud(scene)
     return scene.root
+
+
+def shade_sphere(maps: dict, w2c: np.ndarray, env) -> np.ndarray:
+    """[H, W, 3] linear radiance of the sphere's GT maps under ``env`` (eval.relight.split_sum)."""
+    import torch
+
+    from eval.colorspace import srgb_to_linear
+    from eval.relight import split_sum
+
+    mask = maps["mask"] > 0
+    centre = -w2c[:3, :3].T @ w2c[:3, 3]
+    h, w = mask.shape
+    # the surface point of each pixel: along the normal from the origin (the sphere is centred there)
+    from tests.fixtures import RADIUS
+    point = maps["normal"].astype(np.float64) * RADIUS
+    view = centre - point
+    view /= np.maximum(np.linalg.norm(view, axis=-1, keepdims=True), 1e-9)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a[mask], dtype=np.float32))  # noqa: E731
+    albedo = srgb_to_linear(t(maps["albedo"]))
+    rgb = split_sum(albedo, t(maps["roughness"][..., None]), t(maps["metallic"][..., None]),
+                    t(maps["normal"]), t(view), env).numpy()
+    out = np.zeros((h, w, 3), dtype=np.float32)
+    out[mask] = rgb
+    return out
 
 
 def make_lattice_dataset(root: Path, *, num_train: int = 2, num_test: int = 1) -> Path:

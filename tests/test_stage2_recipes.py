@@ -22,7 +22,9 @@ FLAT = ["cpu_pool224_pixel_5k", "cpu_pool224_pixel", "cpu_pool224_5k", "cpu_pool
 
 
 # keys added after the golden was recorded, each off in every recipe (issue 52): (section, key) -> off value
-ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighbourhood"): False, ("data", "subset"): "local", ("inference", "patch_points"): None,
+ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighbourhood"): False,
+             ("data", "light_readout"): False, ("data", "light_wrong_share"): 0.0,
+             ("data", "light_candidates"): "procedural", ("data", "light_env_height"): 64, ("data", "subset"): "local", ("inference", "patch_points"): None,
              ("inference", "patch_coverage"): 2.0}
 
 

@@ -54,6 +54,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--baseline", type=Path, required=True, help="a scores.json whose baseline constants to reuse")
     ap.add_argument("--light", default="true")
     ap.add_argument("--temperature", type=float, default=None)
+    ap.add_argument("--normals", choices=("gt", "surfel"), default="gt",
+                    help="GT normals, or the Stage 0 asset's surfel normals (VIEWS a reconstructed pool)")
     ap.add_argument("--results", type=Path, default=None,
                     help="also write each read-out's scores here with portable paths (the committed copy)")
     ap.add_argument("--label", default=None, help="the measured data's name in the committed copy")
@@ -69,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
             if scene.name not in cache:
                 light = told_light(args.data / scene.name, args.light)
                 cache[scene.name] = predict(scene, index, args.data / scene.name, args.views / scene.name, light,
-                                            temperature=args.temperature)
+                                            temperature=args.temperature, normals=args.normals)
             return cache[scene.name][readout]
         return run
 
@@ -77,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
     for readout in READOUTS:
         record = {"ablation": f"light_fit_{readout}", "checkpoint": None, "num_steps": None,
                   "max_points": 20000, "seed": 0,
-                  "light_fit": {"readout": readout, "light": args.light, "normals": "gt",
+                  "light_fit": {"readout": readout, "light": args.light, "normals": args.normals,
                                 "views": args.views.name, "temperature": args.temperature}}
         result = score_split(prediction(readout), cfg, args.views, "test", args.out / readout,
                              baseline_train=args.baseline, record=record)

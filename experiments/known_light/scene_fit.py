@@ -73,12 +73,26 @@ def observations(points: ScenePoints, keep: np.ndarray, views_dir: Path, normals
     return observe_points(rgb, depth, points.cameras, points.xyz[keep], normals[keep])
 
 
+def asset_normals(points: ScenePoints, keep: np.ndarray, views_dir: Path) -> np.ndarray:
+    """[P, 3] normals of points ``keep`` from the Stage 0 asset of a reconstructed pool's scene
+    (``asset/point_cloud.ply``), as the product reads them (``gspi.stage2.light_fit.surfel_normals``);
+    zeros elsewhere."""
+    from gspi.gaussians.ply import read_ply
+    from gspi.stage2.light_fit import surfel_normals
+
+    asset = read_ply(views_dir / "asset" / "point_cloud.ply")
+    out = np.zeros((points.num_points, 3))
+    out[keep] = surfel_normals(asset, points.xyz[keep], points.cameras.centers[points.view[keep]])
+    return out
+
+
 def predict(points: ScenePoints, index: int, gt_dir: Path, views_dir: Path, light: Light = Light(), *,
-            temperature: float | None = None) -> dict[str, np.ndarray]:
+            temperature: float | None = None, normals: str = "gt") -> dict[str, np.ndarray]:
     """{read-out: [P, 5] PBR (sRGB albedo, roughness, metallic)} of every point of the scene: its GT
     (normals, environments) from ``gt_dir``, the views read from ``views_dir``."""
     keep = subset(points, index)
-    obs = observations(points, keep, views_dir, gt_normals(gt_dir, points))
+    nrm = gt_normals(gt_dir, points) if normals == "gt" else asset_normals(points, keep, views_dir)
+    obs = observations(points, keep, views_dir, nrm)
     grid = fit_grid(obs, prefiltered(str(env_path(gt_dir, light.env))), rotation_deg=light.rotation_deg)
     pooled = pool_neighbours(grid, obs.xyz)
     kw = {} if temperature is None else {"temperature": temperature}

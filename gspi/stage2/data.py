@@ -42,13 +42,18 @@ linear RGB and PBR ground truth. From it:
   points of a seeded 3000-point subset of the object (``view_statistics.neighbourhood_condition``,
   +16; a point outside the subset takes its nearest subset point's), computed once per scene on
   the unperturbed GT cloud: a point that shows no highlight itself takes its part's.
+* **The light read-out** (``stage2.data.light_readout``, issue 66's named departure): each point's
+  material read against the capture light, pooled over its neighbours, and how well it fits
+  (``gspi.stage2.light_condition``, +7): in training the scene's own light (a share
+  ``light_wrong_share`` of scenes told a wrong one), at inference and in the measure the light
+  estimated among ``light_candidates``.
 * **Targets** f0 = ``pbr_to_model([albedo (sRGB-encoded, as stored), roughness, metallic])`` in [-1, 1].
 * **Global prior**: the scene's cached [32, D, 5, 5] encoder features as [32, 25, D] tokens;
   view-dropout keeps ``train_views`` (16) random views per item, with their lattice ids.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -60,6 +65,7 @@ from torch import Tensor
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.lattice_cameras import LatticeCameras, pixel_footprint, project_to_views  # noqa: F401 (re-exported)
 from gspi.data.lattice import NUM_LATTICE_VIEWS
+from gspi.stage2.light_condition import LIGHT_READOUT_WIDTH
 from gspi.stage2.view_statistics import FIELDS as RADIANCE_FIELDS, NEIGHBOURHOOD_WIDTH, neighbourhood_lookup, \
     neighbourhood_table, radiance_condition
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_to_model, to_unit_sphere, view_onehot
@@ -127,6 +133,9 @@ class ScenePoints:
     _views: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
     _linear: Optional[np.ndarray] = field(default=None, repr=False)
     _neighbourhood: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
+    light_source: str = "capture"  # the light the read-out is told: capture (training) | estimated (measure)
+    _light: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
+    light_info: Optional[dict] = None  # which light the read-out was told (after light_features)
 
     @property
     def num_points(self) -> int:
@@ -165,6 +174,46 @@ class ScenePoints:
             self._neighbourhood = neighbourhood_table(self.lattice_linear(), depth, self.cameras, self.xyz,
                                                       self.top_rgb, tol_pixels=tol_pixels)
         return neighbourhood_lookup(self._neighbourhood, self.xyz[idx])
+
+
+    def light_features(self, idx: np.ndarray, cfg: "PointDataConfig") -> np.ndarray:
+        """[n, LIGHT_READOUT_WIDTH] ``stage2.data.light_readout`` of points ``idx`` of the
+        unperturbed cloud (its subset's table computed once per scene)."""
+        from gspi.stage2 import light_condition as lc
+
+        if self._light is None:
+            rgb, depth = self.lattice_linear(), self.lattice_views()[1]
+            normals = lc.scene_normals(self.root, self.xyz, self.view, self.pixel, self.cameras)
+            light = self._told_light(cfg, rgb, depth, normals)
+            self._light = lc.readout_table(rgb, depth, self.cameras, self.xyz, normals, light,
+                                           tol_pixels=cfg.visibility_tol_pixels)
+        return lc.readout_lookup(self._light, self.xyz[idx])
+
+    def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, normals: np.ndarray):
+        from eval.layout import read_scene
+        from gspi.stage2 import light_condition as lc
+        from gspi.stage2.light_fit import candidate_lights, capture_light
+
+        if self.light_source == "estimated":
+            candidates = candidate_lights(cfg.light_candidates, cfg.light_env_height)
+            light, est = lc.estimate_scene_light(rgb, depth, self.cameras, self.xyz, normals, candidates,
+                                                 tol_pixels=cfg.visibility_tol_pixels)
+            self.light_info = {"env": est.env, "rotation_deg": est.rotation_deg, "gain": est.gain,
+                               "margin": est.margin}
+            return light
+        scene = read_scene(self.root)
+        capture = capture_light(scene.envmap_path(scene.capture_env), cfg.light_env_height)
+        others = {name: (lambda name=name: candidate_lights([name], cfg.light_env_height)[name])
+                  for name in candidate_lights_names(cfg.light_candidates)}
+        light = lc.training_light(self.name, scene.capture_env, capture, others, cfg.light_wrong_share)
+        self.light_info = {"env": light.env, "rotation_deg": light.rotation_deg, "wrong": light.wrong}
+        return light
+
+
+def candidate_lights_names(spec) -> list[str]:
+    from gspi.data.env_sets import resolve_env_set
+
+    return sorted(resolve_env_set(list(spec) if isinstance(spec, tuple) else spec, "capture"))
 
 
 def load_scene_points(scene_dir: str | Path, global_features: Optional[Tensor],
@@ -302,10 +351,11 @@ def sample_pixel_features(maps: Tensor, view: np.ndarray, pixel: np.ndarray, ima
 def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarray, mode: str,
                     *, tol_pixels: float = 2.0, pixel_features: bool = False,
                     pixel_feature_spread: bool = False, cross_view_radiance: bool = False,
-                    cross_view_neighbourhood: bool = False) -> np.ndarray:
+                    cross_view_neighbourhood: bool = False, light: Optional["PointDataConfig"] = None) -> np.ndarray:
     """[n, C] local condition of points ``idx`` (C = 35 / 3 / 128, + 5 with ``cross_view_radiance``,
-    + 16 with ``cross_view_neighbourhood``, + D with ``pixel_features``, + D with
-    ``pixel_feature_spread``, in that order; see module docstring)."""
+    + 16 with ``cross_view_neighbourhood``, + 7 with ``light`` (a config whose ``light_readout``
+    is on), + D with ``pixel_features``, + D with ``pixel_feature_spread``, in that order; see
+    module docstring)."""
     local_condition_dim(mode)
     if mode == "top_rgb":
         cond = scene.top_rgb[idx]
@@ -320,6 +370,8 @@ def local_condition(scene: ScenePoints, idx: np.ndarray, xyz_perturbed: np.ndarr
                                                         tol_pixels=tol_pixels)], axis=1)
     if cross_view_neighbourhood:
         cond = np.concatenate([cond, scene.neighbourhood_features(idx, tol_pixels)], axis=1)
+    if light is not None and light.light_readout:
+        cond = np.concatenate([cond, scene.light_features(idx, light)], axis=1)
     if not (pixel_features or pixel_feature_spread):
         return cond
     if scene.feature_maps is None:
@@ -351,11 +403,19 @@ class PointDataConfig:
     pixel_feature_spread: bool = False  # + its spread over the views that see the point (issue 42; not the paper)
     cross_view_radiance: bool = False  # + the point's radiance over the views that see it, 5 values (issue 52; not the paper)
     cross_view_neighbourhood: bool = False  # + its and Top-RGB's means over the point's neighbours, 16 (issue 52; not the paper)
+    light_readout: bool = False  # + the point's material read against the light, 7 (issue 66; not the paper)
+    light_wrong_share: float = 0.0  # training scenes told a wrong light (light_readout)
+    light_candidates: Any = "procedural"  # lights estimated among at inference (gspi.data.env_sets)
+    light_env_height: int = 64  # rows of the lights' lat-long maps
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
         out = cls(**dict(cfg))
         local_condition_dim(out.local_condition)
+        if not 0.0 <= out.light_wrong_share <= 1.0:
+            raise ValueError(f"stage2.data.light_wrong_share must lie in [0, 1], got {out.light_wrong_share}")
+        if isinstance(out.light_candidates, list):
+            out = replace(out, light_candidates=tuple(out.light_candidates))
         if out.subset not in SUBSETS:
             raise ValueError(f"stage2.data.subset must be one of {sorted(SUBSETS)}, got {out.subset!r}")
         return out
@@ -365,7 +425,8 @@ class PointDataConfig:
         return (local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
                 + (feature_dim if self.pixel_feature_spread else 0)
                 + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0)
-                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0))
+                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0)
+                + (LIGHT_READOUT_WIDTH if self.light_readout else 0))
 
     @property
     def needs_feature_maps(self) -> bool:
@@ -381,7 +442,7 @@ def scene_item(scene: ScenePoints, idx: np.ndarray, cfg: PointDataConfig, rng: n
     cond = local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
                            pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread,
                            cross_view_radiance=cfg.cross_view_radiance,
-                           cross_view_neighbourhood=cfg.cross_view_neighbourhood)
+                           cross_view_neighbourhood=cfg.cross_view_neighbourhood, light=cfg)
     xyz_unit = to_unit_sphere(torch.from_numpy(xyz), scene.frame).numpy()
     return xyz_unit.astype(np.float32), cond.astype(np.float32), scene.f0[idx]
 
@@ -420,4 +481,4 @@ def whole_scene_inputs(scene: ScenePoints, cfg: PointDataConfig, rng: np.random.
     return xyz, local_condition(scene, idx, xyz, cfg.local_condition, tol_pixels=cfg.visibility_tol_pixels,
                                 pixel_features=cfg.pixel_features, pixel_feature_spread=cfg.pixel_feature_spread,
                                 cross_view_radiance=cfg.cross_view_radiance,
-                                cross_view_neighbourhood=cfg.cross_view_neighbourhood)
+                                cross_view_neighbourhood=cfg.cross_view_neighbourhood, light=cfg)

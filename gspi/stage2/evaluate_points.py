@@ -55,7 +55,7 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
 
     stage2 = cfg["stage2"]
     encoder = build_encoder(stage2.prior)
-    scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder)
+    scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder, light_source="estimated")
     if baseline_train is not None and Path(baseline_train).suffix == ".json":
         rough, metal = recorded_constants(Path(baseline_train))
     else:

@@ -37,6 +37,7 @@ from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.data import (LatticeCameras, PointDataConfig, feature_spread_over_views, local_condition_dim,
                               multiview_condition_from_views, sample_pixel_features, srgb_top_rgb)
 from gspi.stage2.encoders import pool_grid
+from gspi.stage2.light_condition import readout_lookup
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving
 from gspi.stage2.sampler import mean_point_pbr
@@ -86,11 +87,14 @@ def prior_features(encoder, rgb_linear: np.ndarray, *, unpooled: bool = False) -
 def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
                      tol_pixels: float = 2.0, feature_maps: Optional[Tensor] = None,
                      pixel_features: bool = True, pixel_feature_spread: bool = False,
-                     cross_view_radiance: bool = False, cross_view_neighbourhood: bool = False) -> np.ndarray:
+                     cross_view_radiance: bool = False, cross_view_neighbourhood: bool = False,
+                     light_table: Optional[tuple[np.ndarray, np.ndarray]] = None) -> np.ndarray:
     """[P, C] local condition of Stage I points (C = 35 / 3 / 128, as in training); A5's
     multi-view colours come from Stage I's ``renders`` (their maps and cameras).
     ``cross_view_radiance``: + 5, the point's radiance over the renders that see it (issue 52);
     ``cross_view_neighbourhood``: + 16, its and Top-RGB's means over each point's neighbours.
+    ``light_table``: + 7, the light read-out's table of the cloud (``light_condition.readout_table``
+    under the estimated light), each point's nearest row (issue 66).
     ``feature_maps`` [32, D, g, g]: the encoder's maps of the renders; with ``pixel_features``
     sampled at each point's source pixel and appended (+D), with ``pixel_feature_spread`` their
     spread over the renders that see the point appended (+D), in that order as in training."""
@@ -114,6 +118,8 @@ def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
         cond = np.concatenate([cond, neighbourhood_condition(np.asarray(renders.rgb), np.asarray(renders.depth), cams,
                                                              points.xyz.astype(np.float64), top,
                                                              tol_pixels=tol_pixels)], axis=1)
+    if light_table is not None:
+        cond = np.concatenate([cond, readout_lookup(light_table, points.xyz.astype(np.float64))], axis=1)
     if feature_maps is None:
         return cond
     parts = [cond]
@@ -138,6 +144,7 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
                              local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0,
                              pixel_features: bool = False, pixel_feature_spread: bool = False,
                              cross_view_radiance: bool = False, cross_view_neighbourhood: bool = False,
+                             light_table: Optional[tuple[np.ndarray, np.ndarray]] = None,
                              device: Optional[torch.device] = None) -> tuple[np.ndarray, dict]:
     """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
     metallic) in [0, 1] + stats. ``device``: where the sampling runs (None: the model's, as before);
@@ -146,7 +153,7 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     t0 = time.perf_counter()
     data = PointDataConfig(local_condition=local_mode, pixel_features=pixel_features,
                            pixel_feature_spread=pixel_feature_spread, cross_view_radiance=cross_view_radiance,
-                           cross_view_neighbourhood=cross_view_neighbourhood)
+                           cross_view_neighbourhood=cross_view_neighbourhood, light_readout=light_table is not None)
     width = data.condition_width(encoder.feature_dim)
     if model.config.local_cond_dim != width:
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
@@ -165,7 +172,8 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
     pts = points if sub is None else points.subset(sub)
     cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels, feature_maps=maps,
                             pixel_features=pixel_features, pixel_feature_spread=pixel_feature_spread,
-                            cross_view_radiance=cross_view_radiance, cross_view_neighbourhood=cross_view_neighbourhood)
+                            cross_view_radiance=cross_view_radiance, cross_view_neighbourhood=cross_view_neighbourhood,
+                            light_table=light_table)
     t_cond = time.perf_counter() - t0
     model = model if device is None else model.to(device)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass
 from functools import cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,6 +19,8 @@ import torch
 from scipy.spatial import cKDTree
 
 from eval.colorspace import linear_to_srgb
+from eval.envmap import downsample_latlong
+from eval.imageio import read_exr
 from eval.relight import PrefilteredEnvironment, prefilter_environment
 from gspi.data.env_sets import make_named_environment, resolve_env_set
 from gspi.gaussians.model import Gaussians2D
@@ -59,6 +62,16 @@ class LightFitConfig:
 @cache
 def _candidate(name: str, source: str, height: int) -> PrefilteredEnvironment:
     return prefilter_environment(make_named_environment(name, source, height))
+
+
+@cache
+def capture_light(path: Path, height: int) -> PrefilteredEnvironment:
+    """A scene's stored capture environment (``envmaps/<name>.exr``) at ~``height`` rows, prefiltered."""
+    env = torch.from_numpy(read_exr(Path(path)).astype(np.float32))
+    factor = max(1, env.shape[0] // int(height))
+    if factor > 1 and env.shape[0] % factor == 0 and env.shape[1] % factor == 0:
+        env = downsample_latlong(env, factor)
+    return prefilter_environment(env)
 
 
 def candidate_lights(spec, height: int) -> dict[str, PrefilteredEnvironment]:
@@ -113,3 +126,22 @@ def predict_light_fit(points: PointCloud, renders, asset: Gaussians2D, cfg: Ligh
                          "readout": round(t_end - t_light, 2)},
              "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()}}
     return pbr, stats
+
+
+def inference_light_table(points: PointCloud, renders, asset: Gaussians2D, data_cfg
+                          ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
+    """Stage II's ``light_readout`` condition at inference: the light estimated among the model's
+    ``stage2.data.light_candidates`` from the renders and the asset's surfel normals, and the
+    read-out's table of the cloud under it (``gspi.stage2.light_condition``); plus what was found."""
+    from gspi.stage2.light_condition import estimate_scene_light, readout_table
+
+    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
+                          width=renders.rgb.shape[2], height=renders.rgb.shape[1])
+    xyz = points.xyz.astype(np.float64)
+    normals = surfel_normals(asset, xyz, cams.centers[points.view])
+    candidates = candidate_lights(data_cfg.light_candidates, data_cfg.light_env_height)
+    tol = float(data_cfg.visibility_tol_pixels)
+    light, est = estimate_scene_light(renders.rgb, renders.depth, cams, xyz, normals, candidates, tol_pixels=tol)
+    table = readout_table(renders.rgb, renders.depth, cams, xyz, normals, light, tol_pixels=tol)
+    return table, {"env": est.env, "rotation_deg": round(est.rotation_deg, 2), "gain": round(est.gain, 4),
+                   "margin": round(est.margin, 3)}

@@ -15,10 +15,13 @@ def cache_dir(cfg: Mapping[str, Any]) -> Path:
     return Path(cfg["stage2"].prior.cache_dir or Path(cfg["data_dir"]) / ".cache" / "stage2_prior")
 
 
-def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool = True) -> list[ScenePoints]:
+def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool = True,
+               light_source: str = "capture") -> list[ScenePoints]:
     """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``; with
     ``stage2.data.pixel_features`` / ``pixel_feature_spread`` also the encoder's unpooled maps, unless ``conditions`` is
-    False (scenes read for their ground truth only, e.g. the no-decomposition baseline's)."""
+    False (scenes read for their ground truth only, e.g. the no-decomposition baseline's).
+    ``light_source``: the light ``stage2.data.light_readout`` is told: ``capture`` (the scene's own,
+    training) or ``estimated`` (among the model's candidates, as at inference: Table 2's measure)."""
     from eval.layout import read_splits
 
     data_dir = Path(cfg["data_dir"])
@@ -26,6 +29,9 @@ def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool 
     if not names:
         raise ValueError(f"{data_dir / 'splits.json'}: split {split!r} is empty")
     maps = conditions and cfg["stage2"].data.needs_feature_maps
-    return [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)),
-                              scene_feature_maps(data_dir / n, encoder, cache_dir(cfg)) if maps else None)
-            for n in names]
+    scenes = [load_scene_points(data_dir / n, scene_prior_features(data_dir / n, encoder, cache_dir(cfg)),
+                                scene_feature_maps(data_dir / n, encoder, cache_dir(cfg)) if maps else None)
+              for n in names]
+    for scene in scenes:
+        scene.light_source = light_source
+    return scenes

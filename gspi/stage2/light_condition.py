@@ -1,0 +1,135 @@
+"""Stage II's light condition (``stage2.data.light_readout``, issue 66; not the paper): each
+point's material read against the capture light (``gspi.light``), as ``LIGHT_READOUT_WIDTH``
+numbers beside the paper's condition:
+
+    posterior roughness, metallic, albedo (sRGB, 3)  -- the read-out pooled over 16 neighbours
+    log10 of the point's pooled best residual        -- how well any material explains it
+    log10 of the scene's mean best residual          -- how well the light explains the views at all
+
+A wrong light leaves every point poorly fitted, so the last two let the prior learn when not to
+trust the first five; training tells a share ``stage2.data.light_wrong_share`` of scenes a wrong
+light (another capture environment, or the right one turned) so that it does.
+
+Computed once per scene on a seeded subset of ``READOUT_POINTS`` points (the same share of the
+object in training and at inference); a point takes its nearest subset point's row. Which light:
+in training the scene's own capture environment (``envmaps/``); at inference and in Table 2's
+measure the light estimated among ``stage2.data.light_candidates`` (``gspi.light.estimate``).
+Normals: the Stage 0 asset's surfel normals when the scene has one (``asset/point_cloud.ply``
+of a reconstructed pool, or the run's asset), else the GT normals of the lattice views.
+"""
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from eval.colorspace import linear_to_srgb
+from eval.relight import PrefilteredEnvironment
+from gspi.light.estimate import LightEstimate, estimate_light
+from gspi.light.readout import fit_grid, pool_neighbours, read_posterior
+from gspi.stage2.lattice_cameras import LatticeCameras
+from gspi.stage2.light_views import observe_points
+from gspi.stage2.view_statistics import neighbourhood_mean
+
+LIGHT_READOUT_WIDTH = 7
+READOUT_POINTS = 5000
+READOUT_SEED = 66
+WRONG_TURN_DEG = (60.0, 300.0)  # a wrong light by turning: U(60, 300) degrees
+_FLOOR = 1e-6
+
+
+@dataclass(frozen=True)
+class ToldLight:
+    """The light the read-out is told: a prefiltered map, its turn about +z and a gain."""
+
+    env: str
+    pre: PrefilteredEnvironment
+    rotation_deg: float = 0.0
+    gain: float = 1.0
+    wrong: bool = False  # training only: deliberately not the scene's light
+
+    @classmethod
+    def from_estimate(cls, est: LightEstimate, candidates: dict[str, PrefilteredEnvironment]) -> "ToldLight":
+        return cls(env=est.env, pre=candidates[est.env], rotation_deg=est.rotation_deg, gain=est.gain)
+
+
+def readout_subset(num_points: int) -> np.ndarray:
+    """Sorted seeded subset of ``READOUT_POINTS`` indices (all points when there are fewer)."""
+    if num_points <= READOUT_POINTS:
+        return np.arange(num_points)
+    return np.sort(np.random.default_rng(READOUT_SEED).choice(num_points, READOUT_POINTS, replace=False))
+
+
+def readout_rows(obs, light: ToldLight) -> np.ndarray:
+    """[n, LIGHT_READOUT_WIDTH] the condition's rows of the observed points ``obs``."""
+    grid = fit_grid(obs, light.pre, rotation_deg=light.rotation_deg, gain=light.gain)
+    pooled = pool_neighbours(grid, obs.xyz)
+    albedo, rough, metal = read_posterior(grid, pooled)
+    point_err = pooled.flatten(1).min(dim=1).values
+    seen = grid.views > 0
+    scene_err = grid.best_error()[seen].mean() if bool(seen.any()) else torch.tensor(1.0)
+    rows = torch.cat([rough[:, None], metal[:, None], linear_to_srgb(albedo.clamp(0, 1)),
+                      torch.log10(point_err.clamp_min(_FLOOR))[:, None],
+                      torch.log10(scene_err.clamp_min(_FLOOR)).expand(len(rough))[:, None]], dim=1)
+    return rows.numpy().astype(np.float32)
+
+
+def readout_table(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
+                  normals: np.ndarray, light: ToldLight, *, tol_pixels: float = 2.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(subset xyz [m, 3], its rows [m, LIGHT_READOUT_WIDTH]) of the cloud xyz [n, 3] with unit
+    ``normals`` [n, 3], read in linear renders [V, H, W, 3] with depths [V, H, W]."""
+    sub = readout_subset(len(xyz))
+    obs = observe_points(images, depth, cams, xyz[sub], normals[sub], tol_pixels=tol_pixels)
+    return xyz[sub], readout_rows(obs, light)
+
+
+def readout_lookup(table: tuple[np.ndarray, np.ndarray], xyz: np.ndarray) -> np.ndarray:
+    """[n, LIGHT_READOUT_WIDTH] each point's nearest subset point's row."""
+    return neighbourhood_mean(table[0], table[1], xyz, 1)
+
+
+def estimate_scene_light(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
+                         normals: np.ndarray, candidates: dict[str, PrefilteredEnvironment], *,
+                         tol_pixels: float = 2.0) -> tuple[ToldLight, LightEstimate]:
+    """The light among ``candidates`` that explains the views of the cloud best."""
+    sub = readout_subset(len(xyz))
+    obs = observe_points(images, depth, cams, xyz[sub], normals[sub], tol_pixels=tol_pixels)
+    est = estimate_light(obs, candidates)
+    return ToldLight.from_estimate(est, candidates), est
+
+
+def training_light(name: str, capture_env: str, capture: PrefilteredEnvironment,
+                   others: dict[str, Any], wrong_share: float) -> ToldLight:
+    """The light a training scene is told: its own, or (a seeded share ``wrong_share`` of scenes,
+    by name) a wrong one: half another capture environment of ``others`` ({name: a callable giving
+    its prefiltered map}), half its own turned by U(WRONG_TURN_DEG)."""
+    rng = np.random.default_rng([zlib.crc32(name.encode()), 66])
+    if rng.random() >= wrong_share:
+        return ToldLight(env=capture_env, pre=capture)
+    pool = sorted(e for e in others if e != capture_env)
+    if pool and rng.random() < 0.5:
+        env = pool[int(rng.integers(len(pool)))]
+        return ToldLight(env=env, pre=others[env](), wrong=True)
+    return ToldLight(env=capture_env, pre=capture, rotation_deg=float(rng.uniform(*WRONG_TURN_DEG)), wrong=True)
+
+
+def scene_normals(root: Path, xyz: np.ndarray, view: np.ndarray, pixel: np.ndarray,
+                  cams: LatticeCameras) -> np.ndarray:
+    """[n, 3] normals of a dataset scene's points: the asset's surfel normals when the scene holds
+    its Stage 0 asset (``asset/point_cloud.ply``), else the GT ``normal.exr`` at each source pixel."""
+    asset = Path(root) / "asset" / "point_cloud.ply"
+    if asset.is_file():
+        from gspi.gaussians.ply import read_ply
+        from gspi.stage2.light_fit import surfel_normals
+
+        return surfel_normals(read_ply(asset), xyz, cams.centers[view])
+    from eval.layout import read_scene, read_view_file
+
+    scene = read_scene(root)
+    maps = np.stack([read_view_file(scene.view_dir("train", v.id), "normal.exr") for v in scene.split_views("train")])
+    return maps[view, pixel[:, 0], pixel[:, 1]].astype(np.float64)
