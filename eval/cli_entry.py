@@ -13,12 +13,15 @@ from typing import Callable, Optional
 
 from eval.argv import apply_aliases, quote_path_overrides
 from eval.config import CONF_DIR
-from eval.errors import exit_on_stated_error, print_stated_error, run_command
+from eval.errors import StatedError, exit_on_stated_error, print_stated_error, run_command
 
 
 def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = (),
-              rewrite: Optional[Callable[[list[str]], list[str]]] = None) -> Callable[[], None]:
-    """The console-script ``main()`` of a CLI whose Hydra task is ``task(cfg)``."""
+              rewrite: Optional[Callable[[list[str]], list[str]]] = None,
+              check: Optional[Callable[[list[str]], None]] = None) -> Callable[[], None]:
+    """The console-script ``main()`` of a CLI whose Hydra task is ``task(cfg)``. ``check(argv)``,
+    when given, runs after the precheck and before Hydra starts (a stated error: one line, exit 2):
+    a CLI's own check of the whole command line, e.g. every job of a sweep."""
     import hydra
 
     hydra_main = hydra.main(version_base="1.3", config_path=CONF_DIR, config_name=config_name)(
@@ -29,6 +32,11 @@ def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = 
         argv = argv if rewrite is None else rewrite(argv)
         argv = quote_path_overrides(argv, path_keys)
         precheck_or_exit(config_name, argv)
+        if check is not None:
+            try:
+                check(argv)
+            except StatedError as exc:
+                print_stated_error(exc)
         sys.argv = [sys.argv[0], *argv]
         hydra_main()
 

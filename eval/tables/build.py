@@ -15,7 +15,7 @@ import pandas as pd
 
 from eval.protocol_id import ProtocolMixError, check_one_protocol, describe_counts, describe_protocol, sum_counts
 from eval.stats import mean_and_sem, paired_bootstrap_ci, paired_differences
-from eval.sweep import REFERENCE_ROW, Sweep, SweepError
+from eval.sweep import REFERENCE_ROW, Sweep, SweepError, jobs_without_rows
 from eval.tables.labels import row_label, row_order
 
 AVG_CHANNELS = ("albedo", "roughness", "metallic")
@@ -267,3 +267,22 @@ def build_sweep_table(sweep: Sweep, spec: TableSpec, *, bootstrap: dict | None =
         notes=notes, protocol=_table_protocol(sweep, values, spec),
         counts=describe_counts(sum_counts([sweep.counts.get(r) for r in _material_runs(values)])),
         data=_table_data(values, spec), bootstrap=bootstrap)
+
+
+def rows_with_failed_jobs(sweep: Sweep, table: str, shown_rows=()) -> list[str]:
+    """One phrase per row (method, ablation) of ``table`` that has failed or unfinished jobs:
+    its paper label, the counts, and whether it is missing from the table or shown from its
+    complete runs only (``shown_rows``: the table's rows), so no row disappears silently."""
+    groups: dict[tuple, list] = {}
+    for job in jobs_without_rows(sweep, table):
+        groups.setdefault((job.method, job.ablation), []).append(job)
+    out = []
+    for (method, ablation), jobs in sorted(groups.items(), key=lambda kv: row_order(*kv[0])):
+        failed = sum(j.why == "failed" for j in jobs)
+        counts = ", ".join(c for c in (f"{failed} failed job(s)" if failed else "",
+                                       f"{len(jobs) - failed} job(s) without result.json"
+                                       if len(jobs) > failed else "") if c)
+        where = "shown from its complete runs only" if (method, ablation) in shown_rows else "missing from the table"
+        out.append(f"{row_label(method, ablation, table)} (method={method} ablation={ablation}: {counts}, "
+                   f"{where}: {', '.join(str(j.run_dir) for j in jobs)})")
+    return out

@@ -88,7 +88,23 @@ def run(cfg) -> dict:
     for table in built.values():
         write_sweep_table(table, sweep, Path(cfg.out))
         print(to_markdown(table, sweep))
+    warn_rows_with_failed_jobs(sweep, names, built)
     return built
+
+
+def warn_rows_with_failed_jobs(sweep, names, built: dict) -> None:
+    """One stderr line per table whose rows lack jobs (failed, or killed before their record):
+    the rows are named, so a table with fewer rows than the sweep ran is never silent."""
+    import sys
+
+    from eval.tables.build import rows_with_failed_jobs
+
+    for name in names:
+        table = built.get(name)
+        short = rows_with_failed_jobs(sweep, name, table.rows if table is not None else ())
+        if short:
+            print(f"gspi-table: warning: {name}: rows with failed or unfinished jobs: {'; '.join(short)}",
+                  file=sys.stderr)
 
 
 def positional_to_overrides(argv: list[str]) -> list[str]:
