@@ -1,4 +1,5 @@
-"""Before a `gspi-run` sweep starts: every job's Stage II checkpoint must serve the job's config.
+"""Before a `gspi-run` sweep starts: its dataset exists, and every job's Stage II checkpoint must
+serve the job's config.
 
 ``gspi-run -m ablation=full,a2_no_view_onehot`` with the shipped ``stage2.checkpoint`` ran the
 Full job to the end and then failed A2 inside its job (a ``ConfigError`` from
@@ -24,17 +25,31 @@ def is_stage2_key(key: str) -> bool:
     return key in ("ablation", "stage2") or key.startswith("stage2.")
 
 
+def check_sweep_data(cfg, swept: set[str]) -> None:
+    """The dataset (and its scenes) every job reads, when no sweep varies it: a missing one is one
+    line before the sweep, not the same failure in every job (the runner's own ``select_scenes``)."""
+    from gspi.run.runner import select_scenes
+
+    if swept & {"data_dir", "split", "scenes"}:
+        return
+    scenes = list(cfg.scenes) if cfg.get("scenes") is not None else None
+    select_scenes(Path(str(cfg.data_dir)), str(cfg.split), scenes)
+
+
 def stage2_sweeps(config_dir: str, config_name: str, overrides: list[str]) -> dict[str, list[str]]:
     """{key: values} of the sweeps that can change a job's Stage II config: the command line's,
-    then an experiment's ``hydra.sweeper.params`` (which the command line's override)."""
+    then an experiment's ``hydra.sweeper.params`` (which the command line's override). Checks the
+    dataset first (:func:`check_sweep_data`)."""
     from hydra import compose, initialize_config_dir
 
     from eval.cli_precheck import first_of_sweeps, sweep_values
 
-    found = {k: v for k, v in sweep_values(overrides).items() if is_stage2_key(k)}
+    swept = sweep_values(overrides)
+    found = {k: v for k, v in swept.items() if is_stage2_key(k)}
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
         cfg = compose(config_name=config_name, overrides=first_of_sweeps(overrides), return_hydra_config=True)
     params = cfg.hydra.sweeper.get("params") or {}
+    check_sweep_data(cfg, set(swept) | {str(k) for k in params})
     for key, value in params.items():
         if is_stage2_key(str(key)) and str(key) not in found:
             found.update(sweep_values([f"{key}={value}"]) or {str(key): [str(value)]})
@@ -50,7 +65,7 @@ def checkpoint_problem(stage2_node, cache: dict) -> Optional[str]:
 
     try:
         job = complete_stage2(dict(stage2_node))  # the job's own start-up check of its stage2 node
-    except ConfigError as exc:
+    except ValueError as exc:  # ConfigError, or a combination the config refuses (A1 + pixel features)
         return str(exc)
     ckpt = stage2_node.get("checkpoint")
     if not ckpt:
