@@ -157,3 +157,28 @@ def test_a_protocol_preset_typo_lists_only_choosable_presets(workspace):
     one_line_exit_2(code, text, "eval/stanford_orbb", "stanford_orb")
     assert "base_eval" not in text and "default" in text
 
+
+@pytest.mark.parametrize("module, argv, hint", [
+    ("gspi.cli.run", ["metod=gspi"], "did you mean method?"),
+    ("gspi.cli.run", ["seeed=1"], "did you mean seed?"),
+    ("gspi.cli.run", ["stage2.trian.steps=3"], "did you mean stage2.train.steps?"),
+    ("gspi.cli.run", ["method=gpsi"], "did you mean method=gspi?"),
+    ("gspi.cli.run", ["+experimen=table2"], "did you mean +experiment=table2?"),
+    ("gspi.cli.data", ["preest=tiny"], "did you mean preset?"),
+    ("eval.tables.cli", ["outt=x"], "did you mean out?"),
+    ("gspi.cli.run", ["zzzzzz=1"], None),
+])
+def test_a_mistyped_key_or_group_says_did_you_mean(tmp_path, module, argv, hint):
+    from importlib import import_module
+
+    from eval.config import register_configs
+
+    register_configs()
+    main = import_module(module).main
+    base = {"gspi.cli.run": [f"data={tmp_path}", f"out={tmp_path / 'o'}"],
+            "gspi.cli.data": [f"out={tmp_path / 'o'}"], "eval.tables.cli": [str(tmp_path)]}[module]
+    code, text = run_cli(main, [*base, *argv])
+    bad = argv[0].lstrip("+").split("=")[0]
+    one_line_exit_2(code, text, bad)
+    assert (hint in text) if hint else ("did you mean" not in text), text
+    assert not (tmp_path / "o").exists()
