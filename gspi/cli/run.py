@@ -73,9 +73,7 @@ def run_task(cfg: DictConfig) -> Optional[dict]:
         job_cfg = resolved_config(cfg)
         job_cfg["out"] = str(out)
         result = dict(run_job(job_cfg, reraise=False) or {"status": "failed", "error": "no result.json written"})
-    except KeyboardInterrupt:
-        raise
-    except Exception as exc:  # recorded for the sweep's last line; the other jobs go on
+    except Exception as exc:  # recorded for the sweep's last line; the other jobs go on (Ctrl-C stops all)
         if not isinstance(exc, StatedError):
             log.error("job %s: failed:\n%s", name, traceback.format_exc())
         result = {"status": "failed", "error": f"{type(exc).__name__}: {one_line(exc)}"}
