@@ -60,7 +60,7 @@ demo: install
 	if [ "$(DEMO_GLB)" != 0 ]; then for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
 	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
 	  $(VENV)/bin/gspi-export "asset='$$a'" "out='$(DEMO)/runs/method=gspi/export/$$s/pbr_gs.glb'" \
-	    > /dev/null || exit 1; done; fi
+	    || exit 1; done; fi
 	$(VENV)/bin/gspi-report $(DEMO)/runs out=$(DEMO)/report
 	@echo "report: open $(abspath $(DEMO))/report/index.html"
 

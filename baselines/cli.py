@@ -25,8 +25,9 @@ With `asset=` and no `system=`/`method=`, `gspi-export` writes the asset as a GL
 2DGS surface as a triangle mesh (TSDF fusion of the lattice depth renders), a UV atlas
 (xatlas) and base-colour and metallic-roughness textures baked from the surfels' PBR
 attributes, plus `<stem>_preview.png` beside it (gspi/export/, docs/EXPORT.md; config
-conf/gspi_export_asset.yaml; a bad asset is one line naming the file, exit 2). It prints what it
-wrote (faces, charts, bytes, seconds) as YAML.
+conf/gspi_export_asset.yaml; a bad asset is one line naming the file, exit 2). It prints one
+progress line per step (mesh, UV atlas, textures, GLB, preview: what each made and its seconds)
+and a summary line.
 """
 from __future__ import annotations
 
@@ -100,7 +101,7 @@ ASSET_KEY = "asset="
 
 
 def run_asset_export(cfg: DictConfig) -> dict:
-    """`gspi-export asset=... out=...`: the GLB export (module docstring); prints its record."""
+    """`gspi-export asset=... out=...`: the GLB export (module docstring); returns its record."""
     import torch
 
     from gspi.export.asset import export_asset
@@ -109,9 +110,7 @@ def run_asset_export(cfg: DictConfig) -> dict:
 
     torch.set_num_threads(check_value("threads", cfg.threads, int, lo=1, hi=1024))
     export_cfg = ExportConfig.from_dict(OmegaConf.to_container(cfg.export, resolve=True))
-    record = export_asset(Path(cfg.asset), Path(cfg.out), export_cfg)
-    print(OmegaConf.to_yaml(OmegaConf.create(record)), end="")
-    return record
+    return export_asset(Path(cfg.asset), Path(cfg.out), export_cfg)  # a progress line per step, then a summary
 
 
 _export_asset = hydra_cli(run_asset_export, "gspi_export_asset", path_keys=("asset", "out"))

@@ -7,7 +7,9 @@
 Every result, record, cache and checkpoint of the project is written through :func:`atomic_path`
 (a unique temporary file in the target's folder, then ``os.replace``), so a killed writer leaves
 the old file or none, never half a file, and two writers of one path cannot collide on the
-temporary name. Lives in ``eval/`` because the evaluator imports nothing from ``gspi/``.
+temporary name. The final file gets the mode a plain ``open(path, "w")`` would give it
+(``0o666 & ~umask``), not ``mkstemp``'s private 0600. Lives in ``eval/`` because the evaluator
+imports nothing from ``gspi/``.
 """
 from __future__ import annotations
 
@@ -17,6 +19,25 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
+
+
+def current_umask() -> int:
+    """The process's umask, read without changing it where the OS allows (Linux's
+    ``/proc/self/status``); elsewhere ``os.umask`` is set and restored at once."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def created_file_mode() -> int:
+    """The permission bits ``open(path, "w")`` gives a new file: ``0o666 & ~umask``."""
+    return 0o666 & ~current_umask()
 
 
 @contextmanager
@@ -29,6 +50,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, created_file_mode())  # mkstemp made it 0600; a plain open() honours umask
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -79,8 +79,13 @@ def precheck(config_dir: str, config_name: str, argv: list[str]) -> None:
         sweeps = sweep_values(overrides)
         overrides = first_of_sweeps(overrides)
         with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
-            cfg = compose(config_name=config_name, overrides=overrides)
-            check_group_choices(sweeps)
+            try:
+                cfg = compose(config_name=config_name, overrides=overrides)
+                check_group_choices(sweeps)
+                check_appended_keys(overrides)
+            except (HydraException, OmegaConfBaseException) as exc:
+                hint = did_you_mean(exc, config_name, overrides)
+                raise CommandLineError(_hydra_message(exc).rstrip(".") + hint if hint else _hydra_message(exc)) from None
     except (HydraException, OmegaConfBaseException) as exc:
         raise CommandLineError(_hydra_message(exc)) from None
     missing = sorted(k for k in OmegaConf.missing_keys(cfg) if not k.startswith("hydra."))
@@ -107,3 +112,64 @@ def _hydra_message(exc: BaseException) -> str:
     if "Available options" in text and options:
         head += f" (available: {', '.join(options[:12])}{', ...' if len(options) > 12 else ''})"
     return head
+
+
+def check_appended_keys(overrides: list[str]) -> None:
+    """``+experimen=table2`` adds a key nobody reads (Hydra accepts it); when its name is close to a
+    config group (``experiment``) it is surely that group mistyped: refused, naming the group."""
+    import difflib
+
+    from hydra.core.global_hydra import GlobalHydra
+
+    groups = [g for g in GlobalHydra.instance().config_loader().list_groups("") if g != "hydra"]
+    for text in overrides:
+        if not text.startswith("+") or text.startswith("++") or "=" not in text:
+            continue
+        key, value = text[1:].split("=", 1)
+        if "." in key or "/" in key or key in groups:
+            continue
+        close = difflib.get_close_matches(key, groups, n=1)
+        if close:
+            raise CommandLineError(f"{text}: {key!r} is not a config group (it would add a key nothing "
+                                   f"reads); did you mean +{close[0]}={value}?")
+
+
+def did_you_mean(exc: BaseException, config_name: str, overrides: list[str]) -> str:
+    """``"; did you mean method?"`` for a mistyped key or config group (``metod=gspi``,
+    ``stage2.trian.steps=3``) or group option (``method=gpsi``): the close names
+    (``difflib.get_close_matches``) among the keys at that level of the config composed without
+    the bad override, and the config groups; "" when nothing is close. Call inside the config dir."""
+    import difflib
+    import re
+
+    from hydra import compose
+    from hydra.core.global_hydra import GlobalHydra
+    from omegaconf import DictConfig
+
+    text = str(exc)
+    loader = GlobalHydra.instance().config_loader()
+    option = re.search(r"Could not find '([^']+)/([^'/]+)'", text)
+    if option:  # group/option: the group's options
+        group, name = option.groups()
+        close = difflib.get_close_matches(name, shown_options(loader.get_group_options(group)), n=1)
+        return f"; did you mean {group}={close[0]}?" if close else ""
+    bad = re.search(r"Could not (?:override|append to|delete from config\.?) '([^']+)'", text)
+    if not bad:
+        return ""
+    key = bad.group(1)
+    rest = [o for o in overrides if o.lstrip("+~").split("=", 1)[0] != key]
+    try:
+        node = compose(config_name=config_name, overrides=rest)
+    except Exception:  # another override is bad too: no suggestion
+        return ""
+    parts, prefix = key.split("."), []
+    for k, part in enumerate(parts):
+        if isinstance(node, DictConfig) and part in node:
+            node, prefix = node[part], prefix + [part]
+            continue
+        names = list(node.keys()) if isinstance(node, DictConfig) else []
+        if k == 0:  # top level: the config groups (method, ablation, ...) and aliases (preset, data)
+            names += [g for g in loader.list_groups("") if g != "hydra"] + list(ALIASES.get(config_name, {}))
+        close = difflib.get_close_matches(part, [str(n) for n in names], n=1)
+        return f"; did you mean {'.'.join(prefix + close + parts[k + 1:])}?" if close else ""
+    return ""

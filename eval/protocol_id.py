@@ -11,6 +11,8 @@ import hashlib
 import json
 import math
 
+from eval.errors import StatedError
+
 HASH_CHARS = 12
 
 
@@ -94,13 +96,17 @@ def protocol_diff(a: dict, b: dict) -> list[str]:
             for k in sorted(set(fa) | set(fb)) if fa.get(k, "<absent>") != fb.get(k, "<absent>")]
 
 
+class ProtocolMixError(StatedError, ValueError):
+    """Runs to be tabulated together were evaluated under different protocols."""
+
+
 def check_one_protocol(runs: dict[str, dict | None]) -> str:
     """Refuse runs evaluated under different protocols; return the common hash.
 
     Args:
         runs: {run folder: resolved protocol dict (see `recorded_protocol`)}.
     Raises:
-        ValueError naming the runs of each hash and the keys that differ.
+        ProtocolMixError (a ValueError) naming the runs of each hash and the keys that differ.
     """
     groups: dict[str, list[str]] = {}
     for run, proto in runs.items():
@@ -112,7 +118,7 @@ def check_one_protocol(runs: dict[str, dict | None]) -> str:
             diff = protocol_diff(runs[r0[0]], runs[rs[0]])
             parts.append(f"protocol {h}: {', '.join(rs)} (differs from {h0} in "
                          f"{'; '.join(diff)})")
-        raise ValueError("tables never mix protocols; runs were evaluated under "
+        raise ProtocolMixError("tables never mix protocols; runs were evaluated under "
                          f"{len(groups)} different protocols:\n  " + "\n  ".join(parts))
     return next(iter(groups)) if groups else ""
 

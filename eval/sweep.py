@@ -313,6 +313,41 @@ def with_reference_rows(records: list[RunRecord]) -> list[RunRecord]:
     return records + extra
 
 
+@dataclass(frozen=True)
+class JobRow:
+    """The row a job without a complete record was meant for: a failed record's, or an unfinished
+    job folder's (read from its saved ``.hydra/config.yaml``)."""
+
+    table: str
+    method: str
+    ablation: str
+    seed: int | None
+    run_dir: Path
+    why: str            # "failed" | "no result.json"
+
+
+def unfinished_job_row(job_dir: Path) -> JobRow | None:
+    """The row of a job folder killed before its record, from its saved config; None if unreadable."""
+    from eval.records.job_config import read_job_config
+
+    cfg = read_job_config(job_dir)
+    if not cfg or "method.name" not in cfg:
+        return None
+    method, ablation = str(cfg["method.name"]), str(cfg.get("ablation_name") or "full")
+    seed = cfg.get("seed")
+    return JobRow(table=str(cfg.get("table") or infer_table(method, ablation)), method=method,
+                  ablation=ablation, seed=seed if isinstance(seed, int) else None, run_dir=job_dir,
+                  why="no result.json")
+
+
+def jobs_without_rows(sweep: "Sweep", table: str) -> list[JobRow]:
+    """The failed and unfinished jobs of ``table`` (their rows are missing or have fewer runs)."""
+    rows = [JobRow(r.table, r.method, r.ablation, r.seed, r.run_dir, "failed")
+            for r in sweep.failed if r.table == table]
+    rows += [j for j in map(unfinished_job_row, sweep.unfinished) if j is not None and j.table == table]
+    return rows
+
+
 def load_sweep(paths: list[str | Path], *, tables: tuple[str, ...] = TABLES) -> Sweep:
     """Find, validate and flatten every run record below `paths` (only those of `tables`)."""
     files, unfinished = find_records(paths)

@@ -178,3 +178,17 @@ def test_command_line_records_its_config_inside_out(tmp_path):
     assert (out / ".hydra" / "config.yaml").is_file()
     assert "data.image_size=8" in (out / ".hydra" / "overrides.yaml").read_text()
     assert read_splits(out)["train"] and not (tmp_path / "outputs").exists()
+
+
+def test_a_progress_line_per_scene_and_the_same_files(dataset, tmp_path, caplog):
+    """gspi-data logs "scene k/N: <name> ..." as each scene finishes; the files are unchanged."""
+    import logging
+
+    out, result = dataset
+    caplog.set_level(logging.INFO, logger="gspi.data.generate")
+    again = run(make_config(tmp_path / "again"))
+    names = [s["name"] for s in again["scenes"]]
+    lines = [r.getMessage() for r in caplog.records if r.name == "gspi.data.generate"]
+    assert [line.split(" in ")[0] for line in lines] == \
+        [f"scene {k}/{len(names)}: {n}" for k, n in enumerate(names, 1)], lines
+    assert file_hashes(tmp_path / "again") == file_hashes(out)

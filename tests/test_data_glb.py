@@ -521,3 +521,17 @@ def test_a_node_flattened_on_one_axis_is_still_named(tmp_path):
         read_gltf(_wrapped_in_scaled_node(src, tmp_path / "flat.glb", [1e-4, 0.0, 1e-4]))
     assert is_degenerate(np.diag([1e-4, 1e-4, 0.0])) and not is_degenerate(np.diag([1e-4] * 3))
     assert is_degenerate(np.diag([1.0, 1.0, 1e-12])) and is_degenerate(np.zeros((3, 3)))
+
+
+def test_a_file_that_is_not_a_glb_writes_nothing_and_fails_in_one_line(tmp_path):
+    """It left an empty, valid-looking splits.json (and out/.hydra) and exited 1."""
+    from gspi.cli.data import main
+    from tests.reliability.helpers import run_cli
+
+    (tmp_path / "chair.glb").write_bytes(b"not a gltf file at all")
+    out = tmp_path / "data"
+    code, text = run_cli(main, [f"import.glb={tmp_path / 'chair.glb'}", f"out={out}", "preset=tiny"])
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, text
+    assert str(tmp_path / "chair.glb") in lines[0] and "nothing written" in lines[0]
+    assert not out.exists(), sorted(out.rglob("*"))

@@ -237,3 +237,19 @@ def test_bad_levels_are_refused_naming_the_key():
         ExportConfig.from_dict({"mesh": {"levels": []}})
     with pytest.raises(ValueError, match=r"export\.mesh\.levels"):
         ExportConfig.from_dict({"mesh": {"levels": [0.0, 1.5]}})
+
+
+def test_a_progress_line_per_step_and_the_same_glb(exported, tmp_path, caplog):
+    """gspi-export prints a short line per step (the demo no longer sends it to /dev/null);
+    the GLB is byte for byte the one of the same export without the lines."""
+    import logging
+
+    root, _, _ = exported
+    caplog.set_level(logging.INFO, logger="gspi.export.asset")
+    export_asset(root / "pbr_gs.ply", tmp_path / "asset.glb", ExportConfig.from_dict({**FAST, "preview": True}))
+    lines = [r.getMessage() for r in caplog.records if r.name == "gspi.export.asset"]
+    steps = [line for line in lines if line.startswith("[")]
+    assert [s[:5] for s in steps] == ["[1/5]", "[2/5]", "[3/5]", "[4/5]", "[5/5]"], lines
+    assert " faces from " in steps[0] and " charts " in steps[1] and steps[3].startswith(f"[4/5] wrote {tmp_path}")
+    assert all(len(line) < 200 for line in lines)
+    assert (tmp_path / "asset.glb").read_bytes() == (root / "asset.glb").read_bytes()

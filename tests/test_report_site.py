@@ -106,7 +106,13 @@ def test_cli_run_and_errors(sweep, tmp_path, capsys):
     cfg.runs, cfg.out, cfg.figures, cfg.max_views = [str(sweep)], str(tmp_path / "r"), False, 1
     cfg.bootstrap.n = 100
     site = run(cfg)
-    assert "open file://" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "open file://" in printed.out
+    progress = [line for line in printed.err.splitlines() if line.startswith("gspi-report: ")]
+    scenes = sorted(site.scene_pages)
+    assert [f"gspi-report: scene {k}/{len(scenes)}: {s}" for k, s in enumerate(scenes, 1)] == \
+        [line for line in progress if line.startswith("gspi-report: scene ")], progress
+    assert progress[-1] == f"gspi-report: index: {site.index}"
     assert len(re.findall(r'<button data-view=', site.scene_pages["sphere_0"].read_text())) == 1
     cfg.runs = [str(tmp_path / "nowhere")]
     with pytest.raises(FileNotFoundError, match="nowhere"):

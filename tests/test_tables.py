@@ -196,3 +196,21 @@ def test_gspi_table_resources_option_writes_the_memory_column(tmp_path):
         run(OmegaConf.create({"runs": [str(tmp_path / "runs")], "out": str(out), "resources": resources}))
         assert ("Peak RSS (MB)" in (out / "table1.md").read_text()) is expected
         assert ("mb/peak_rss/mean" in (out / "table1.csv").read_text()) is expected
+
+
+def test_gspi_table_over_two_protocols_is_one_line_exit_2(tmp_path):
+    """The refusal was a good message inside ~15 lines of traceback, exit 1."""
+    from eval.tables.cli import main
+    from tests.reliability.helpers import run_cli
+
+    base = {"name": "gspi-decoupled", "version": 1, "ssim": {"window": 11}}
+    _write_run(tmp_path / "runs", "a", _summary(20.0, 0.8, 0.05), "A", protocol_config=base)
+    _write_run(tmp_path / "runs", "b", _summary(20.0, 0.8, 0.05), "B",
+               protocol_config=dict(base, ssim={"window": 3}))
+    code, text = run_cli(main, [str(tmp_path / "runs" / "a"), str(tmp_path / "runs" / "b"),
+                                f"out={tmp_path / 'tables'}"])
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, text
+    assert "different protocols" in lines[0] and "ssim.window: 11 != 3" in lines[0]
+    assert str(tmp_path / "runs" / "b") in lines[0] and "Traceback" not in text
+    assert not (tmp_path / "tables" / "table1.md").exists()

@@ -518,3 +518,30 @@ class TestNaturalAblationSweep:
         message = str(exc.value)
         assert "table: None vs 'table2'" in message or "table: 'table2' vs None" in message, message
         assert "stage2.checkpoint" in message and "stage2.lr" not in message and "out:" not in message
+
+
+def test_rows_of_failed_and_killed_jobs_are_named(tmp_path, capsys):
+    """A row whose every job failed, or was killed before its record, is named (footer and one
+    stderr line), not silently left out; a row with one failed seed says it is shown from the rest."""
+    table2_sweep(tmp_path, {"full": 0.0, "a1_no_global_prior": -6.0})
+    write_job(tmp_path, "a2", ablation="a2_no_view_onehot", status="failed", error="boom")
+    write_job(tmp_path, "a1_s2", ablation="a1_no_global_prior", seed=2, status="failed", error="oom")
+    killed = tmp_path / "a3"
+    (killed / ".hydra").mkdir(parents=True)
+    (killed / ".hydra" / "config.yaml").write_text(
+        "method:\n  name: gspi\nablation_name: a3_npts_1024\ntable: table2\nseed: 0\n")
+    cfg = OmegaConf.create({"runs": [str(tmp_path)], "out": str(tmp_path / "tables"), "table": "table2",
+                            "bootstrap": {"n": 100}})
+    run(cfg)
+    err = capsys.readouterr().err
+    warning = [line for line in err.splitlines() if line.startswith("gspi-table: warning: table2: ")]
+    assert len(warning) == 1, err
+    text = warning[0]
+    assert "A2: w/o view-direction conditioning signal (method=gspi ablation=a2_no_view_onehot: " \
+           "1 failed job(s), missing from the table" in text
+    assert "A3: N_pts = 1024 (method=gspi ablation=a3_npts_1024: 1 job(s) without result.json, " \
+           "missing from the table" in text and str(killed) in text
+    assert "A1: w/o global semantic prior (method=gspi ablation=a1_no_global_prior: 1 failed job(s), " \
+           "shown from its complete runs only" in text
+    md = (tmp_path / "tables" / "table2.md").read_text()
+    assert "rows with failed or unfinished jobs: A1: w/o global" in md

@@ -7,6 +7,7 @@ import shutil
 from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
+from typing import Callable
 
 from eval.imageio import read_exr
 from eval.layout import LayoutError, read_scene, scene_dir_in
@@ -138,18 +139,24 @@ def clear_site(out: Path) -> None:
 
 def build_report(paths: list[str | Path], out: str | Path, *, data: str | None = None,
                  max_views: int | None = None, thumb: int = 128, quality: int = 80,
-                 bootstrap: dict | None = None, figures: bool = True) -> Site:
+                 bootstrap: dict | None = None, figures: bool = True,
+                 progress: Callable[[str], None] | None = None) -> Site:
     """Write the site for the jobs below `paths` into `out` (a previous site there is replaced);
-    returns what was written."""
+    returns what was written. ``progress(line)``, when given, gets one line per step (the tables,
+    each scene page ``scene k/N: <name>``, the figures, the index)."""
+    say = progress or (lambda line: None)
     out = Path(out)
     clear_site(out)
     jobs, problems = collect_jobs(paths, data=data)
+    say(f"{len(jobs)} complete job(s) found; building the tables")
     sweep, tables = build_tables(list(paths), dict(bootstrap or {}), problems)
     shown = shown_jobs(jobs)
     per_view = {j.label: read_per_view(j) for j in shown}
     site = Site(out=out, index=out / "index.html", problems=problems, tables=tables)
     sources, first_views = scene_sources(jobs), {}
-    for scene in sorted({s for j in jobs for s in j.scenes}):
+    scenes = sorted({s for j in jobs for s in j.scenes})
+    for k, scene in enumerate(scenes, 1):
+        say(f"scene {k}/{len(scenes)}: {scene}")
         lacking = [j.label for j in shown if j.prediction(scene) is None]
         problems += [Problem(j.run_dir, "missing prediction", f"{j.label} has no prediction "
                              f"for {scene}") for j in shown if j.label in lacking
@@ -165,10 +172,12 @@ def build_report(paths: list[str | Path], out: str | Path, *, data: str | None =
     if figures and shown:
         from eval.report_site.figures import write_figures
 
+        say("figures")
         try:
             site.figures = write_figures(out / "figures", shown, tables, first_views)
         except (LayoutError, OSError, ValueError) as exc:
             problems.append(Problem(out / "figures", "figures", f"figures not written: {exc}"))
+    say(f"index: {site.index}")
     site.index.write_text(page("gspi report", index_body(site, jobs, sweep, paths, out)))
     return site
 

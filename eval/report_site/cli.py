@@ -16,6 +16,13 @@ from pathlib import Path
 from eval.errors import MissingInputError
 
 
+def report_progress(line: str) -> None:
+    """A progress line of the build (one per step and scene page) on stderr."""
+    import sys
+
+    print(f"gspi-report: {line}", file=sys.stderr, flush=True)
+
+
 def run(cfg):
     """Build the report of `cfg.runs` into `cfg.out`; returns the Site."""
     from omegaconf import OmegaConf
@@ -31,7 +38,7 @@ def run(cfg):
     site = build_report(runs, cfg.out, data=cfg.gt, max_views=cfg.max_views,
                         thumb=int(cfg.thumb), quality=int(cfg.quality),
                         bootstrap=OmegaConf.to_container(cfg.bootstrap, resolve=True),
-                        figures=bool(cfg.figures))
+                        figures=bool(cfg.figures), progress=report_progress)
     no_gt = sorted(str(p.where) for p in site.problems if p.kind == "missing data")
     if no_gt and not site.scene_pages:  # a report of nothing is an error, not exit 0
         where = f"gt={cfg.gt}" if cfg.gt else "the runs' recorded dataset (result.json 'data')"

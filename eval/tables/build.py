@@ -13,9 +13,9 @@ from dataclasses import dataclass, field, replace
 
 import pandas as pd
 
-from eval.protocol_id import check_one_protocol, describe_counts, describe_protocol, sum_counts
+from eval.protocol_id import ProtocolMixError, check_one_protocol, describe_counts, describe_protocol, sum_counts
 from eval.stats import mean_and_sem, paired_bootstrap_ci, paired_differences
-from eval.sweep import REFERENCE_ROW, Sweep
+from eval.sweep import REFERENCE_ROW, Sweep, SweepError, jobs_without_rows
 from eval.tables.labels import row_label, row_order
 
 AVG_CHANNELS = ("albedo", "roughness", "metallic")
@@ -157,7 +157,7 @@ def rank_marks(mean: pd.DataFrame, columns: tuple[Column, ...]) -> pd.DataFrame:
 def _single_value(values: pd.DataFrame, name: str, spec: TableSpec, what: str) -> str:
     found = sorted({v for v in values[name].unique() if v})
     if len(found) > 1 and name == "protocol":
-        raise ValueError(f"{spec.name}: runs were evaluated under different {what} {found}: "
+        raise SweepError(f"{spec.name}: runs were evaluated under different {what} {found}: "
                          "tables never mix protocol versions")
     return ", ".join(found)
 
@@ -173,8 +173,8 @@ def _table_protocol(sweep, values: pd.DataFrame, spec: TableSpec) -> str:
     if runs:
         try:
             check_one_protocol(runs)
-        except ValueError as exc:
-            raise ValueError(f"{spec.name}: {exc}") from None
+        except ProtocolMixError as exc:
+            raise ProtocolMixError(f"{spec.name}: {exc}") from None
         others = values.loc[values["measure"] == "points", "protocol"]  # runtime rows: material's
         other = sorted({v for v in others.unique() if v})
         return "; ".join([describe_protocol(next(iter(runs.values())))] + other)
@@ -189,7 +189,7 @@ def _table_data(values: pd.DataFrame, spec: TableSpec) -> str:
         if len(found) > 1:
             runs = [f"{run}: {data}" for run, data in
                     sorted(set(zip(rows["run"], rows["data"])))]
-            raise ValueError(f"{spec.name}: method={method} ablation={ablation} was scored on "
+            raise SweepError(f"{spec.name}: method={method} ablation={ablation} was scored on "
                              f"different datasets {found}:\n  " + "\n  ".join(runs))
     return _single_value(values, "data", spec, "datasets")
 
@@ -246,7 +246,7 @@ def build_sweep_table(sweep: Sweep, spec: TableSpec, *, bootstrap: dict | None =
     rows = sorted(set(zip(values["method"], values["ablation"])), key=lambda r: row_order(*r))
     labels = [row_label(m, a, spec.name) for m, a in rows]
     if len(set(labels)) != len(labels):
-        raise ValueError(f"{spec.name}: two rows share a label in {labels}")
+        raise SweepError(f"{spec.name}: two rows share a label in {labels}")
     stats = {"mean": {}, "sem": {}, "count": {}}
     for col in spec.columns:
         units = unit_values(values, col)
@@ -267,3 +267,22 @@ def build_sweep_table(sweep: Sweep, spec: TableSpec, *, bootstrap: dict | None =
         notes=notes, protocol=_table_protocol(sweep, values, spec),
         counts=describe_counts(sum_counts([sweep.counts.get(r) for r in _material_runs(values)])),
         data=_table_data(values, spec), bootstrap=bootstrap)
+
+
+def rows_with_failed_jobs(sweep: Sweep, table: str, shown_rows=()) -> list[str]:
+    """One phrase per row (method, ablation) of ``table`` that has failed or unfinished jobs:
+    its paper label, the counts, and whether it is missing from the table or shown from its
+    complete runs only (``shown_rows``: the table's rows), so no row disappears silently."""
+    groups: dict[tuple, list] = {}
+    for job in jobs_without_rows(sweep, table):
+        groups.setdefault((job.method, job.ablation), []).append(job)
+    out = []
+    for (method, ablation), jobs in sorted(groups.items(), key=lambda kv: row_order(*kv[0])):
+        failed = sum(j.why == "failed" for j in jobs)
+        counts = ", ".join(c for c in (f"{failed} failed job(s)" if failed else "",
+                                       f"{len(jobs) - failed} job(s) without result.json"
+                                       if len(jobs) > failed else "") if c)
+        where = "shown from its complete runs only" if (method, ablation) in shown_rows else "missing from the table"
+        out.append(f"{row_label(method, ablation, table)} (method={method} ablation={ablation}: {counts}, "
+                   f"{where}: {', '.join(str(j.run_dir) for j in jobs)})")
+    return out

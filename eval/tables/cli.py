@@ -45,7 +45,7 @@ def load_sources(runs: list, tables: tuple[str, ...]):
     from eval.records.eval_folder import find_eval_folders
     from eval.records.points_scores import find_points_folders
     from eval.tables.sources import load_eval_folders, load_points_folders
-    from eval.sweep import load_sweep
+    from eval.sweep import SweepError, load_sweep
 
     if is_sweep(runs):
         return load_sweep(runs, tables=tables)
@@ -54,23 +54,23 @@ def load_sources(runs: list, tables: tuple[str, ...]):
             find_eval_folders(runs)
         except FileNotFoundError:
             return load_points_folders(runs)
-        raise ValueError(f"{', '.join(map(str, runs))}: holds both gspi-eval folders (Table 1) and "
+        raise SweepError(f"{', '.join(map(str, runs))}: holds both gspi-eval folders (Table 1) and "
                          "Stage II point-cloud evaluations (Table 2); tabulate them separately")
     return load_eval_folders(runs)
 
 
 def run(cfg) -> dict:
     """Tables 1-3 (those with rows, or `cfg.table`) -> files; returns {name: SweepTable}."""
-    from eval.sweep import TABLES
+    from eval.sweep import TABLES, SweepError
     from eval.tables.render import to_markdown, write_sweep_table
     from eval.tables.build import TABLE_SPECS, build_sweep_table, with_resources
 
     runs = list(cfg.runs) if cfg.runs else []
     if not runs:
-        raise ValueError("give evaluated run folders: gspi-table DIR [DIR ...] or runs=[...]")
+        raise SweepError("give evaluated run folders: gspi-table DIR [DIR ...] or runs=[...]")
     chosen = cfg.get("table")
     if chosen is not None and chosen not in TABLES:
-        raise ValueError(f"table={chosen!r}: allowed values are {', '.join(TABLES)} or null")
+        raise SweepError(f"table={chosen!r}: allowed values are {', '.join(TABLES)} or null")
     names = (chosen,) if chosen else TABLES
     sweep = load_sources(runs, names)
     boot = dict(cfg.get("bootstrap") or {})
@@ -81,14 +81,30 @@ def run(cfg) -> dict:
     built = {n: t for n, t in built.items() if t is not None}
     if not built:
         failed = "; ".join(f"{r.run_dir}: {r.error}" for r in sweep.failed)
-        raise ValueError(f"no complete run record of {', '.join(names)} below "
+        raise SweepError(f"no complete run record of {', '.join(names)} below "
                          f"{', '.join(map(str, cfg.runs))} ({len(sweep.failed)} failed"
                          f"{': ' + failed if failed else ''}; {len(sweep.unfinished)} job "
                          "folder(s) without result.json)")
     for table in built.values():
         write_sweep_table(table, sweep, Path(cfg.out))
         print(to_markdown(table, sweep))
+    warn_rows_with_failed_jobs(sweep, names, built)
     return built
+
+
+def warn_rows_with_failed_jobs(sweep, names, built: dict) -> None:
+    """One stderr line per table whose rows lack jobs (failed, or killed before their record):
+    the rows are named, so a table with fewer rows than the sweep ran is never silent."""
+    import sys
+
+    from eval.tables.build import rows_with_failed_jobs
+
+    for name in names:
+        table = built.get(name)
+        short = rows_with_failed_jobs(sweep, name, table.rows if table is not None else ())
+        if short:
+            print(f"gspi-table: warning: {name}: rows with failed or unfinished jobs: {'; '.join(short)}",
+                  file=sys.stderr)
 
 
 def positional_to_overrides(argv: list[str]) -> list[str]:

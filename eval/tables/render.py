@@ -14,7 +14,7 @@ import pandas as pd
 
 from eval.atomic import write_text_atomic
 from eval.sweep import Sweep
-from eval.tables.build import Column, SweepTable
+from eval.tables.build import Column, SweepTable, rows_with_failed_jobs
 
 LATEX_COLORS = (r"\definecolor{BaselineBestCell}{RGB}{255,235,238}",
                 r"\definecolor{BaselineSecondCell}{RGB}{255,249,196}")
@@ -104,6 +104,9 @@ def footer_lines(table: SweepTable, sweep: Sweep, style: str = "md") -> list[str
     if table.counts:
         lines.append(f"{table.counts}.")
     lines += table.notes
+    short = rows_with_failed_jobs(sweep, table.spec.name, table.rows)
+    if short:
+        lines.append(f"rows with failed or unfinished jobs: {'; '.join(short)}")
     mine = [r for r in sweep.failed if r.table == table.spec.name]
     lines += [f"failed job: {r.run_dir} ({r.method}, {r.ablation}, seed {r.seed}): {r.error}"
               for r in mine]

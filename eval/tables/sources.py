@@ -26,7 +26,7 @@ from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.eval_folder import META_NAME, SUMMARY_NAME, find_eval_folders, read_eval_meta, read_summary
 from eval.records.points_scores import (BASELINE_KEY, FORMAT, MODEL_KEY, SCORES_NAME, find_points_folders,
                                         read_points_scores)
-from eval.sweep import (COLUMNS, RunRecord, Sweep, material_protocol_label, peak_memory_rows, per_scene_rows,
+from eval.sweep import (COLUMNS, RunRecord, Sweep, SweepError, material_protocol_label, peak_memory_rows, per_scene_rows,
                         runtime_min_rows)
 from eval.tables.build import TABLE_SPECS
 
@@ -57,7 +57,7 @@ def check_same_scenes(metas: dict[Path, dict]) -> None:
         scenes.discard(())
         if len(scenes) > 1:
             lines = [f"{f}: {metas[f].get('scenes')}" for f in folders]
-            raise ValueError(f"method {method!r}: its runs were scored on different scene "
+            raise SweepError(f"method {method!r}: its runs were scored on different scene "
                              "sets, so their mean would mix them:\n  " + "\n  ".join(lines))
 
 
@@ -102,17 +102,17 @@ def _same_evaluation(scores: dict[Path, dict]) -> None:
         for path, sums in summed.items():
             if sums["inputs"] != ref["inputs"]:
                 differ = sorted(n for n, c in sums["per_scene"].items() if c != ref["per_scene"].get(n))
-                raise ValueError(f"{path} and {ref_path}: measured on different bytes of the same scenes (input "
+                raise SweepError(f"{path} and {ref_path}: measured on different bytes of the same scenes (input "
                                  f"checksums differ for {len(differ)} scene(s), e.g. {', '.join(differ[:3])}: the "
                                  "data was rebuilt?); tabulate one evaluation at a time")
     ident = lambda d: (sorted(d["scenes"]), d["split"], d["data"], d.get("num_steps"),  # noqa: E731
                        d.get("max_points"))
     for path, data in scores.items():
         if ident(data) != ident(first):
-            raise ValueError(f"{path} and {first_path}: scored on different scenes/split/data/DDIM "
+            raise SweepError(f"{path} and {first_path}: scored on different scenes/split/data/DDIM "
                              f"steps/points ({ident(data)} vs {ident(first)}); tabulate one evaluation at a time")
         if not _close(data["per_scene"][BASELINE_KEY], first["per_scene"][BASELINE_KEY]):
-            raise ValueError(f"{path} and {first_path}: the no-decomposition baseline differs "
+            raise SweepError(f"{path} and {first_path}: the no-decomposition baseline differs "
                              "(different training constants?); tabulate one evaluation at a time")
 
 

@@ -125,9 +125,7 @@ def run(cfg: DictConfig) -> dict:
         if stats["failed"]:
             log.error("%d of %d assets could not be imported: %s", len(stats["failed"]),
                       len(stats["failed"]) + len(stats["scenes"]), ", ".join(f["file"] for f in stats["failed"]))
-        for s in stats["scenes"]:
-            log.info("imported %s (%s) in %.1f s (input renderer %s: %.1f s)", s["name"],
-                     s["split"], s["seconds"], cfg.data.renderer, s["retrace_seconds"])
+        # each asset's line ("asset k/N: ...") was logged as it finished (gspi.data.assets.glb_import)
     elif mode == "import":
         from eval.layout import merge_splits
 
@@ -149,9 +147,7 @@ def run(cfg: DictConfig) -> dict:
         result = {"mode": "generate", "preset": cfg.data.name, "device": str(device), **stats}
         log.info("generated %d scenes on %s in %.1f s (%.0f rays/s end to end) -> %s",
                  len(stats["scenes"]), device, stats["seconds"], stats["rays_per_s"], out)
-        for s in stats["scenes"]:
-            log.info("scene %s: %.1f s (input renderer %s: %.1f s)", s["name"], s["seconds"],
-                     cfg.data.renderer, s["retrace_seconds"])
+        # each scene's line ("scene k/N: ...") was logged as it finished (gspi.data.generate.scene_done)
     return result
 
 

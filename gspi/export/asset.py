@@ -73,6 +73,11 @@ def export_asset(asset_path: str | Path, out: str | Path, cfg: ExportConfig | No
     cfg = cfg or ExportConfig()
     asset_path, out = Path(asset_path), Path(out)
     clock = {}
+    steps = 5 if cfg.preview else 4
+
+    def step(k: int, what: str, seconds: float) -> None:  # one progress line per step
+        log.info("[%d/%d] %s (%.1f s)", k, steps, what, seconds)
+
     start = t = time.perf_counter()
     asset = load_pbr_asset(asset_path)
     try:
@@ -80,9 +85,11 @@ def export_asset(asset_path: str | Path, out: str | Path, cfg: ExportConfig | No
                               backend=cfg.backend)
         surface = asset_surface(views, asset.means.double().numpy(), cfg.mesh)
         clock["mesh_s"], t = time.perf_counter() - t, time.perf_counter()
+        step(1, f"mesh: {surface.info['faces']} faces from {asset.num_gaussians} surfels", clock["mesh_s"])
         normals = vertex_normals(surface.vertices, surface.faces)
         uv_mesh = unwrap(surface.vertices, surface.faces, padding=cfg.texture.padding)
         clock["unwrap_s"], t = time.perf_counter() - t, time.perf_counter()
+        step(2, f"UV atlas: {uv_mesh.charts} charts", clock["unwrap_s"])
         samples = texel_samples(uv_mesh.uv, uv_mesh.faces, uv_mesh.vertices, cfg.texture.size)
         if len(samples.index) == 0:
             raise ValueError("no texel centre falls inside the UV atlas (degenerate mesh or texture too small)")
@@ -94,10 +101,12 @@ def export_asset(asset_path: str | Path, out: str | Path, cfg: ExportConfig | No
     except ValueError as exc:
         raise ExportError(asset_path, str(exc)) from exc
     clock["bake_s"], t = time.perf_counter() - t, time.perf_counter()
+    step(3, f"textures: {len(samples.index)} texels baked at {cfg.texture.size}x{cfg.texture.size}", clock["bake_s"])
     albedo_srgb = linear_to_srgb(torch.from_numpy(maps["albedo"])).numpy()
     write_glb(out, uv_mesh.vertices, uv_mesh.faces, normals[uv_mesh.vertex_source], uv_mesh.uv,
               base_color_srgb=albedo_srgb, roughness=maps["roughness"], metallic=maps["metallic"])
     clock["write_s"], t = time.perf_counter() - t, time.perf_counter()
+    step(4, f"wrote {out}", clock["write_s"])
     record = {"asset": str(asset_path), "glb": str(out), "surfels": asset.num_gaussians, "mesh": surface.info,
               "uv": {"charts": uv_mesh.charts, "atlas_size": list(uv_mesh.atlas_size),
                      "vertices": int(len(uv_mesh.vertices)), "texels_covered": int(len(samples.index))},
@@ -107,6 +116,7 @@ def export_asset(asset_path: str | Path, out: str | Path, cfg: ExportConfig | No
 
         record["preview"] = str(write_preview(out, preview_path(out)))
         clock["preview_s"] = time.perf_counter() - t
+        step(5, f"wrote {record['preview']}", clock["preview_s"])
     record["seconds"] = {**clock, "total_s": time.perf_counter() - start}
     log.info("%s -> %s: %d faces, %d charts, %dx%d textures, %.1f kB in %.1f s", asset_path, out,
              surface.info["faces"], uv_mesh.charts, cfg.texture.size, cfg.texture.size, record["bytes"] / 1e3,

@@ -72,6 +72,26 @@ def test_missing_data_is_checked_before_wandb_starts(tmp_path):
     assert not (out / "wandb").exists() and not (out / "result.json").exists(), sorted(out.rglob("*"))
 
 
+@pytest.mark.parametrize("data", ["no_such_data", "empty_data"])
+def test_a_refused_run_leaves_no_output_folder(tmp_path, data):
+    """A wrong or missing data= was one line but left out/ with Hydra's .hydra/ and log; now the
+    folder (and the parents the command made for it) is removed. A folder that existed is kept."""
+    from gspi.cli.run import main
+
+    (tmp_path / "empty_data").mkdir()
+    out = tmp_path / "new" / "r"
+    code, text = run_cli(main, [f"data={tmp_path / data}", f"out={out}", "logger=none"])
+    one_line_exit_2(code, text, data)
+    assert not (tmp_path / "new").exists(), sorted((tmp_path / "new").rglob("*"))
+
+    kept = tmp_path / "kept"
+    (kept / "mine.txt").parent.mkdir()
+    (kept / "mine.txt").write_text("x")
+    code, text = run_cli(main, [f"data={tmp_path / data}", f"out={kept}", "logger=none"])
+    one_line_exit_2(code, text, data)
+    assert (kept / "mine.txt").read_text() == "x"
+
+
 def test_python_m_tool_missing_checkpoint_is_one_line(tiny_gt, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.run([sys.executable, "-m", "gspi.stage2.evaluate_points", str(tmp_path / "nope.pt"),
@@ -136,3 +156,29 @@ def test_a_protocol_preset_typo_lists_only_choosable_presets(workspace):
                                 f"out={workspace / 'e'}", "eval=stanford_orbb"])
     one_line_exit_2(code, text, "eval/stanford_orbb", "stanford_orb")
     assert "base_eval" not in text and "default" in text
+
+
+@pytest.mark.parametrize("module, argv, hint", [
+    ("gspi.cli.run", ["metod=gspi"], "did you mean method?"),
+    ("gspi.cli.run", ["seeed=1"], "did you mean seed?"),
+    ("gspi.cli.run", ["stage2.trian.steps=3"], "did you mean stage2.train.steps?"),
+    ("gspi.cli.run", ["method=gpsi"], "did you mean method=gspi?"),
+    ("gspi.cli.run", ["+experimen=table2"], "did you mean +experiment=table2?"),
+    ("gspi.cli.data", ["preest=tiny"], "did you mean preset?"),
+    ("eval.tables.cli", ["outt=x"], "did you mean out?"),
+    ("gspi.cli.run", ["zzzzzz=1"], None),
+])
+def test_a_mistyped_key_or_group_says_did_you_mean(tmp_path, module, argv, hint):
+    from importlib import import_module
+
+    from eval.config import register_configs
+
+    register_configs()
+    main = import_module(module).main
+    base = {"gspi.cli.run": [f"data={tmp_path}", f"out={tmp_path / 'o'}"],
+            "gspi.cli.data": [f"out={tmp_path / 'o'}"], "eval.tables.cli": [str(tmp_path)]}[module]
+    code, text = run_cli(main, [*base, *argv])
+    bad = argv[0].lstrip("+").split("=")[0]
+    one_line_exit_2(code, text, bad)
+    assert (hint in text) if hint else ("did you mean" not in text), text
+    assert not (tmp_path / "o").exists()

@@ -17,7 +17,8 @@ like the procedural scenes, with k a stable number of its file name (`asset_stre
 not depend on the other files or their order. Folders are searched recursively (a `.gltf` sits
 in a sub-folder with its textures). A file that cannot be read is skipped and named in one log
 line; every other asset is written, with `splits.json`, and the result lists the failures
-(`gspi-data` then exits with status 1). scene.json's `generator` holds the recipe (its `name`
+(`gspi-data` then exits with status 1). When no asset could be read (a file that is not a GLB)
+nothing is written, not even `splits.json`: one error line naming the files, exit 2. scene.json's `generator` holds the recipe (its `name`
 is the scene's) and `importer: gspi-glb-import`.
 """
 from __future__ import annotations
@@ -145,7 +146,8 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
             asset = read_gltf(path)
             mesh = unit_frame_mesh(asset)
         except (GLTFError, ValueError) as exc:  # one bad asset: named, skipped; the others go on
-            log.error("skipped %s: %s", path, exc)
+            if len(files) > 1:  # a single file's error is the command's one line (below)
+                log.error("skipped %s: %s", path, exc)
             failed.append({"file": str(path), "error": str(exc)})
             continue
         recipe = glb_recipe(path, index, seed, cfg)
@@ -179,6 +181,12 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
             if cfg.contact_sheets:
                 write_contact_sheet(scene)
         stats.append({**s, "split": split, "seconds": time.perf_counter() - start})
+        log.info("asset %d/%d: imported %s (%s) in %.1f s (input renderer %s: %.1f s)", index + 1, len(files),
+                 s["name"], split, stats[-1]["seconds"], cfg.renderer, s["retrace_seconds"])
+    if failed and not stats:  # nothing imported: no splits.json, no folder of ours; one line
+        raise GLTFError(f"{src}: no asset could be imported, nothing written: "
+                        + "; ".join(f["error"] if f["error"].startswith(f["file"]) else f"{f['file']}: {f['error']}"
+                                    for f in failed))
     bad = {f["file"] for f in failed}
     splits = merge_splits(out_dir, {split: [p.stem for p in ps if str(p) not in bad]
                                     for split, ps in sources.items()})
