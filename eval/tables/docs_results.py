@@ -8,8 +8,8 @@ folders: Table 1), ``docs/log/table3/`` (Table 3's sweep records, the same way),
 the held-out pool scenes: Table 2 and the shipped models' held-out table) and the checkpoint cards
 (``checkpoints/stage2_*.json``, read by eval.tables.cards: the shipping-rule and real-object
 tables). Targets: whole files
-under ``docs/results/`` and blocks between ``<!-- generated: NAME -->`` and
-``<!-- /generated: NAME -->`` in other docs. A number of these tables is never typed elsewhere:
+under ``docs/results/``, each card's ``status`` field (eval.tables.cards, from conf/), and blocks
+between ``<!-- generated: NAME -->`` and ``<!-- /generated: NAME -->`` in other docs. A number of these tables is never typed elsewhere:
 docs link to the file. Tables are built by gspi-table's builder and renderer (eval.tables.build,
 eval.tables.render); nothing here imports gspi/.
 """
@@ -289,7 +289,10 @@ def replace_block(text: str, name: str, body: str, where: str) -> str:
 
 def generated() -> dict[Path, str]:
     """{path: the text the command writes there} for every target."""
+    from eval.tables.cards import cards_with_status
+
     out = {ROOT / rel: build() for rel, build in FILES.items()}
+    out.update(cards_with_status(ROOT))  # each card's status, from conf/ (eval.tables.cards)
     for (rel, name), build in BLOCKS.items():
         path = ROOT / rel
         out[path] = replace_block(out.get(path, path.read_text()), name, build(), rel)
