@@ -1,10 +1,13 @@
 """eval/tables/cards.py: the three layouts of a checkpoint card's end-to-end scores read alike,
-and the shipping rule computed from them."""
+the shipping rule computed from them, and each card's status (default | table | retired) as the
+configs give it."""
 import json
+from pathlib import Path
 
 import pytest
 
-from eval.tables.cards import read_card, rule_failures
+from eval.tables.cards import (cards_with_status, configured_statuses, read_card, read_status, rule_failures,
+                               with_status)
 
 REAL0 = {"albedo": 12.0, "roughness": 11.0, "metallic": 20.0, "relight": 16.0}
 REAL1 = {"albedo": 13.0, "roughness": 12.0, "metallic": 21.0, "relight": 17.0}
@@ -49,3 +52,66 @@ def test_the_rule_names_what_fails(tmp_path):
 
 def test_a_card_without_end_to_end_runs_is_no_candidate(tmp_path):
     assert read_card(_card(tmp_path, {})) is None
+
+
+# ---- status: default | table | retired, from the configs (eval.tables.cards.configured_statuses)
+
+def _fake_repo(tmp_path, cards=("stage2_a", "stage2_b", "stage2_c"), default="stage2_a", tables=("stage2_b",)):
+    (tmp_path / "conf" / "stage2").mkdir(parents=True)
+    (tmp_path / "conf" / "reproduce").mkdir()
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "conf" / "gspi_run.yaml").write_text("defaults:\n  - _self_\n  - stage2: shipped\n")
+    (tmp_path / "conf" / "stage2" / "shipped.yaml").write_text(f"checkpoint: checkpoints/{default}.pt\n")
+    entries = "".join(f"  full_s{i}: checkpoints/{name}.pt\n" for i, name in enumerate(tables))
+    (tmp_path / "conf" / "reproduce" / "table2_cpu.yaml").write_text(f"checkpoints_from:\n{entries}")
+    (tmp_path / "conf" / "reproduce" / "table2_smoke.yaml").write_text("checkpoints_from: null\n")
+    for name in cards:
+        (tmp_path / "checkpoints" / f"{name}.json").write_text(json.dumps({"file": f"checkpoints/{name}.pt", "sha256": "x"}))
+    return tmp_path
+
+
+def test_statuses_follow_the_configs(tmp_path):
+    root = _fake_repo(tmp_path)
+    assert configured_statuses(root) == {"stage2_a": "default", "stage2_b": "table", "stage2_c": "retired"}
+    # the default wins over a table that measures it too (Table 2's Full s0 is the shipped default)
+    root2 = _fake_repo(tmp_path / "two", tables=("stage2_a", "stage2_b"))
+    assert configured_statuses(root2)["stage2_a"] == "default"
+
+
+def test_written_cards_carry_their_status_after_file(tmp_path):
+    root = _fake_repo(tmp_path)
+    texts = cards_with_status(root)
+    for path, text in texts.items():
+        path.write_text(text)
+    card = json.loads((root / "checkpoints" / "stage2_b.json").read_text())
+    assert list(card) == ["file", "status", "sha256"] and card["status"] == "table"
+    assert read_status(root / "checkpoints" / "stage2_c.json") == "retired"
+    assert cards_with_status(root) == texts  # written once, nothing left to change
+
+
+def test_a_missing_status_or_default_card_is_named(tmp_path):
+    root = _fake_repo(tmp_path)
+    with pytest.raises(ValueError, match=r"stage2_a.json: status None"):
+        read_status(root / "checkpoints" / "stage2_a.json")
+    with pytest.raises(ValueError, match="status 'gone'"):
+        with_status({"file": "x"}, "gone")
+    (root / "checkpoints" / "stage2_a.json").unlink()
+    with pytest.raises(ValueError, match="stage2_a has no card"):
+        configured_statuses(root)
+
+
+def test_the_committed_cards_status_matches_the_configs():
+    """Exactly one card is the default, the checkpoint conf/gspi_run.yaml's stage2 option names;
+    every card's status is what the configs give it (`make results` writes them)."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    cards = sorted((root / "checkpoints").glob("stage2_*.json"))
+    statuses = {card.stem: read_status(card) for card in cards}
+    assert statuses == configured_statuses(root), "run `make results` (eval.tables.cards writes the statuses)"
+    defaults = yaml.safe_load((root / "conf" / "gspi_run.yaml").read_text())["defaults"]
+    option = next(d["stage2"] for d in defaults if isinstance(d, dict) and "stage2" in d)
+    named = yaml.safe_load((root / "conf" / "stage2" / f"{option}.yaml").read_text())["checkpoint"]
+    assert [stem for stem, status in statuses.items() if status == "default"] == [Path(named).stem]
+    described = [card.stem for card in cards if "default" in json.loads(card.read_text())]
+    assert described == [Path(named).stem]  # the card that says why it is the default is the default

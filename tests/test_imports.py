@@ -101,7 +101,6 @@ def test_the_product_imports_nothing_from_the_studies():
     bad = [f"{p.relative_to(ROOT)}:{line} imports {name}" for pkg in PRODUCT for p in (ROOT / pkg).rglob("*.py")
            for name, line in imported_names(p) if name.split(".")[0] == "experiments"]
     assert not bad, bad
-    assert (ROOT / "experiments" / "ladder" / "ladder.py").is_file()  # the scan sees the studies
 
 
 def test_every_floor_is_placed_in_the_graph():

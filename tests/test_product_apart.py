@@ -28,31 +28,7 @@ PRODUCT = ("gspi", "eval", "baselines", "benchmarks", "conf", "tests", ".ci", "M
 TEXT = {".py", ".yaml", ".yml", ".md", ".toml", ".sh", ".txt", ".cfg", ".json", ""}
 SIZES = ("smoke", "cpu")
 # product file -> the studies it still names; each is issue 67's work left (move the study apart)
-NOT_YET_APART = {
-    "gspi/stage2/model.py": {"ladder"},
-    "gspi/stage2/evaluate_points.py": {"ladder"},
-    "gspi/stage2/points_measure.py": {"ladder"},
-    "gspi/data/pool/asset_conditions.py": {"condition_swap"},
-    "eval/tables/docs_results.py": {"parts_pool"},
-    "conf/gspi_train.yaml": {"parts_pool"},
-    "conf/stage2/cpu_mix_pool.yaml": {"parts_pool"},
-    "conf/stage2/cpu_parts_pool_s.yaml": {"parts_pool"},
-    "conf/stage2/cpu_parts_pool.yaml": {"parts_pool"},
-    "conf/stage2/cpu_matte_pool.yaml": {"parts_pool"},
-    "README.md": {"ladder"},
-    "docs/STAGE1.md": {"stage1_filters"},
-    "docs/STAGE2.md": {"parts_pool"},
-    "tests/test_imports.py": {"ladder"},
-    "tests/test_parts_pool_run.py": {"parts_pool"},
-    "tests/test_stage2_condition_swap.py": {"condition_swap"},
-    "tests/test_roughness_bias.py": {"parts_pool"},
-    "tests/test_points_scores.py": {"ladder"},
-    "tests/test_stage2_ladder.py": {"ladder"},
-    "tests/test_recon_highlights.py": {"highlights"},
-    "tests/test_parts_pool_summary.py": {"parts_pool"},
-    "tests/test_mix_conditions.py": {"parts_pool"},
-    "tests/test_training_pool.py": {"parts_pool"},
-}
+NOT_YET_APART: dict[str, set[str]] = {}  # empty since issue 67: no study the product names is left
 
 
 def product_files() -> list[Path]:

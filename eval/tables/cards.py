@@ -5,6 +5,14 @@ checkpoints/README.md): the demo's s004 metal IoU and metallic PSNR, and the mea
 real objects (albedo, roughness, metallic, relight), beside the held-out average. Cards written in
 different sessions spell these three ways; :func:`read_card` reads each into one record, so the
 shipping-rule and real-object tables (eval.tables.docs_results) are generated, never retyped.
+
+A card's ``status`` says what the product does with its file (``STATUSES``), derived from the
+configs by :func:`configured_statuses` and written by ``make results`` (:func:`cards_with_status`,
+part of eval.tables.docs_results' targets), so it never disagrees with them:
+
+- ``default``: the checkpoint gspi-run loads (conf/gspi_run.yaml's ``stage2`` option's ``checkpoint``);
+- ``table``: one a product table measures (a ``checkpoints_from`` entry of conf/reproduce/*.yaml);
+- ``retired``: every other card; its file stays (tables of earlier sessions were measured with it).
 """
 from __future__ import annotations
 
@@ -16,6 +24,8 @@ from typing import Optional
 REAL_CHANNELS = ("albedo", "roughness", "metallic", "relight")
 RULE_CHANNELS = ("albedo", "roughness", "metallic")   # the rule: never behind no decomposition on these
 MIN_METAL_IOU = 0.5                                   # the rule: s004's metal found
+STATUSES = ("default", "table", "retired")            # a card's ``status``, module docstring
+CARD_GLOB = "stage2_*.json"                           # the cards under checkpoints/
 
 
 @dataclass
@@ -73,3 +83,70 @@ def rule_failures(scores: CardScores) -> list[str]:
     failed = [] if scores.s004_iou and scores.s004_iou[0] >= MIN_METAL_IOU else ["s004"]
     base = scores.real_baseline or {}
     return failed + [c for c in RULE_CHANNELS if scores.real and c in base and scores.real[0][c] < base[c]]
+
+
+def default_checkpoint(root: Path) -> str:
+    """The stem of the checkpoint gspi-run loads: conf/gspi_run.yaml's ``stage2`` option's ``checkpoint``."""
+    import yaml
+
+    conf = Path(root) / "conf"
+    defaults = yaml.safe_load((conf / "gspi_run.yaml").read_text())["defaults"]
+    option = next((d["stage2"] for d in defaults if isinstance(d, dict) and "stage2" in d), None)
+    if option is None:
+        raise ValueError(f"{conf / 'gspi_run.yaml'}: its defaults select no stage2 option")
+    node = yaml.safe_load((conf / "stage2" / f"{option}.yaml").read_text()) or {}
+    if not node.get("checkpoint"):
+        raise ValueError(f"{conf / 'stage2' / (option + '.yaml')}: gspi-run's stage2 option names no checkpoint")
+    return Path(node["checkpoint"]).stem
+
+
+def table_checkpoints(root: Path) -> set[str]:
+    """The stems of the checkpoints a product table measures (conf/reproduce/*.yaml ``checkpoints_from``)."""
+    import yaml
+
+    stems = set()
+    for path in sorted((Path(root) / "conf" / "reproduce").glob("*.yaml")):
+        named = (yaml.safe_load(path.read_text()) or {}).get("checkpoints_from") or {}
+        stems |= {Path(str(ckpt)).stem for ckpt in named.values()}
+    return stems
+
+
+def configured_statuses(root: Path) -> dict[str, str]:
+    """{card stem: the status the configs give it} for every card under ``root``/checkpoints."""
+    default, tables = default_checkpoint(root), table_checkpoints(root)
+    cards = sorted((Path(root) / "checkpoints").glob(CARD_GLOB))
+    if default not in {c.stem for c in cards}:
+        raise ValueError(f"gspi-run's default checkpoint {default} has no card checkpoints/{default}.json")
+    return {c.stem: "default" if c.stem == default else "table" if c.stem in tables else "retired" for c in cards}
+
+
+def read_status(path: Path) -> str:
+    """The card's ``status``; ValueError naming the card when it is missing or not one of ``STATUSES``."""
+    status = json.loads(Path(path).read_text()).get("status")
+    if status not in STATUSES:
+        raise ValueError(f"{path}: status {status!r}, expected one of {list(STATUSES)} (make results writes it)")
+    return status
+
+
+def with_status(card: dict, status: str) -> dict:
+    """The card with ``status`` set, placed after ``file`` (the rest keeps its order)."""
+    if status not in STATUSES:
+        raise ValueError(f"status {status!r}: expected one of {list(STATUSES)}")
+    out = {}
+    for key, value in card.items():
+        if key != "status":
+            out[key] = value
+        if key == "file":
+            out["status"] = status
+    out.setdefault("status", status)
+    return out
+
+
+def cards_with_status(root: Path) -> dict[Path, str]:
+    """{card path: its text with the configured status} (the cards' layout: indent 2, newline)."""
+    statuses = configured_statuses(root)
+    out = {}
+    for path in sorted((Path(root) / "checkpoints").glob(CARD_GLOB)):
+        card = json.loads(path.read_text())
+        out[path] = json.dumps(with_status(card, statuses[path.stem]), indent=2) + "\n"
+    return out

@@ -9,7 +9,8 @@
 #   gspi-data preset=stage2_pool out=$POOL_ROOT seed=0 'data.pool_indices=[[0,64],[224,256]]' data.workers=2
 #   python -m gspi.data.pool.split $POOL_ROOT $POOL --train 0:64 --test 224:256
 #   gspi-data preset=small out=$SMALL seed=0 'data.only_splits=[test]'
-# Diffusion rungs are name=recipe[:ablation] (a conf/stage2 preset; ablation default full), e.g.
+# Diffusion rungs are name=recipe[:ablation] (a conf/stage2 preset, or this study's conf/stage2;
+# ablation default full), e.g.
 # the departures measured after R5: DIFFUSION_RUNGS="r6=table2_cpu_trunc_snr r6skip=table2_cpu_skip_trunc_snr"
 # REGRESSOR_RUNGS=; or Table 2's variants on a recipe: "r6a1=table2_cpu_trunc_snr:a1_no_global_prior".
 # Usage: experiments/ladder/run_ladder.sh POOL SMALL RUNS [SEEDS...]
@@ -17,6 +18,7 @@ set -u
 POOL=$1; SMALL=$2; RUNS=$3; shift 3
 SEEDS=${*:-0 1 2}
 PY=${PY:-.venv/bin/python}
+STUDY_CONF=$(cd "$(dirname "$0")" && pwd)/conf  # table2_cpu_skip*: this study's Stage II options
 WORKERS=${WORKERS:-2}
 DIFFUSION_RUNGS=${DIFFUSION_RUNGS-r5=table2_cpu}
 REGRESSOR_RUNGS=${REGRESSOR_RUNGS-r1 r2 r3 r4}
@@ -44,7 +46,7 @@ run_job() {  # kind rung seed
   if [ $1 = train ] && is_diffusion $2; then
     local spec=${RECIPE[$2]}; local abl=full
     [[ $spec == *:* ]] && abl=${spec#*:} && spec=${spec%%:*}
-    $PY -m gspi.cli.train data="$POOL" out="$d" stage2=$spec ablation=$abl seed=$3 > "$d.log" 2>&1
+    $PY -m gspi.cli.train "hydra.searchpath=[file://$STUDY_CONF]" data="$POOL" out="$d" stage2=$spec ablation=$abl seed=$3 > "$d.log" 2>&1
   elif [ $1 = train ]; then
     $PY -m experiments.ladder.ladder train --rung $2 --seed $3 --data "$POOL" --out "$d" \
       --eval heldout="$POOL":test --eval small="$SMALL":test > "$d.log" 2>&1

@@ -1,4 +1,4 @@
-"""The filter report on reconstructed scenes with known geometry (docs/STAGE1.md).
+"""The filter report on reconstructed scenes with known geometry (its README.md; the filters: docs/STAGE1.md).
 
 For each scene: render the asset's lattice once, unproject once, then run the filter cascade of
 the given config and each filter alone, with distances to the scene's GT point cloud

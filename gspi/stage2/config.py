@@ -8,7 +8,7 @@ where a key missing from a YAML or from an older checkpoint's stored config gets
 From there on the stage passes the ``Stage2Config`` itself (``cfg["stage2"]`` of the training
 config) and its code reads fields (``stage2.train.steps``, ``stage2.data``): nothing parses the
 node a second time. ``stored_config(cfg)`` turns it back into plain data where it is written
-(checkpoints, the ladder's model files).
+(checkpoints, a study's model files).
 
 The denoiser sizes (``stage2.model``) are :class:`~gspi.stage2.model.RCWConfig`'s fields and
 defaults; its condition widths, head and schedule length are derived (from ``stage2.data``,

@@ -49,8 +49,8 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
     the no-decomposition baseline from ``baseline_train``'s train split (default ``data_dir``),
     written as ``<out_dir>/scores.json`` (format "gspi-points-eval": the dataset, split, scenes,
     baseline constants and measure, plus ``record``: what was scored). Returns the scores.
-    Stage II models (``evaluate_checkpoint``) and the ladder's rungs (``experiments.ladder.ladder``)
-    are scored here."""
+    Stage II models (``evaluate_checkpoint``) and any other point predictor (a study's direct
+    regressors) are scored here."""
     from gspi.stage2.encoders import build_encoder
 
     stage2 = cfg["stage2"]

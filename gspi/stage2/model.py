@@ -55,7 +55,7 @@ class RCWConfig:
     global_grid_cells: int = 25  # 5 x 5 pooled encoder cells per view
     num_lattice_views: int = 32  # size of the per-view positional embedding table
     self_condition: bool = True  # latent self-conditioning input
-    point_global_skip: bool = False  # also add LN(mean of the global tokens) to every point token (ladder R2)
+    point_global_skip: bool = False  # also add LN(mean of the global tokens) to every point token (a per-point MLP that sees the pooled prior)
     cond_drop_prob: float = 0.1  # training probability of the null condition (CFG)
     prediction: str = "eps"  # what the output head predicts: "eps" (paper) or "x0" (see forward)
     num_train_timesteps: int = 1000  # cosine schedule length (the x0 -> eps conversion uses it)
@@ -159,7 +159,7 @@ class RCWDenoiser(nn.Module):
     def head(self, f_t: Tensor, t: Tensor, inputs: Stage2Inputs, *, prev_latents: Optional[Tensor] = None,
              cond_keep: Optional[Tensor] = None, write_chunk: Optional[int] = None) -> tuple[Tensor, Tensor]:
         """(raw head output [B, N, 5], final latents): eps or x0 as ``config.prediction`` says.
-        The ladder's direct regressor (``experiments.ladder.regressors.RCWRegressor``) reads it as x0."""
+        A direct (one-pass) regressor built on this backbone reads it as x0."""
         b, n = inputs.xyz.shape[:2]
         if f_t.shape != (b, n, self.config.feature_dim):
             raise ValueError(f"f_t must be [B, N, {self.config.feature_dim}] = {(b, n)}, got {tuple(f_t.shape)}")

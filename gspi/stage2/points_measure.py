@@ -10,8 +10,8 @@ points' values (the L2-optimal constants). Per view and channel scores are avera
 views, then over scenes; "avg" is the mean of the three channels. A per-view PSNR is capped at
 ``PSNR_CAP_DB`` (an exact match would be inf). ``point_metal_iou``: IoU of the metal points.
 
-Used by the validation while training (``gspi.stage2.validate``), the one CLI
-(``python -m gspi.stage2.evaluate_points``) and the learnability ladder (``experiments.ladder.ladder``).
+Used by the validation while training (``gspi.stage2.validate``) and the one CLI
+(``python -m gspi.stage2.evaluate_points``), which a study's predictors share.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The scenes of one dataset split as Stage II reads them: ``ScenePoints`` with their cached
 global-prior features (``gspi.stage2.feature_cache``). Training, validation, Table 2's measure
-and the ladder all load their scenes here."""
+(and a study's predictors) all load their scenes here."""
 from __future__ import annotations
 
 from pathlib import Path

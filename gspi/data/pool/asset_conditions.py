@@ -11,9 +11,8 @@ scene's own, as symlinks:
   source view at its stored pixel;
 - ``prior``: the lattice ``rgb.exr`` files replaced by the asset's renders.
 
-Used by ``experiments.condition_swap.condition_swap`` (one condition at a time) and
-``gspi.recon.reconstructed_pool`` (both: a training pool as the paper trains, on lattice renders
-of reconstructed assets).
+Used by ``gspi.recon.reconstructed_pool`` (both conditions: a training pool as the paper trains,
+on lattice renders of reconstructed assets); ``conditions`` may also swap one at a time.
 """
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ display values with L1, whose per-point optimum over views is the median: a high
 few views is dropped) hands the prior a dull object. This module compares the radiance of the
 asset's lattice renders with the scene's own lattice views inside the GT mask.
 
-    python -m experiments.highlights.highlights ASSET.ply SCENE_DIR        # prints one JSON line
+    python -m experiments.asset_radiance.highlights ASSET.ply SCENE_DIR        # prints one JSON line
 """
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ def compare(asset_path: str, scene_dir: str) -> dict:
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 2:
-        raise SystemExit("usage: python -m experiments.highlights.highlights ASSET.ply SCENE_DIR")
+        raise SystemExit("usage: python -m experiments.asset_radiance.highlights ASSET.ply SCENE_DIR")
     torch.set_num_threads(1)
     print(json.dumps(compare(*argv)))
 

@@ -6,7 +6,7 @@ as the protocol masks), and each run's roughness PSNR from its ``eval/eval_meta.
 that predicts a glossy finish where the GT is matte shows as a predicted mean far below the GT
 mean; a constant (no decomposition) shows as zero spread.
 
-    python experiments/parts_pool/roughness_bias.py --data data/real \\
+    python experiments/training_pools/roughness_bias.py --data data/real \\
         parts=RUNS_REAL/method=gspi,... no_decomposition=RUNS_REAL/method=no_decomposition
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""experiments/parts_pool/summary.py reads a run's held-out scores from its eval folder or from the
+"""experiments/training_pools/summary.py reads a run's held-out scores from its eval folder or from the
 copy run.sh commits under docs/log/heldout/ (the copy outlives the data folder): both give the
 same units, and the scene average is the mean of the three channels."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import shutil
 import pytest
 
 from eval.records.points_scores import BASELINE_KEY
-from experiments.parts_pool.summary import units
+from experiments.training_pools.summary import units
 
 
 def scores(seed: int) -> dict:

@@ -1,10 +1,10 @@
-"""experiments/parts_pool/mix_conditions.py: the training view of each pool scene under its
+"""experiments/training_pools/mix_conditions.py: the training view of each pool scene under its
 reconstructed and its exact conditions (issue 42, session 18)."""
 import json
 
 import pytest
 
-from experiments.parts_pool.mix_conditions import mix_view
+from experiments.training_pools.mix_conditions import mix_view
 
 
 def _pool(root, names):

@@ -4,25 +4,25 @@
 # rerun this script after a cut-off session and it continues where it stopped (complete.json,
 # reconstructed.json, the training's checkpoint.pt, scores.json mark what is done).
 #
-#   WORK=data/parts_pool SEEDS="0 1" CHUNK_MIN=40 nohup setsid experiments/parts_pool/run.sh &
-#   WORK=data/parts_pool RECIPE=cpu_parts_pool_s nohup setsid experiments/parts_pool/run.sh &
+#   WORK=data/parts_pool SEEDS="0 1" CHUNK_MIN=40 nohup setsid experiments/training_pools/run.sh &
+#   WORK=data/parts_pool RECIPE=cpu_parts_pool_s nohup setsid experiments/training_pools/run.sh &
 #   # session 15's look-swap pool: train scenes only, measured on the parts pool's held-out scenes
 #   WORK=data/looks_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.look_swap=0.5 \
 #     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=data/parts_pool \
-#     nohup setsid experiments/parts_pool/run.sh &
+#     nohup setsid experiments/training_pools/run.sh &
 #   # session 16's matte-finish pool (the default's recipe); ABLATION=a1_no_global_prior etc.: a Table 2 row
 #   WORK=data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
 #     POOL_INDICES='[[0,64]]' SPLIT='--train 0:64' HELDOUT=data/parts_pool [ABLATION=a1_no_global_prior SEEDS=0] \
-#     nohup setsid experiments/parts_pool/run.sh &
+#     nohup setsid experiments/training_pools/run.sh &
 #   # session 18: the same, trained on each scene under reconstructed AND exact conditions
-#   # (experiments/parts_pool/mix_conditions.py; runs/<RECIPE>_mix_s<seed>)
-#   WORK=data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/parts_pool/run.sh &
+#   # (experiments/training_pools/mix_conditions.py; runs/<RECIPE>_mix_s<seed>)
+#   WORK=data/matte_pool ... CONDITIONS=mixed nohup setsid experiments/training_pools/run.sh &
 #   # session 20's default (stage2_pool224_pixel.pt): the same with TAG=pixel TRAIN_EXTRA=stage2.data.pixel_features=true
 #   # (runs/<RECIPE>_pixel_224_s<seed>); session 19's default (stage2_pool224.pt): the matte pool's 224 training scenes (runs/<RECIPE>_224_s<seed>;
 #   # with CONDITIONS=mixed runs/<RECIPE>_mix224_s<seed>)
 #   WORK=data/matte_pool RECIPE=cpu_parts_pool PARTS_EXTRA=data.parts.matte_finish=0.5 \
 #     POOL_INDICES='[[0,224]]' SPLIT='--train 0:224' TRAIN_SCENES=224 HELDOUT=data/parts_pool \
-#     nohup setsid experiments/parts_pool/run.sh &
+#     nohup setsid experiments/training_pools/run.sh &
 #
 # PLAN_ONLY=1 prints the run names and data it would use and stops.
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed); each
@@ -33,6 +33,7 @@
 # while a run is in flight cannot change what that run does next.
 {
 set -euo pipefail
+STUDY_CONF=$(cd "$(dirname "$0")" && pwd)/conf   # this study's Stage II options (RECIPE=cpu_parts_pool_s)
 cd "$(dirname "$0")/../.."
 WORK=${WORK:-data/parts_pool}
 SEEDS=${SEEDS-"0 1"}                  # SEEDS="" builds the pool and its reconstructions, trains nothing
@@ -82,14 +83,14 @@ $BIN/python -m gspi.recon.reconstructed_pool "$POOL_VIEW" "$RECON_VIEW" --worker
 $BIN/python -m gspi.recon.reconstructed_pool "$POOL_VIEW" "$RECON_VIEW" --summary > "$SUMMARY" 2>&1
 case "$CONDITIONS" in
   reconstructed) ;;
-  mixed) $BIN/python experiments/parts_pool/mix_conditions.py "$RECON_VIEW" "$POOL_VIEW" "$WORK/mix$TRAIN_SCENES" >> "$WORK/run.log" 2>&1 ;;
+  mixed) $BIN/python experiments/training_pools/mix_conditions.py "$RECON_VIEW" "$POOL_VIEW" "$WORK/mix$TRAIN_SCENES" >> "$WORK/run.log" 2>&1 ;;
   *) log "CONDITIONS=$CONDITIONS: expected reconstructed or mixed"; exit 2 ;;
 esac
 log "train: $RECIPE ablation=$ABLATION conditions=$CONDITIONS seeds $SEEDS (chunks of $CHUNK_MIN min)"
 train_seed() {
   local seed=$1 out="$WORK/runs/${RUN}_s$1"
   until [ -f "$out/stats.json" ] && $BIN/python -c "import json,sys; s=json.load(open('$out/stats.json')); sys.exit(0 if s.get('steps',0)>=s.get('total_steps', 2500) else 1)"; do
-    $BIN/gspi-train data="$TRAIN_DATA" out="$out" stage2=$RECIPE ablation=$ABLATION seed=$seed \
+    $BIN/gspi-train "hydra.searchpath=[file://$STUDY_CONF]" data="$TRAIN_DATA" out="$out" stage2=$RECIPE ablation=$ABLATION seed=$seed \
       stage2.train.stop_after_minutes=$CHUNK_MIN $TRAIN_EXTRA >> "$WORK/train_s$seed.log" 2>&1 \
       || { log "train: seed $seed failed (see $WORK/train_s$seed.log)"; return 1; }
     log "train: seed $seed chunk ended at step $($BIN/python -c "import json; print(json.load(open('$out/stats.json'))['steps'])")"

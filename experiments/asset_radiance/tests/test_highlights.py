@@ -1,10 +1,10 @@
-"""experiments.highlights.highlights: radiance statistics inside a mask, computed by hand."""
+"""experiments.asset_radiance.highlights: radiance statistics inside a mask, computed by hand."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from experiments.highlights.highlights import radiance_stats
+from experiments.asset_radiance.highlights import radiance_stats
 
 
 def test_radiance_stats_by_hand():

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 42: the shipped Stage II checkpoints on the multi-part pool's 32 held-out scenes
 # (reconstructed conditions; Table 2's measure as run.sh scores its trainings). Resumable.
-#   WORK=data/parts_pool experiments/parts_pool/measure_reference.sh
+#   WORK=data/parts_pool experiments/training_pools/measure_reference.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 WORK=${WORK:-data/parts_pool}

@@ -1,4 +1,4 @@
-"""experiments/parts_pool/run.sh names its views and runs from its settings (issue 42): the
+"""experiments/training_pools/run.sh names its views and runs from its settings (issue 42): the
 64-scene names stay the ones earlier runs were trained under, TRAIN_SCENES names the larger
 views, and a TRAIN_SCENES that SPLIT does not train on is refused before anything runs."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "parts_pool" / "run.sh"
+SCRIPT = Path(__file__).resolve().parents[1] / "run.sh"
 
 
 def plan(tmp_path, script: Path = SCRIPT, **env) -> subprocess.CompletedProcess:

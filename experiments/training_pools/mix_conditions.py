@@ -7,7 +7,7 @@ to end, and the models trained on reconstructions find metal end to end but scor
 a model that sees both keeps both is the question; this only builds the data view (symlinks and a
 `splits.json`), so a training reads it with no code change:
 
-    python experiments/parts_pool/mix_conditions.py data/matte_pool/rpool64 \
+    python experiments/training_pools/mix_conditions.py data/matte_pool/rpool64 \
         data/matte_pool/pool64 data/matte_pool/mix64
     gspi-train data=data/matte_pool/mix64 out=... stage2=cpu_parts_pool seed=0
 

@@ -8,7 +8,7 @@ spread, metal-class metallic and metal IoU, multi-part roughness, and the paired
 no decomposition (and to ``--reference``) over (scene, seed) with 95 % bootstrap CIs
 (``eval.stats.paired_bootstrap_ci``).
 
-    python experiments/parts_pool/summary.py --pool RPOOL64 \\
+    python experiments/training_pools/summary.py --pool RPOOL64 \\
         parts=runs/cpu_parts_pool_s0/eval parts=runs/cpu_parts_pool_s1/eval \\
         pool_recon=runs/ref/pool_recon/eval small=runs/ref/small/eval [--reference pool_recon]
 """

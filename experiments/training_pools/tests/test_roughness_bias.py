@@ -1,11 +1,11 @@
-"""experiments/parts_pool/roughness_bias.py: means over the masked test pixels, the run's PSNR, errors."""
+"""experiments/training_pools/roughness_bias.py: means over the masked test pixels, the run's PSNR, errors."""
 import json
 
 import numpy as np
 import pytest
 
 from eval.imageio import write_png
-from experiments.parts_pool.roughness_bias import main, roughness_rows
+from experiments.training_pools.roughness_bias import main, roughness_rows
 
 
 def _view(view_dir, roughness, mask=None):
