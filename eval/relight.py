@@ -50,7 +50,6 @@ __all__ = [
     "ggx_prefilter",
     "prefilter_environment",
     "split_sum",
-    "sample_specular",
     "clear_prefilter_cache",
 ]
 
@@ -203,10 +202,9 @@ def clear_prefilter_cache() -> None:
     _CACHE.clear()
 
 
-def sample_specular(pre: PrefilteredEnvironment, refl: torch.Tensor,
-                    roughness: torch.Tensor) -> torch.Tensor:
-    """Prefiltered radiance ``S(R, r)``, linear in roughness between levels. Shapes [N,3],[N]->[N,3]
-    (also read by gspi.light, which fits materials with this shader's own terms)."""
+def _sample_specular(pre: PrefilteredEnvironment, refl: torch.Tensor,
+                     roughness: torch.Tensor) -> torch.Tensor:
+    """Prefiltered radiance, linear in roughness between levels. Shapes [N,3],[N]->[N,3]."""
     levels = torch.tensor(pre.level_roughness, device=refl.device, dtype=refl.dtype)
     idx = (torch.searchsorted(levels, roughness.contiguous(), right=True) - 1)
     idx = idx.clamp(0, len(pre.level_roughness) - 2)
@@ -269,5 +267,5 @@ def split_sum(albedo: torch.Tensor, roughness: torch.Tensor, metallic: torch.Ten
     irr = sample_latlong(pre.irradiance.to(alb.device), n)
     diffuse = alb * (1 - metal) * irr / math.pi
     a, b = lookup_dfg(pre.lut, n_dot_v, rough)
-    specular = sample_specular(pre, refl, rough) * (f0 * a[:, None] + b[:, None])
+    specular = _sample_specular(pre, refl, rough) * (f0 * a[:, None] + b[:, None])
     return (diffuse + specular).reshape(*lead, 3).to(albedo.dtype)

@@ -1,6 +1,6 @@
 """method=light_fit end to end on the micro dataset (Stage 0 -> I -> the light read-out -> III ->
 eval): the light it names is one of its candidates, ranked first. (Whether it is the scene's own is
-measured where the views are large enough to tell: experiments/light_fit, identify.py; a 32-px
+measured on the held-out pool, where the views are large enough to tell; a 32-px
 micro scene's 5-iteration asset is not.)"""
 from __future__ import annotations
 

@@ -4,8 +4,10 @@ that let the per-point material fit (``gspi.light.readout``) explain the observa
 Each hypothesis is scored by the mean over points of the best cell's relative residual (a wrong
 light leaves every material a poor fit: issue 66 measured the true one first in 16 of 16
 scenes). The search is coarse to fine: every candidate at ``COARSE_ROTATIONS`` turns and
-``COARSE_GAINS``, then the ``REFINE_TOP`` best candidates around their best turn and gain.
-``margin`` (second-best candidate's score over the best's, >= 1) says how sure the choice is.
+``COARSE_GAINS`` on a coarse material grid (``COARSE_ROUGHNESS``; the environment is sampled once
+per turn, the gains only rescale the observations), then the ``REFINE_TOP`` best candidates
+around their best turn and gain on the finer ``IDENTIFY_ROUGHNESS``. ``margin`` (the second
+candidate's score over the best's, >= 1) says how sure the choice is.
 """
 from __future__ import annotations
 
@@ -17,16 +19,17 @@ import torch
 
 from eval.relight import PrefilteredEnvironment
 from gspi.light.observations import PointViews
-from gspi.light.readout import fit_terms
+from gspi.light.readout import grid_at_gain, grid_sums
 from gspi.light.shading import view_terms
 
+COARSE_ROUGHNESS = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0)
 IDENTIFY_ROUGHNESS = tuple(k / 10 for k in range(11))
 COARSE_ROTATIONS = tuple(15.0 * k for k in range(24))
-COARSE_GAINS = tuple(2.0 ** (k / 2) for k in range(-4, 5))   # 0.25 .. 4
-REFINE_TOP = 3
+COARSE_GAINS = (0.25, 0.5, 1.0, 2.0, 4.0)
+REFINE_TOP = 2
 REFINE_ROTATIONS = (-10.0, -7.5, -5.0, -2.5, 0.0, 2.5, 5.0, 7.5, 10.0)
-REFINE_GAINS = tuple(2.0 ** (k / 8) for k in range(-2, 3))
-MAX_POINTS = 2000
+REFINE_GAINS = tuple(2.0 ** (k / 4) for k in range(-2, 3))   # x0.71 .. x1.41
+MAX_POINTS = 600
 
 
 @dataclass(frozen=True)
@@ -58,18 +61,21 @@ class LightEstimate:
         return self.best.gain
 
 
-def score(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gains) -> list[float]:
+def score(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gains,
+          roughness=IDENTIFY_ROUGHNESS) -> list[float]:
     """The score of ``pre`` turned by ``rotation_deg`` at each gain of ``gains``."""
-    rough = torch.as_tensor(IDENTIFY_ROUGHNESS, dtype=torch.float32)
+    rough = torch.as_tensor(roughness, dtype=torch.float32)
     terms = view_terms(pre, obs.normal[obs.point], obs.view_dir, rough, rotation_deg=rotation_deg)
+    sums = grid_sums(obs, terms, rough)
     seen = obs.views_per_point() > 0
-    return [float(fit_terms(obs, terms, rough, gain=g).best_error()[seen].mean()) for g in gains]
+    return [float(grid_at_gain(sums, g).best_error()[seen].mean()) for g in gains]
 
 
-def _best(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, gains) -> Hypothesis:
+def _best(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, gains,
+          roughness=IDENTIFY_ROUGHNESS) -> Hypothesis:
     best = None
     for rot in rotations:
-        for g, s in zip(gains, score(obs, pre, float(rot) % 360.0, gains)):
+        for g, s in zip(gains, score(obs, pre, float(rot) % 360.0, gains, roughness)):
             if best is None or s < best.score:
                 best = Hypothesis(name, float(rot) % 360.0, float(g), s)
     return best
@@ -88,7 +94,7 @@ def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironm
     if len(seen) > max_points:
         seen = np.sort(np.random.default_rng(seed).choice(seen, max_points, replace=False))
     sub = obs.subset(seen)
-    coarse = sorted((_best(sub, name, pre, rotations, gains) for name, pre in candidates.items()),
+    coarse = sorted((_best(sub, name, pre, rotations, gains, COARSE_ROUGHNESS) for name, pre in candidates.items()),
                     key=lambda h: h.score)
     refined = [_best(sub, h.env, candidates[h.env], [h.rotation_deg + d for d in REFINE_ROTATIONS],
                      [h.gain * f for f in REFINE_GAINS]) for h in coarse[:REFINE_TOP]]

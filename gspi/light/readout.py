@@ -60,28 +60,56 @@ def fit_grid(obs: PointViews, pre: PrefilteredEnvironment, *, roughness=ROUGHNES
     return fit_terms(obs, terms, rough, metallic, gain=gain)
 
 
+@dataclass(frozen=True)
+class GridSums:
+    """Per point, per cell and channel, the sums over its views that fix the least-squares albedo
+    and the residual at any gain g (observations read as c / g): with P, Q the affine terms,
+    ``a = (cP / g - QP) / PP`` and ``|c/g - aP - Q|^2 = cc/g^2 + a^2 PP + QQ - 2a cP/g - 2 cQ/g + 2a QP``.
+    Trying a gain then costs no pass over the observations. float64: the expansion cancels."""
+
+    cc: Tensor   # [n] sum of |c|^2 over channels
+    cp: Tensor   # [n, R, K, 3] sum c P
+    cq: Tensor   # [n, R, K, 3] sum c Q
+    pp: Tensor   # [n, R, K, 3] sum P^2
+    qq: Tensor   # [n, R, K, 3] sum Q^2
+    qp: Tensor   # [n, R, K, 3] sum Q P
+    views: Tensor
+    roughness: Tensor
+    metallic: Tensor
+
+
+def grid_sums(obs: PointViews, terms: ViewTerms, roughness: Tensor, metallic=METALLIC_GRID) -> GridSums:
+    """The sums of ``GridSums`` from the shader's terms at the observations."""
+    n, idx = obs.num_points, obs.point
+    c = obs.colour.double()
+    parts: dict[str, list[Tensor]] = {k: [] for k in ("cp", "cq", "pp", "qq", "qp")}
+    for m in metallic:
+        p, q = (t.double().transpose(0, 1) for t in affine_coefficients(terms, float(m)))  # [M, R, 3]
+        for key, value in (("cp", c[:, None] * p), ("cq", c[:, None] * q), ("pp", p * p), ("qq", q * q),
+                           ("qp", q * p)):
+            parts[key].append(_sum_per_point(value, idx, n))
+    stacked = {k: torch.stack(v, dim=2) for k, v in parts.items()}   # [n, R, K, 3]
+    return GridSums(cc=_sum_per_point(c.pow(2).sum(-1), idx, n), views=torch.bincount(idx, minlength=n),
+                    roughness=roughness, metallic=torch.as_tensor(metallic, dtype=torch.float32), **stacked)
+
+
+def grid_at_gain(sums: GridSums, gain: float = 1.0) -> MaterialGrid:
+    """The ``MaterialGrid`` of the observations read as ``gain * shade``."""
+    inv = 1.0 / float(gain)
+    albedo = ((sums.cp * inv - sums.qp) / sums.pp.clamp_min(_EPS)).clamp(0.0, 1.0)
+    resid = (sums.cc[:, None, None, None] / 3 * inv * inv + albedo.pow(2) * sums.pp + sums.qq
+             - 2 * albedo * sums.cp * inv - 2 * sums.cq * inv + 2 * albedo * sums.qp).sum(-1).clamp_min(0.0)
+    energy = (sums.cc * inv * inv).clamp_min(_EPS)
+    error = (resid / energy[:, None, None]).float()
+    error[sums.views == 0] = 1.0
+    return MaterialGrid(error=error, albedo=albedo.float(), roughness=sums.roughness, metallic=sums.metallic,
+                        views=sums.views)
+
+
 def fit_terms(obs: PointViews, terms: ViewTerms, roughness: Tensor, metallic=METALLIC_GRID, *,
               gain: float = 1.0) -> MaterialGrid:
-    """``fit_grid`` from the shader's terms already evaluated at the observations (so a light's
-    gains are tried without sampling the environment again)."""
-    colour = obs.colour / float(gain)
-    n, idx = obs.num_points, obs.point
-    energy = _sum_per_point(colour.pow(2).sum(-1), idx, n)                       # [n]
-    errors, albedos = [], []
-    for m in metallic:
-        p, q = affine_coefficients(terms, float(m))                              # [R, M, 3]
-        num = _sum_per_point(((colour[None] - q) * p).transpose(0, 1), idx, n)   # [n, R, 3]
-        den = _sum_per_point(p.pow(2).transpose(0, 1), idx, n)
-        albedo = (num / den.clamp_min(_EPS)).clamp(0.0, 1.0)
-        resid = colour[None] - albedo[idx].transpose(0, 1) * p - q               # [R, M, 3]
-        err = _sum_per_point(resid.pow(2).sum(-1).transpose(0, 1), idx, n)      # [n, R]
-        errors.append(err / energy[:, None].clamp_min(_EPS))
-        albedos.append(albedo)
-    views = torch.bincount(idx, minlength=n)
-    error = torch.stack(errors, dim=2)
-    error[views == 0] = 1.0
-    return MaterialGrid(error=error, albedo=torch.stack(albedos, dim=2), roughness=roughness,
-                        metallic=torch.as_tensor(metallic, dtype=torch.float32), views=views)
+    """``fit_grid`` from the shader's terms already evaluated at the observations."""
+    return grid_at_gain(grid_sums(obs, terms, roughness, metallic), gain)
 
 
 def _sum_per_point(values: Tensor, index: Tensor, n: int) -> Tensor:

@@ -16,14 +16,15 @@ lat-long map by k columns turns it by ``psi = -360 k / W`` (``rotate_latlong``).
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from eval.brdf_lut import lookup_dfg
-from eval.envmap import sample_latlong
-from eval.relight import PrefilteredEnvironment, sample_specular
+from eval.envmap import direction_to_pixel
+from eval.relight import PrefilteredEnvironment
 
 DIELECTRIC_F0 = 0.04  # the shader's F0 of a dielectric (eval.relight)
 
@@ -59,6 +60,43 @@ def rotate_latlong(envmap: Tensor, columns: int) -> Tensor:
     return torch.roll(envmap, shifts=int(columns), dims=1)
 
 
+class _LatLongSampler:
+    """Bilinear lookups of lat-long maps of any size at one set of directions, the angles computed
+    once (``eval.envmap.sample_latlong`` recomputes them per call; a grid fit reads ~20 maps at the
+    same directions). Same convention and interpolation as ``sample_latlong`` (tested equal)."""
+
+    def __init__(self, directions: Tensor):
+        row1, col1 = direction_to_pixel(directions.to(torch.float32), 1, 1)  # the map-size-free coordinates
+        self.row_frac, self.col_frac = row1 + 0.5, col1 + 0.5
+
+    def __call__(self, envmap: Tensor) -> Tensor:
+        h, w, ch = envmap.shape
+        row = (self.row_frac * h - 0.5).clamp(0.0, h - 1.0)
+        col = self.col_frac * w - 0.5
+        r0f, c0f = torch.floor(row), torch.floor(col)
+        fr, fc = (row - r0f)[:, None], (col - c0f)[:, None]
+        r0 = r0f.long()
+        r1 = (r0 + 1).clamp(max=h - 1)
+        c0 = torch.remainder(c0f.long(), w)
+        c1 = torch.remainder(c0 + 1, w)
+        flat = envmap.reshape(h * w, ch)
+        top = flat[r0 * w + c0] + (flat[r0 * w + c1] - flat[r0 * w + c0]) * fc
+        bot = flat[r1 * w + c0] + (flat[r1 * w + c1] - flat[r1 * w + c0]) * fc
+        return top + (bot - top) * fr
+
+
+def _specular_at(pre: PrefilteredEnvironment, sample: _LatLongSampler, roughness: float) -> Tensor:
+    """``eval.relight``'s specular lookup at one roughness: its two bracketing levels, interpolated."""
+    levels = pre.level_roughness
+    k = min(max(bisect_right(levels, roughness) - 1, 0), len(levels) - 2)
+    t = min(max((roughness - levels[k]) / (levels[k + 1] - levels[k]), 0.0), 1.0)
+    if t == 0.0:
+        return sample(pre.specular[k])
+    if t == 1.0:
+        return sample(pre.specular[k + 1])
+    return (1 - t) * sample(pre.specular[k]) + t * sample(pre.specular[k + 1])
+
+
 def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, roughness: Tensor, *,
                rotation_deg: float = 0.0) -> ViewTerms:
     """E, S, A, B at observations with unit ``normal`` and ``view_dir`` [M, 3] (surface -> camera),
@@ -68,16 +106,13 @@ def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, ro
     n_dot_wo = (n * wo).sum(-1, keepdim=True)
     refl = 2 * n_dot_wo * n - wo
     n_dot_v = n_dot_wo[:, 0].clamp(1e-4, 1.0)
-    diffuse = sample_latlong(pre.irradiance, n) / math.pi
-    spec, dfg_a, dfg_b = [], [], []
-    for r in roughness.tolist():
-        rk = torch.full((len(n),), float(r), dtype=n.dtype)
-        spec.append(sample_specular(pre, refl, rk.clamp(0, 1)))
-        a, b = lookup_dfg(pre.lut, n_dot_v, rk.clamp(0, 1))
-        dfg_a.append(a)
-        dfg_b.append(b)
-    return ViewTerms(diffuse=diffuse, specular=torch.stack(spec), dfg_a=torch.stack(dfg_a),
-                     dfg_b=torch.stack(dfg_b))
+    diffuse = _LatLongSampler(n)(pre.irradiance) / math.pi
+    at_refl = _LatLongSampler(refl)
+    rough = [min(max(float(r), 0.0), 1.0) for r in roughness.tolist()]
+    spec = torch.stack([_specular_at(pre, at_refl, r) for r in rough])
+    grid = torch.tensor(rough, dtype=n_dot_v.dtype)[:, None].expand(len(rough), len(n_dot_v))
+    dfg_a, dfg_b = lookup_dfg(pre.lut, n_dot_v[None].expand_as(grid), grid)
+    return ViewTerms(diffuse=diffuse, specular=spec, dfg_a=dfg_a, dfg_b=dfg_b)
 
 
 def affine_coefficients(terms: ViewTerms, metallic: float) -> tuple[Tensor, Tensor]:
