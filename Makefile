@@ -80,7 +80,7 @@ report-check: install
 # Every benchmark at its CPU defaults, one torch thread each (~7 min on the 2-core VM; bench_pipeline
 # generates the demo's data and runs GS-PI and joint IR on one scene, ~3 min); each
 # prints the machine it ran on. Paper sizes: see each module's docstring (--paper, --sizes 512).
-BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage2_train bench_stage3 bench_flatten3dgs \
+BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage2_train bench_stage3 bench_flatten3dgs bench_light \
   bench_pipeline
 bench: install
 	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done

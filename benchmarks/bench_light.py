@@ -1,0 +1,75 @@
+"""Time of the light estimate and the per-point read-out at a `small` scene's size, one thread:
+20 000 points seen by 14 views each (the lattice's median), the 8 procedural capture environments
+as candidates at 64 rows (``stage2.data.light_env_height`` / ``method.env_height``), the views
+shaded by the split-sum shader under one of them turned and scaled. Target (issue 66): estimate +
+read-out <= 20 s a scene. Prints the medians, the machine and whether the light was found.
+
+    python -m benchmarks.bench_light [--repeats 3]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from benchmarks.common import machine, median_seconds
+from eval.relight import prefilter_environment, split_sum
+from gspi.data.environments import CAPTURE_ENVS, make_environment
+from gspi.light.estimate import estimate_light
+from gspi.light.observations import PointViews
+from gspi.light.readout import fit_grid, pool_neighbours, read_posterior
+from gspi.light.shading import turn_directions
+
+NUM_POINTS, VIEWS, ENV_HEIGHT = 20_000, 14, 64
+TRUTH, TURN, GAIN = "window_room", 75.0, 1.3
+
+
+def scene(pre) -> PointViews:
+    g = torch.Generator().manual_seed(0)
+    normal = torch.nn.functional.normalize(torch.randn(NUM_POINTS, 3, generator=g), dim=-1)
+    point = torch.arange(NUM_POINTS).repeat_interleave(VIEWS)
+    n = normal[point]
+    d = torch.nn.functional.normalize(n + 0.9 * torch.nn.functional.normalize(torch.randn(len(point), 3, generator=g), dim=-1), dim=-1)
+    d = torch.where((d * n).sum(-1, keepdim=True) > 0.15, d, n)
+    rough = torch.rand(NUM_POINTS, generator=g)[point, None]
+    metal = (torch.rand(NUM_POINTS, generator=g) > 0.5).float()[point, None]
+    albedo = torch.rand(NUM_POINTS, 3, generator=g)[point]
+    colour = GAIN * split_sum(albedo, rough, metal, turn_directions(n, TURN), turn_directions(d, TURN), pre)
+    return PointViews(point=point, colour=colour, view_dir=d, normal=normal, xyz=normal.clone())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    candidates = {name: prefilter_environment(make_environment(name, ENV_HEIGHT)) for name in CAPTURE_ENVS}
+    prefilter_s = time.perf_counter() - t0
+    obs = scene(candidates[TRUTH])
+    found = {}
+
+    def estimate() -> None:
+        found["light"] = estimate_light(obs, candidates)
+
+    def readout() -> None:
+        est = found["light"]
+        grid = fit_grid(obs, candidates[est.env], rotation_deg=est.rotation_deg, gain=est.gain)
+        read_posterior(grid, pool_neighbours(grid, obs.xyz))
+
+    t_est = median_seconds(estimate, repeats=args.repeats, warmup=0)
+    t_read = median_seconds(readout, repeats=args.repeats, warmup=0)
+    est = found["light"]
+    print(f"machine: {machine()}; one torch thread")
+    print(f"candidates: {len(candidates)} procedural capture environments at {ENV_HEIGHT} rows, prefiltered "
+          f"once per run in {prefilter_s:.1f} s")
+    print(f"light estimate ({est.env} turned {est.rotation_deg:.1f} deg x{est.gain:.2f}; truth {TRUTH} "
+          f"{TURN:.0f} deg x{GAIN}; margin {est.margin:.1f}): median {t_est:.2f} s")
+    print(f"read-out of {NUM_POINTS} points x {VIEWS} views (grid fit, 16-neighbour pooling, posterior): "
+          f"median {t_read:.2f} s")
+    print(f"estimate + read-out: {t_est + t_read:.2f} s a scene (issue 66's target: <= 20 s)")
+
+
+if __name__ == "__main__":
+    main()
