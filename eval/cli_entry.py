@@ -2,7 +2,7 @@
 aliases rewritten by the one table ``eval.argv.ALIASES``, its path keys quoted for Hydra's grammar (``eval.argv``), the command line checked
 against the config before Hydra starts (``eval.cli_precheck``: missing required keys, bad
 overrides), its task run under ``@hydra.main`` with stated errors as one line and Ctrl-C as one line with exit
-130 (``eval.errors``).
+130 (``eval.errors``); ``--help``/``-h`` prints the tool's own usage (``eval.cli_help``).
 
     main = hydra_cli(run_task, "gspi_extract", path_keys=("asset", "out", "scene"))
 """
@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from eval.argv import apply_aliases, quote_path_overrides
+from eval.cli_help import usage, wants_help
 from eval.config import CONF_DIR
 from eval.errors import StatedError, exit_on_stated_error, print_stated_error, run_command
 
@@ -40,6 +41,9 @@ def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = 
         exit_on_stated_error(guarded))
 
     def start() -> None:
+        if wants_help(sys.argv[1:]):  # the tool's own keys, not Hydra's banner (eval/cli_help.py)
+            print(usage(CONF_DIR, config_name))
+            return
         argv = apply_aliases(sys.argv[1:], config_name)  # the one alias table (eval.argv.ALIASES)
         argv = argv if rewrite is None else rewrite(argv)
         argv = quote_path_overrides(argv, path_keys)

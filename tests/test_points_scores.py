@@ -59,8 +59,8 @@ def test_rows_cells_and_delta(folders):
     table = build_sweep_table(load_sources([folders], ("table2",)), TABLE_SPECS["table2"],
                               bootstrap={"n": 2000, "seed": 1})
     assert table.labels == ["No decomposition", "A1: w/o global semantic prior", "A3: N_pts = 1024",
-                            "Ours (Full)"]
-    for ablation, label in (("full", "Ours (Full)"), ("a1_no_global_prior", "A1: w/o global semantic prior")):
+                            "GS-PI (ours, Full)"]
+    for ablation, label in (("full", "GS-PI (ours, Full)"), ("a1_no_global_prior", "A1: w/o global semantic prior")):
         values = np.array(list(units(lambda s, c: psnr(ablation, s, c)).values()))
         assert table.mean.loc[label, "psnr/avg"] == pytest.approx(values.mean())
         assert table.sem.loc[label, "psnr/avg"] == pytest.approx(values.std(ddof=1) / 2.0)

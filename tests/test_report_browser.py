@@ -94,8 +94,8 @@ def test_report_in_headless_chromium(report, chromium, tmp_path):
     with Browser(chromium) as browser:
         check_site(browser, report.out, tmp_path, "report")
         browser.open(report.index)
-        assert sorted(browser.evaluate(ROWS)) == ["Joint IR (GS-IR-style)", "No decomposition",
-                                                  "Ours"]
+        assert sorted(browser.evaluate(ROWS)) == ["GS-PI (ours)", "Joint IR (GS-IR-style)",
+                                                  "No decomposition"]
         browser.open(report.scene_pages["sphere_1"])   # joint_ir has no sphere_1: tiles say so
         assert browser.evaluate("document.querySelectorAll('.missing').length") >= 12
     assert (tmp_path / "report_scene.png").stat().st_size > 10_000

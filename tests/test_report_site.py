@@ -27,7 +27,7 @@ def site(tmp_path_factory, lpips_net):
 def test_collect_lists_complete_failed_killed(sweep):
     jobs, problems = collect_jobs([sweep])
     assert [j.label for j in jobs] == ["Joint IR (GS-IR-style)", "No decomposition",
-                                       "A6: w/o distill", "Ours", "Ours (Full)"]  # paper order
+                                       "A6: w/o distill", "GS-PI (ours)", "GS-PI (ours, Full)"]  # paper order
     assert all(j.data == (sweep.parent / "data").resolve() for j in jobs)  # "data" found upward
     kinds = sorted(p.kind for p in problems)
     assert kinds == ["failed", "killed", "scene failed"]

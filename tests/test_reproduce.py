@@ -235,16 +235,60 @@ def test_the_cpu_rate_of_each_variant_comes_from_its_runs_folder_chunks(tmp_path
     assert cpu_seconds_per_step(tmp_path / "none.jsonl", "runs_fast") == {}
 
 
-def test_the_dry_run_sums_what_the_estimated_trainings_still_cost(tmp_path):
+def test_the_estimate_line_sums_every_step_by_what_it_does(tmp_path):
     from gspi.reproduce.plan import cost_line
 
     s = lambda name, cost: Step(name, tmp_path / name, touch_command(tmp_path / name),  # noqa: E731
                                 cpu_s_left=(lambda: cost))
-    line = cost_line([s("train: a", 3600.0), s("train: b", 1800.0), s("train: c", None),
+    line = cost_line([s("data: pool", 1800.0), s("stage 0: pool (recon=fast)", 3600.0), s("train: a", 3600.0),
+                      s("train: b", 1800.0), s("train: c", None), s("table1: sweep (seeds 1)", 60.0),
                       Step("table", tmp_path / "t", touch_command(tmp_path / "t"))])
-    assert line == ("~1.5 CPU-hours for 2 of 3 training step(s) (each variant's CPU-seconds per step in the "
-                    "run log); no rate yet for train: c")
-    assert cost_line([Step("table", tmp_path / "t", touch_command(tmp_path / "t"))]) == ""  # nothing to say
+    assert line.startswith("estimate: ~3.0 CPU-h for 5 of 7 step(s) listed (data 30 CPU-min, stage 0 1.0 CPU-h, "
+                           "train 1.5 CPU-h, sweep 1 CPU-min); wall time: ")
+    assert line.endswith("; no estimate for train: c, table")
+
+
+REPRODUCE_FILES = sorted(p.stem for p in (ROOT / "conf" / "reproduce").glob("table*_*.yaml"))
+
+
+@pytest.mark.parametrize("name", REPRODUCE_FILES)
+def test_every_table_and_scale_estimates_every_step_it_lists(name, tmp_path, monkeypatch, capsys):
+    """The dry run prints each step's estimate and their sum: data, Stage 0, trainings, measures and
+    the table all counted (issue 68: the data and Stage 0 steps were left out, smoke had none). An
+    empty scores folder, so Tables 1 and 3 list their sweeps too."""
+    from gspi.reproduce.plan import format_cpu, step_costs
+
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    table, scale = name[5], name.split("_", 1)[1]
+    argv = [f"table={table}", f"scale={scale}", f"data_root={tmp_path}", f"scores_dir={tmp_path / 'scores'}"]
+    assert cli.main([*argv, "dry_run=true"]) == 0
+    out = capsys.readouterr().out
+    steps = [s for s in cli.plan(argv)[0] if not s.is_done()]
+    costs = step_costs(steps)
+    assert all(c is not None and c > 0 for c in costs.values()), costs
+    for step in steps:
+        assert f"{step.name} [{format_cpu(costs[step.name])}]: " in out
+    total = next(line for line in out.splitlines() if line.startswith("estimate: "))
+    assert total.startswith(f"estimate: {format_cpu(sum(costs.values()))} for {len(steps)} of {len(steps)} step(s)")
+    assert "no estimate" not in out
+    kinds = {s.name.split(":")[0].split(" (")[0] for s in steps}
+    assert ({"data", "stage 0", "train", "measure", "table"} if table == "2" else {"data", "table"}) <= kinds
+
+
+def test_the_table2_estimate_counts_its_scenes_and_the_run_logs_rates(tmp_path, monkeypatch):
+    """Data and Stage 0 scale with the pools' scenes (gspi/reproduce/costs.py), a training with its
+    variant's CPU-seconds per step in the run log."""
+    from gspi.reproduce.costs import rate
+    from gspi.reproduce.plan import step_costs
+
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    argv = [f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={tmp_path / 'scores'}", "seeds=[5]",
+            "variants=[full]", "kept_state=null"]
+    costs = step_costs(cli.plan(argv)[0])
+    assert costs["data: training pool"] == pytest.approx(224 * rate("cpu", "data: pool").cpu_s)
+    assert costs["stage 0: held-out scenes (recon=fast)"] == pytest.approx(32 * rate("cpu", "stage 0").cpu_s)
+    assert costs["measure: full_s5"] == pytest.approx(32 * rate("cpu", "measure").cpu_s)
+    assert 1800 < costs["train: full_s5"] < 5 * 3600  # the run log: 50-130 CPU-min a Full training
 
 
 def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
@@ -292,7 +336,7 @@ def test_table2_smoke_end_to_end_gives_a_table_with_cis_and_then_nothing_to_do(t
     proc = reproduce("table=2", "scale=smoke", "seeds=[0]", f"data_root={tmp_path}")  # one seed: CI's time
     assert proc.returncode == 0, proc.stderr[-3000:]
     table = (tmp_path / "reproduce" / "table2_smoke" / "tables" / "table2.md").read_text()
-    assert "Ours (Full)" in table and "A1: w/o global semantic prior" in table
+    assert "GS-PI (ours, Full)" in table and "A1: w/o global semantic prior" in table
     a1_row = table.split("A1:")[1].split("\n")[0]
     assert "| 2 |" in a1_row and "[" in a1_row  # 2 scenes x 1 seed, a bootstrap CI against Full
     assert "done: table 2 at scale smoke" in proc.stdout

@@ -110,17 +110,17 @@ class TestTable2:
         assert table.labels == ["A1: w/o global semantic prior",
                                 "A2: w/o view-direction conditioning signal", "A3: N_pts = 1024",
                                 "A4: N_pts = 1024, N_lat = 384",
-                                "A5: Direct multi-view injection", "Ours (Full)"]
+                                "A5: Direct multi-view injection", "GS-PI (ours, Full)"]
 
     def test_best_and_second_marks(self, tmp_path):
         table = _build(table2_sweep(tmp_path))
         marks = table.marks["psnr/avg"]
-        assert marks["Ours (Full)"] == 1
+        assert marks["GS-PI (ours, Full)"] == 1
         assert marks["A2: w/o view-direction conditioning signal"] == 2
         assert (marks == 0).sum() == 4
-        assert table.marks["lpips/avg"]["Ours (Full)"] == 1  # lower is better
+        assert table.marks["lpips/avg"]["GS-PI (ours, Full)"] == 1  # lower is better
         md = to_markdown(table, load_sweep([tmp_path]))
-        full_row = next(line for line in md.splitlines() if line.startswith("| Ours (Full)"))
+        full_row = next(line for line in md.splitlines() if line.startswith("| GS-PI (ours, Full)"))
         assert full_row.count("**") == 6 and "reference" in full_row
         tex = to_latex(table, load_sweep([tmp_path]))
         assert r"\cellcolor{BaselineBestCell}\textbf{" in tex
@@ -134,7 +134,7 @@ class TestTable2:
         got = table.delta.loc[label]
         assert (got["mean"], got["lo"], got["hi"]) == pytest.approx(expected)
         assert got["n_pairs"] == 6 and got["lo"] <= got["mean"] <= got["hi"]
-        assert "Δ PSNR vs Ours (Full) [95% CI]" in to_markdown(table, load_sweep([tmp_path]))
+        assert "Δ PSNR vs GS-PI (ours, Full) [95% CI]" in to_markdown(table, load_sweep([tmp_path]))
 
     def test_per_scene_breakdown_is_the_seed_mean(self, tmp_path):
         table = _build(table2_sweep(tmp_path))
@@ -154,7 +154,7 @@ class TestTable2:
         frame = pd.read_csv(io.StringIO(to_csv(table)))
         assert {"psnr/avg/mean", "psnr/avg/sem", "psnr/avg/n", "delta_psnr/avg/lo"} <= set(frame)
         row = frame.set_index("ablation").loc["full"]
-        assert row["psnr/avg/mean"] == pytest.approx(table.mean.loc["Ours (Full)", "psnr/avg"])
+        assert row["psnr/avg/mean"] == pytest.approx(table.mean.loc["GS-PI (ours, Full)", "psnr/avg"])
 
 
 class TestFailedKilledAndDuplicateJobs:
@@ -183,8 +183,8 @@ class TestFailedKilledAndDuplicateJobs:
         assert any("kept the newest" in n for n in sweep.notes)
         table = build_sweep_table(sweep, TABLE_SPECS["table2"])
         want = np.mean(list(expected_units("full", 1.0, 0, seeds=(0,)).values()))
-        assert table.mean.loc["Ours (Full)", "psnr/avg"] == pytest.approx(want)
-        assert table.count.loc["Ours (Full)", "psnr/avg"] == len(SCENES)
+        assert table.mean.loc["GS-PI (ours, Full)", "psnr/avg"] == pytest.approx(want)
+        assert table.count.loc["GS-PI (ours, Full)", "psnr/avg"] == len(SCENES)
 
     def test_rerun_completes_the_table_with_no_loss_and_no_duplicates(self, tmp_path):
         first, second = tmp_path / "sweep1", tmp_path / "sweep2"
@@ -219,7 +219,7 @@ class TestFailedKilledAndDuplicateJobs:
         write_job(tmp_path, "t3", config_hash="same", table="table3", measure="material")
         sweep = load_sweep([tmp_path])
         assert len(sweep.records) == 2 and not sweep.notes
-        assert _build(tmp_path, "table3").labels == ["Ours (Full)"]
+        assert _build(tmp_path, "table3").labels == ["GS-PI (ours, Full)"]
 
     def test_two_configurations_of_one_run_are_refused(self, tmp_path):
         write_job(tmp_path, "a", config_hash="aaa")
@@ -278,7 +278,7 @@ class TestTables1And3:
                 write_job(tmp_path, f"{abl}_{seed}", ablation=abl, seed=seed, offset=off,
                           table="table3", measure="material", channels=MATERIAL + ("relight",))
         table = _build(tmp_path, "table3")
-        assert table.labels == ["A6: w/o distill", "A9: Freeze opacity & scaling", "Ours (Full)"]
+        assert table.labels == ["A6: w/o distill", "A9: Freeze opacity & scaling", "GS-PI (ours, Full)"]
         units = np.array(list(expected_units("a6_no_distill", -2.0, 1, 100).values()))
         assert table.mean.loc["A6: w/o distill", "ssim/avg"] == pytest.approx(units.mean())
         assert table.marks.loc["A9: Freeze opacity & scaling", "psnr/avg"] == 2
@@ -294,14 +294,14 @@ class TestTables1And3:
                   measure="material", channels=("albedo", "relight"), offset=-1.0,
                   runtime=(0.1, 5.1))
         table = _build(tmp_path, "table1")
-        assert table.labels == ["GS-IR", "No decomposition", "Ours"]
+        assert table.labels == ["GS-IR", "No decomposition", "GS-PI (ours)"]
         assert np.isnan(table.mean.loc["GS-IR", "psnr/metallic"])
-        assert table.mean.loc["Ours", "minutes/material"] == pytest.approx(5.4)
+        assert table.mean.loc["GS-PI (ours)", "minutes/material"] == pytest.approx(5.4)
         assert table.marks.loc["No decomposition", "minutes/material"] == 1
         md = to_markdown(table, load_sweep([tmp_path]))
         nodec = next(line for line in md.splitlines() if line.startswith("| No decomposition"))
         assert nodec.count("| -- ") == 6 and "0.1" in nodec
-        assert "Δ PSNR relight vs Ours" in md
+        assert "Δ PSNR relight vs GS-PI (ours)" in md
         d = paired_bootstrap_ci(
             {(s, 0): scores("full", s, 0, "relight", -1.0)[0] for s in SCENES},
             {(s, 0): scores("full", s, 0, "relight", 3.0)[0] for s in SCENES})
@@ -413,7 +413,7 @@ def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net)
                            & (sweep.values["channel"] == "material")]
     assert len(minutes) == 8 and (minutes["value"] == 1.0).all()  # pred meta.json: 60 s a scene
     table = build_sweep_table(sweep, TABLE_SPECS["table3"], bootstrap={"n": 200})
-    for ablation, label in (("full", "Ours (Full)"), ("a6_no_distill", "A6: w/o distill")):
+    for ablation, label in (("full", "GS-PI (ours, Full)"), ("a6_no_distill", "A6: w/o distill")):
         units = np.array(expected[ablation])
         assert table.mean.loc[label, "ssim/avg"] == pytest.approx(units.mean(), rel=1e-9)
         assert table.sem.loc[label, "ssim/avg"] == pytest.approx(
@@ -423,8 +423,8 @@ def test_table3_from_real_gspi_eval_folders(sphere_dataset, tmp_path, lpips_net)
     psnr = pd.concat(pd.read_csv(tmp_path / "sweep" / f"full_{s}" / "eval" / "per_view.csv")
                      for s in (0, 1))
     assert np.allclose(psnr.loc[psnr["channel"] == "metallic", "psnr"], cap, rtol=0, atol=1e-9)
-    assert np.isfinite(table.mean.loc["Ours (Full)", "psnr/avg"])
-    assert table.count.loc["Ours (Full)", "psnr/avg"] == 4  # 2 scenes x 2 seeds
+    assert np.isfinite(table.mean.loc["GS-PI (ours, Full)", "psnr/avg"])
+    assert table.count.loc["GS-PI (ours, Full)", "psnr/avg"] == 4  # 2 scenes x 2 seeds
     md = to_markdown(table, sweep)
     assert "inf" not in md.replace("info", "")
     assert not np.isnan(table.delta.loc["A6: w/o distill", "mean"])
@@ -444,7 +444,7 @@ def test_row_labels_come_from_the_paper_ids():
     assert row_label("gspi", "a10_new_idea", "table3") == "a10_new_idea"  # never dropped
     assert row_label("no_decomposition", "full", "table2") == "No decomposition"
     assert row_label("gs_ir", "full", "table1") == "GS-IR"
-    assert row_label("gspi", "a6_no_distill", "table1") == "Ours [a6_no_distill]"
+    assert row_label("gspi", "a6_no_distill", "table1") == "GS-PI (ours) [a6_no_distill]"
     rows = [("gspi", "full"), ("gspi", "a2_x"), ("gs_ir", "full"), ("gspi", "a1_y")]
     assert sorted(rows, key=lambda r: row_order(*r)) == \
         [("gs_ir", "full"), ("gspi", "a1_y"), ("gspi", "a2_x"), ("gspi", "full")]
@@ -494,10 +494,10 @@ class TestNaturalAblationSweep:
         root = self.natural_sweep(tmp_path / "sweep")
         for name, label in (("table2", "A1: w/o global semantic prior"), ("table3", "A6: w/o distill")):
             table = _build(root, name, n=200)
-            assert table.reference == "Ours (Full)" and table.labels[-1] == "Ours (Full)", table.labels
+            assert table.reference == "GS-PI (ours, Full)" and table.labels[-1] == "GS-PI (ours, Full)", table.labels
             lo, mean, hi = (table.delta.loc[label, k] for k in ("lo", "mean", "hi"))
             assert lo <= mean <= hi and mean < 0 and table.delta.loc[label, "n_pairs"] == 6
-        assert _build(root, "table1").labels == ["Ours"]  # Table 1 keeps its row too
+        assert _build(root, "table1").labels == ["GS-PI (ours)"]  # Table 1 keeps its row too
 
     def test_a_table_with_its_own_full_keeps_it(self, tmp_path):
         root = self.natural_sweep(tmp_path / "sweep")

@@ -20,7 +20,7 @@ METHOD_LABELS = {
     "joint_ir": "Joint IR (GS-IR-style)",
     "no_decomposition": "No decomposition",
     "light_fit": "Light read-out (training-free)",
-    "gspi": "Ours",
+    "gspi": "GS-PI (ours)",  # one name for the method in every table, terminal and docs alike
 }
 
 # Tables 2 and 3: paper ID -> the paper's row name (Table 2: A1-A5, Table 3: A6-A9).
@@ -35,7 +35,7 @@ ABLATION_LABELS = {
     "a8": "A8: Freeze scaling",
     "a9": "A9: Freeze opacity & scaling",
 }
-FULL_LABEL = "Ours (Full)"
+FULL_LABEL = "GS-PI (ours, Full)"
 
 
 def ablation_id(ablation: str) -> str | None:

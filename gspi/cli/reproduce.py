@@ -118,7 +118,15 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = sys.argv[1:] if argv is None else argv
     if any(a in ("-h", "--help", "help") for a in argv):
-        print(__doc__.strip())
+        from eval.cli_help import usage
+        from eval.config import CONF_DIR
+
+        # its own keys (conf/gspi_reproduce.yaml), the tables it knows, then the module's examples
+        tables = ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in available())
+        print(usage(CONF_DIR, "gspi_reproduce", groups=False, hydra=False) +
+              f"\n\ntables (table=N scale=S; any other key=value sets a key of that config): {tables}\n\n" +
+              "more examples:\n" + "\n".join("  " + line.strip() for line in __doc__.splitlines()
+                                                if line.startswith("    gspi-reproduce ")))
         return 0
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     prog = "gspi-reproduce"

@@ -189,13 +189,12 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
         state = "to do" if step in todo else ("done" if step.is_done() else "skipped (only=)")
         log.info("[%s] %s%s", state, step.name, f" ({how_far[step.name]})" if how_far.get(step.name) else "")
     if dry_run:
+        costs = step_costs(todo)
         for step in todo:
-            print(f"{step.name}: {step.describe()}")
+            print(f"{step.name} [{format_cpu(costs[step.name])}]: {step.describe()}")
         if begun:
             print("begun: " + "; ".join(begun))
-        cost = cost_line(todo)
-        if cost:
-            print(cost)
+        print(cost_line(todo, costs))
         return [s.name for s in todo]
     log_file.parent.mkdir(parents=True, exist_ok=True)
     ran: list[str] = []
@@ -212,18 +211,36 @@ def run_plan(steps: Sequence[Step], log_file: Path, *, only: Optional[Sequence[s
     return [s.name for s in todo if s.name in ran]
 
 
-def cost_line(todo: Sequence[Step]) -> str:
-    """What the estimated steps still cost: ``~H CPU-hours ...`` and the steps with no estimate
-    ("" when no step has an estimator)."""
-    estimated = [s for s in todo if s.cpu_s_left is not None]
-    if not estimated:
-        return ""
-    costs = {s.name: s.cpu_s_left() for s in estimated}
-    known = [c for c in costs.values() if c is not None]
-    unknown = [name for name, c in costs.items() if c is None]
-    line = (f"~{sum(known) / 3600:.1f} CPU-hours for {len(known)} of {len(costs)} training step(s) "
-            f"(each variant's CPU-seconds per step in the run log)")
-    return line + (f"; no rate yet for {', '.join(unknown)}" if unknown else "")
+def step_costs(todo: Sequence[Step]) -> dict[str, Optional[float]]:
+    """Each step's estimated CPU-seconds (``Step.cpu_s_left``; None: no estimate)."""
+    return {s.name: (s.cpu_s_left() if s.cpu_s_left is not None else None) for s in todo}
+
+
+def format_cpu(cpu_s: Optional[float]) -> str:
+    """``~1.7 CPU-h``, ``~12 CPU-min`` or ``~8 CPU-s``; ``no estimate`` for None."""
+    if cpu_s is None:
+        return "no estimate"
+    if cpu_s >= 3600:
+        return f"~{cpu_s / 3600:.1f} CPU-h"
+    return f"~{cpu_s / 60:.0f} CPU-min" if cpu_s >= 60 else f"~{cpu_s:.0f} CPU-s"
+
+
+def cost_line(todo: Sequence[Step], costs: Optional[dict[str, Optional[float]]] = None) -> str:
+    """The sum of the steps' estimates (every step listed), by what they do (the word before a
+    step name's ``:``), and the steps with no estimate."""
+    costs = step_costs(todo) if costs is None else costs
+    by_kind: dict[str, float] = {}
+    for name, cpu_s in costs.items():
+        if cpu_s is not None:
+            head, _, rest = name.partition(":")  # "stage 0: ..." -> stage 0; "table1: sweep (seeds 1)" -> sweep
+            kind = (rest if head.startswith("table") and rest else head).split(" (")[0].strip()
+            by_kind[kind] = by_kind.get(kind, 0.0) + cpu_s
+    unknown = [name for name, cpu_s in costs.items() if cpu_s is None]
+    parts = ", ".join(f"{kind} {format_cpu(cpu_s).lstrip('~')}" for kind, cpu_s in by_kind.items())
+    line = (f"estimate: {format_cpu(sum(by_kind.values()))} for {len(costs) - len(unknown)} of {len(costs)} "
+            f"step(s) listed" + (f" ({parts})" if parts else "") +
+            "; wall time: divide by the steps' workers or lanes; rates: gspi/reproduce/costs.py, trainings' from the run log")
+    return line + (f"; no estimate for {', '.join(unknown)}" if unknown else "")
 
 
 def run_group(group: Sequence[Step], log_file: Path) -> list[str]:
@@ -232,7 +249,7 @@ def run_group(group: Sequence[Step], log_file: Path) -> list[str]:
     group: two calls on one work folder share out the runs instead of the second one stopping."""
     ran = []
     for step in group:
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), cpu_seconds()
         try:
             run_step(step, log_file)
         except StepBusy as exc:
@@ -241,8 +258,17 @@ def run_group(group: Sequence[Step], log_file: Path) -> list[str]:
             log.warning("%s; going on with the next run", exc)
             return ran
         ran.append(step.name)
-        log.info("%s: done in %.0f s", step.name, time.perf_counter() - t0)
+        log.info("%s: done in %.0f s (%.0f CPU-s)", step.name, time.perf_counter() - t0, cpu_seconds() - cpu0)
     return ran
+
+
+def cpu_seconds() -> float:
+    """CPU-seconds used so far by this process and its finished children (a step's command is a
+    child; with lanes, the other lane's finished commands count too)."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def blocks(steps: Sequence[Step]) -> list[list[list[Step]]]:

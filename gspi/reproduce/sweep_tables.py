@@ -13,6 +13,7 @@ import shutil
 from pathlib import Path
 from typing import Any, Collection, Mapping
 
+from gspi.reproduce.costs import cost, preset_scene_count, recorded_job_seconds
 from gspi.reproduce.plan import Step
 from eval.portable import portable
 from gspi.reproduce.table2 import tool
@@ -79,19 +80,35 @@ def sweep_table_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     seed_args = [f"seed={','.join(map(str, seeds))}"] if seeds else []
     tag = f"_s{'_'.join(map(str, seeds))}" if seeds else ""
     label = f" (seeds {', '.join(map(str, seeds))})" if seeds else ""
+    scale = cfg["scale"]
+    n_scenes = preset_scene_count(root / "conf", cfg["preset"], cfg["data_overrides"])
     steps = [
         Step("data", done / "data", [tool("gspi-data"), f"preset={cfg['preset']}", f"out={data}", "seed=0",
-                                     *cfg["data_overrides"]]),
+                                     *cfg["data_overrides"]],
+             cpu_s_left=lambda: None if n_scenes is None else cost(scale, "data: benchmark", n_scenes)),
         Step(f"{name}: sweep{label}", done / f"sweep{tag}",
              [tool("gspi-run"), "-m", f"data={data}", f"out={runs}", f"+experiment={cfg['experiment']}",
-              *cfg["run_overrides"], *seed_args]),
+              *cfg["run_overrides"], *seed_args], cpu_s_left=lambda: sweep_cost(cfg, root, seeds)),
         Step(f"{name}: commit scores{label}", done / f"scores{tag}",
-             action=lambda: commit_sweep_records(runs, scores_dir, {"<work>": work, "<repo>": root}, seeds)),
+             action=lambda: commit_sweep_records(runs, scores_dir, {"<work>": work, "<repo>": root}, seeds),
+             cpu_s_left=lambda: cost(scale, "commit")),
     ]
     if seeds == []:
         steps = []  # committed scores stand (written all at once after the sweep): nothing to recompute
     table = Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
-                                                  f"table={name}"], rebuild=True)
+                                                  f"table={name}"], rebuild=True,
+                 cpu_s_left=lambda: cost(scale, "table"))
     for step in steps:
         step.aliases = {str(work): "<work>"}
     return steps + [table]
+
+
+def sweep_cost(cfg: Mapping[str, Any], root: Path, seeds: list[int] | None) -> float | None:
+    """CPU-seconds of the sweep: a seed's jobs as long as the committed records of ``cfg.timings``
+    took on average per seed (their ``seconds``; each job one thread), times the seeds to run; without
+    records, the scale's rate (gspi/reproduce/costs.py)."""
+    recorded = recorded_job_seconds(root / cfg["timings"]) if cfg.get("timings") else {}
+    if recorded:
+        per_seed = sum(recorded.values()) / len(recorded)
+        return per_seed * (len(seeds) if seeds else 1)
+    return cost(cfg["scale"], f"sweep: table{cfg['table']}")

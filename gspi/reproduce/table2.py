@@ -15,6 +15,7 @@ from functools import cache, partial
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from gspi.reproduce.costs import cost, scene_count
 from gspi.reproduce.plan import Step
 from eval.errors import MissingInputError
 from gspi.reproduce.kept_state import restore
@@ -64,21 +65,27 @@ def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
                                     *cfg["recon_overrides"], "--recon", recon, "--workers", str(cfg["workers"])]
     recorded = cfg["measure"].get("baseline")  # the constants from committed scores: no pool scenes for them
     heldout_indices = [list(hp["test"])] if recorded else [list(hp["train"]), list(hp["test"])]
+    scale = cfg["scale"]
+    estimate = lambda kind, count=1: (lambda: cost(scale, kind, count))  # noqa: E731
+    n_train, n_heldout = scene_count(tp["indices"]), scene_count(heldout_indices)
+    n_test = scene_count([hp["test"]])
     steps = [
         Step("data: training pool", done / "train_pool", data(work / "train_pool", list(map(list, tp["indices"])),
-                                                                tp["keys"])),
+                                                                tp["keys"]), cpu_s_left=estimate("data: pool", n_train)),
         Step("data: training view", done / "train_view", split(work / "train_pool", work / "train_view",
-                                                                 "--train", train_range)),
-        Step("data: held-out pool", done / "heldout_pool", data(work / "heldout_pool", heldout_indices, hp["keys"])),
+                                                                 "--train", train_range), cpu_s_left=estimate("data: view")),
+        Step("data: held-out pool", done / "heldout_pool", data(work / "heldout_pool", heldout_indices, hp["keys"]),
+             cpu_s_left=estimate("data: pool", n_heldout)),
         Step("data: held-out views", done / "heldout_views",
-             split(work / "heldout_pool", work / "heldout_test", "--test", ":".join(map(str, hp["test"])))),
+             split(work / "heldout_pool", work / "heldout_test", "--test", ":".join(map(str, hp["test"]))),
+             cpu_s_left=estimate("data: view")),
         *([] if recorded else [Step("data: baseline view", done / "baseline_view",
                                     split(work / "heldout_pool", work / "baseline_train", "--train",
-                                          ":".join(map(str, hp["train"]))))]),
+                                          ":".join(map(str, hp["train"]))), cpu_s_left=estimate("data: view"))]),
         Step(f"stage 0: training pool (recon={recon})", done / f"recon_train_{recon}",
-             reconstruct(work / "train_view", work / f"rtrain_{recon}")),
+             reconstruct(work / "train_view", work / f"rtrain_{recon}"), cpu_s_left=estimate("stage 0", n_train)),
         Step(f"stage 0: held-out scenes (recon={recon})", done / f"recon_heldout_{recon}",
-             reconstruct(work / "heldout_test", work / f"rheldout_{recon}")),
+             reconstruct(work / "heldout_test", work / f"rheldout_{recon}"), cpu_s_left=estimate("stage 0", n_test)),
     ]
     return steps
 
@@ -158,12 +165,14 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
     kept = kept_run(cfg, root, runs, name)
     restore_first = [] if kept is None else [  # a run begun elsewhere: its committed state (kept_state.py)
         Step(f"restore: {name}", run_dir / "checkpoint.pt", action=partial(restore, kept, run_dir), marker=False,
-             lane_group=name)]
+             lane_group=name, cpu_s_left=partial(cost, cfg["scale"], "restore"))]
 
     def cpu_s_left() -> float | None:  # the run log's rate for this variant x the steps it has left
         per_variant, steps = rates()
         rate = per_variant.get(variant)
-        return None if rate is None or steps is None else rate * (steps - steps_taken(saved()))
+        if rate is None or steps is None:  # a recipe with no run log (smoke): the scale's per-training rate
+            return cost(cfg["scale"], "training")
+        return rate * (steps - steps_taken(saved()))
 
     return restore_first + [
         Step(f"train: {name}", work / ".done" / runs / f"train_{name}", train,  # one marker per runs folder
@@ -204,8 +213,9 @@ def measure_step(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: Path
         measure += ["--patch-points", str(m["patch_points"])]
     commit = lambda: write_portable_scores(eval_dir / "scores.json", scores,  # noqa: E731
                                            data_label=m["data_label"], roots={"<work>": work, "<repo>": root})
+    n_scenes = scene_count([cfg["heldout_pool"]["test"]])
     return Step(f"measure: {name}", scores, measure, after=commit, env={"OMP_NUM_THREADS": "1"}, lane_group=name,
-                marker=False)
+                marker=False, cpu_s_left=partial(cost, cfg["scale"], "measure", n_scenes))
 
 
 def checkpoint_steps(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: Path, scores: Path,
@@ -221,7 +231,8 @@ def checkpoint_steps(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: 
 def table_step(cfg: Mapping[str, Any], scores_dir: Path, tables_dir: Path) -> Step:
     """gspi-table over the committed scores: Table 2 (md, tex, csv), Δ vs Full with bootstrap CIs."""
     return Step("table", tables_dir / ".built", [tool("gspi-table"), str(scores_dir), f"out={tables_dir}",
-                                                 "table=table2"], rebuild=True)
+                                                 "table=table2"], rebuild=True,
+                cpu_s_left=partial(cost, cfg["scale"], "table"))
 
 
 def run_order(cfg: Mapping[str, Any]) -> list[tuple[str, int]]:
@@ -268,5 +279,6 @@ def adopt_steps(cfg: Mapping[str, Any], root: Path, scores_dir: Path) -> dict[st
         dst = scores_dir / name / "scores.json"
         if name in planned and not dst.is_file():
             steps[name] = Step(f"adopt: {name}", dst, marker=False, action=partial(
-                write_portable_scores, root / path, dst, data_label=cfg["measure"]["data_label"], roots={}))
+                write_portable_scores, root / path, dst, data_label=cfg["measure"]["data_label"], roots={}),
+                cpu_s_left=partial(cost, cfg["scale"], "adopt"))
     return steps
