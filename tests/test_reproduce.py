@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from gspi.reproduce import table2
+
 from gspi.cli import reproduce as cli
 from gspi.reproduce.plan import Step, StepFailed, blocks, run_plan
 from eval.portable import portable, portable_path
@@ -139,10 +141,11 @@ def test_the_cpu_table2_plan_trains_only_what_is_not_committed(tmp_path, monkeyp
     committed = {p.parent.name for p in scores.glob("*/scores.json")}
     assert {"a2_no_view_onehot_s0"} <= committed
     trained = {s.name.split(": ", 1)[1] for s in steps if s.name.startswith("train: ")}
-    planned = {f"{v}_s{seed}" for v in cfg["variants"] for seed in cfg["seeds"]}
+    planned = {f"{v}_s{seed}" for v, seed in table2.run_order(cfg)}
     # every planned run without committed scores, but Full s0: the shipped checkpoint stands for it
-    # (checkpoints_from), measured at most; true at any point of the table's progress
-    assert trained == planned - committed - {"full_s0"} and len(planned) == 18
+    # (checkpoints_from), measured at most; true at any point of the table's progress. 18 paper rows'
+    # runs (6 variants x 3 seeds) + the light-aware rows at 2 seeds (variant_seeds, issue 66)
+    assert trained == planned - committed - {"full_s0"} and len(planned) == 18 + 4
     assert steps[-1].name == "table"
     for p in scores.glob("*/scores.json"):
         text = p.read_text()
@@ -157,9 +160,12 @@ def test_the_cpu_table2_plan_trains_the_runs_the_table_needs_before_a4s_later_se
                               "checkpoints_from=null"])
     order = [s.name.split(": ", 1)[1] for s in steps if s.name.startswith("train: ")]
     a4 = "a4_npts_1024_nlat_384"
-    assert len(order) == 18 and order[-2:] == [f"{a4}_s1", f"{a4}_s2"]
+    assert len(order) == 22 and order[-2:] == [f"{a4}_s1", f"{a4}_s2"]
     seeds = [int(name.rsplit("_s", 1)[1]) for name in order[:-2]]
     assert seeds == sorted(seeds) and order[0] == "full_s0" and f"{a4}_s0" in order[:6]
+    # variant_seeds: the light-aware rows at seeds 0 and 1 only
+    assert {n for n in order if n.startswith("light_")} == {"light_full_s0", "light_a2_s0", "light_full_s1",
+                                                           "light_a2_s1"}
 
 
 def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, monkeypatch, capsys):

@@ -169,7 +169,8 @@ def run_steps(cfg: Mapping[str, Any], work: Path, variant: str, seed: int, score
 
     def cpu_s_left() -> float | None:  # the run log's rate for this variant x the steps it has left
         per_variant, steps = rates()
-        rate = per_variant.get(variant)
+        # a variant the run log has not seen yet (e.g. light_full) at Full's rate, its nearest recipe
+        rate = per_variant.get(variant, per_variant.get("full"))
         if rate is None or steps is None:  # a recipe with no run log (smoke): the scale's per-training rate
             return cost(cfg["scale"], "training")
         return rate * (steps - steps_taken(saved()))
@@ -239,9 +240,12 @@ def run_order(cfg: Mapping[str, Any]) -> list[tuple[str, int]]:
     """The planned (variant, seed) runs in the order they train: seed by seed, variants in config
     order, but the runs ``run_last`` names (variant -> seeds; e.g. A4's seeds 1 and 2, which
     Table 2 may go without) after every other, so the runs a table needs come first; a run it
-    names that is not planned (a scale whose ``variants`` or ``seeds`` lack it) is ignored."""
+    names that is not planned (a scale whose ``variants`` or ``seeds`` lack it) is ignored.
+    ``variant_seeds`` (variant -> seeds) plans a variant at those of ``seeds`` only."""
     last = {(variant, int(seed)) for variant, seeds in (cfg.get("run_last") or {}).items() for seed in seeds}
-    runs = [(variant, seed) for seed in cfg["seeds"] for variant in cfg["variants"]]
+    only = {v: {int(s) for s in seeds} for v, seeds in (cfg.get("variant_seeds") or {}).items()}
+    runs = [(variant, seed) for seed in cfg["seeds"] for variant in cfg["variants"]
+            if variant not in only or int(seed) in only[variant]]
     return [r for r in runs if r not in last] + [r for r in runs if r in last]
 
 
