@@ -75,6 +75,9 @@ def test_table2_says_which_planned_runs_are_not_measured_yet():
     assert line == ("- Runs measured: 3 of the 6 that plan.yaml plans (3 variants x seeds 0, 1); not yet: a1 s1; "
                     "a4 (none yet). `go on` goes on with them.")
     assert docs_results.runs_line(["a_s0"], ["a"], [0], "p", "c") == "- Runs measured: 1 of the 1 that p plans (1 variants x seeds 0)."
+    # variant_seeds: a variant planned at some seeds only is counted at those
+    line = docs_results.runs_line(["a_s0", "a_s1", "b_s0"], ["a", "b"], [0, 1], "p", "c", variant_seeds={"b": [0]})
+    assert line == "- Runs measured: 3 of the 3 that p plans (2 variants x seeds 0, 1; b at seeds 0)."
 
 
 def test_table2_names_what_a_variant_changes_at_this_scale():

@@ -8,7 +8,7 @@ the summary.
     python -m experiments.known_light.identify HELDOUT_TEST VIEWS --out results/identify_exact.json
 
 VIEWS: the folder whose lattice views are read (the exact renders, or a reconstructed pool's).
-Normals: GT (``--normals gt``) or a reconstructed pool's surfel normals are not read yet.
+Normals: GT (``--normals gt``) or the Stage 0 asset's surfel normals (``--normals surfel``).
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ import torch
 
 from eval.layout import read_scene, read_splits
 from experiments.known_light.fit import POOL_ENVS
-from experiments.known_light.scene_fit import env_path, gt_normals, observations, subset
+from experiments.known_light.scene_fit import asset_normals, env_path, gt_normals, observations, subset
 from eval.imageio import read_exr
 from eval.relight import prefilter_environment
 from gspi.light.estimate import MAX_POINTS, estimate_light
@@ -44,6 +44,8 @@ def main(argv=None) -> None:
     ap.add_argument("views", type=Path)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--normals", choices=("gt", "surfel"), default="gt",
+                    help="GT normals, or the Stage 0 asset's surfel normals (VIEWS a reconstructed pool)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     names = read_splits(args.data)["test"]
@@ -59,7 +61,9 @@ def main(argv=None) -> None:
         t_pre = time.perf_counter() - t0
         points = load_scene_points(args.data / name, None)
         keep = subset(points, index, MAX_POINTS, seed=args.seed)
-        obs = observations(points, keep, args.views / name, gt_normals(args.data / name, points))
+        normals = (gt_normals(args.data / name, points) if args.normals == "gt"
+                   else asset_normals(points, keep, args.views / name))
+        obs = observations(points, keep, args.views / name, normals)
         obs = PointViews(point=obs.point, colour=obs.colour * gain, view_dir=obs.view_dir, normal=obs.normal,
                          xyz=obs.xyz)
         t1 = time.perf_counter()
@@ -83,7 +87,7 @@ def main(argv=None) -> None:
                "median_seconds": float(np.median([r["seconds"] for r in rows]))}
     print(json.dumps(summary))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"summary": summary, "views": args.views.name, "normals": "gt",
+    args.out.write_text(json.dumps({"summary": summary, "views": args.views.name, "normals": args.normals,
                                     "candidates": list(POOL_ENVS), "gain_range": GAIN_RANGE, "scenes": rows},
                                    indent=1) + "\n")
 

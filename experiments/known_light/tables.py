@@ -30,7 +30,8 @@ CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
     "exact_rotated90": "exact renders, the capture light turned 90 degrees (a wrong light)",
     "exact_other": "exact renders, another pool environment (a wrong light)",
-    "fast_true": "Stage 0 `recon=fast` assets' lattice renders, the capture light known",
+    "fast_true": "Stage 0 `recon=fast` assets' lattice renders, the capture light known (GT normals)",
+    "fast_true_surfel": "Stage 0 `recon=fast` assets' lattice renders, the capture light known, the asset's surfel normals",
 }
 
 
@@ -65,7 +66,7 @@ def read_table() -> str:
             continue
         scores = {r: json.loads(p.read_text()) for r, p in runs.items()}
         lines += [f"## {caption}", "", head, row("no decomposition", scores["map"], "no_decomposition")]
-        if folder.startswith("exact"):
+        if folder == "exact_true":
             lines.append(row("Stage II `exact_whole_xv_nbhd` (trained and measured on exact renders)", stage2, "stage2"))
         lines += [row(f"per-point fit, `{r}`", s, "stage2") for r, s in scores.items()] + [""]
     return "\n".join(lines)
