@@ -91,3 +91,18 @@ def test_config_width_and_checks():
     assert PointDataConfig(light_readout=True).condition_width(0) == 35 + LIGHT_READOUT_WIDTH
     with pytest.raises(ValueError, match="light_wrong_share must lie in"):
         PointDataConfig.from_mapping({"light_wrong_share": 1.5})
+
+
+def test_cloud_normals_are_the_surface_plane_facing_the_camera():
+    from gspi.stage2.light_fit import cloud_normals
+
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(4000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    camera = np.array([0.0, 0.0, 5.0])
+    front = sphere[sphere[:, 2] > 0.3]
+    n = cloud_normals(sphere, front, np.broadcast_to(camera, front.shape))
+    assert np.degrees(np.arccos(np.clip((n * front).sum(1), -1, 1))).max() < 5.0  # outward, as seen from +z
+    back = -front  # the same points seen from the other side face the other way
+    n_back = cloud_normals(sphere, back, np.broadcast_to(-camera, back.shape))
+    assert np.all((n_back * back).sum(1) > 0.99)

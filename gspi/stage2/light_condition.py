@@ -14,8 +14,8 @@ Computed once per scene on a seeded subset of ``READOUT_POINTS`` points (the sam
 object in training and at inference); a point takes its nearest subset point's row. Which light:
 in training the scene's own capture environment (``envmaps/``); at inference and in Table 2's
 measure the light estimated among ``stage2.data.light_candidates`` (``gspi.light.estimate``).
-Normals: the Stage 0 asset's surfel normals when the scene has one (``asset/point_cloud.ply``
-of a reconstructed pool, or the run's asset), else the GT normals of the lattice views.
+Normals: the plane of each point's nearest points of the cloud (the GT cloud in training, Stage
+I's at inference: ``light_fit.cloud_normals``).
 """
 from __future__ import annotations
 
@@ -120,16 +120,9 @@ def training_light(name: str, capture_env: str, capture: PrefilteredEnvironment,
 
 def scene_normals(root: Path, xyz: np.ndarray, view: np.ndarray, pixel: np.ndarray,
                   cams: LatticeCameras) -> np.ndarray:
-    """[n, 3] normals of a dataset scene's points: the asset's surfel normals when the scene holds
-    its Stage 0 asset (``asset/point_cloud.ply``), else the GT ``normal.exr`` at each source pixel."""
-    asset = Path(root) / "asset" / "point_cloud.ply"
-    if asset.is_file():
-        from gspi.gaussians.ply import read_ply
-        from gspi.stage2.light_fit import surfel_normals
+    """[n, 3] normals of a dataset scene's cloud ``xyz``: the plane of each point's nearest points
+    (``light_fit.cloud_normals``), as at inference from Stage I's cloud (``root`` and ``pixel``
+    are not read: the cloud alone gives them, in training and at inference alike)."""
+    from gspi.stage2.light_fit import cloud_normals
 
-        return surfel_normals(read_ply(asset), xyz, cams.centers[view])
-    from eval.layout import read_scene, read_view_file
-
-    scene = read_scene(root)
-    maps = np.stack([read_view_file(scene.view_dir("train", v.id), "normal.exr") for v in scene.split_views("train")])
-    return maps[view, pixel[:, 0], pixel[:, 1]].astype(np.float64)
+    return cloud_normals(xyz, xyz, cams.centers[view])
