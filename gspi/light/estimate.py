@@ -6,7 +6,7 @@ light leaves every material a poor fit: issue 66 measured the true one first in 
 scenes). The search is coarse to fine: every candidate at ``COARSE_ROTATIONS`` turns and
 ``COARSE_GAINS`` on a coarse material grid (``COARSE_ROUGHNESS``; the environment is sampled once
 per turn, the gains only rescale the observations), then the ``REFINE_TOP`` best candidates
-around their best turn and gain on the finer ``IDENTIFY_ROUGHNESS``. ``margin`` (the second
+around each of their ``REFINE_TURNS`` best turns (and its gain) on the finer ``IDENTIFY_ROUGHNESS``. ``margin`` (the second
 candidate's score over the best's, >= 1) says how sure the choice is.
 """
 from __future__ import annotations
@@ -27,9 +27,11 @@ IDENTIFY_ROUGHNESS = tuple(k / 10 for k in range(11))
 COARSE_ROTATIONS = tuple(15.0 * k for k in range(24))
 COARSE_GAINS = (0.25, 0.5, 1.0, 2.0, 4.0)
 REFINE_TOP = 2
+REFINE_TURNS = 3   # a candidate's best coarse turns refined (a light with near-repeats, e.g. a row of windows)
 REFINE_ROTATIONS = (-10.0, -7.5, -5.0, -2.5, 0.0, 2.5, 5.0, 7.5, 10.0)
 REFINE_GAINS = tuple(2.0 ** (k / 4) for k in range(-2, 3))   # x0.71 .. x1.41
 MAX_POINTS = 600
+TURN_APART = 30.0  # turn_margin: the best turn at least this far from the chosen one
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,8 @@ class LightEstimate:
     best: Hypothesis
     margin: float                       # second candidate's score / best score (inf with one candidate)
     ranking: tuple[Hypothesis, ...] = field(default=())  # each candidate's best, best first
+    turn_margin: float = float("inf")   # the best candidate's best turn >= 30 degrees away / best score
+                                        # (~1: the turn is not told, e.g. a light with no azimuthal structure)
 
     @property
     def env(self) -> str:
@@ -71,14 +75,21 @@ def score(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gai
     return [float(grid_at_gain(sums, g).best_error()[seen].mean()) for g in gains]
 
 
-def _best(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, gains,
-          roughness=IDENTIFY_ROUGHNESS) -> Hypothesis:
-    best = None
+def _ranked(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, gains,
+            roughness=IDENTIFY_ROUGHNESS) -> list[Hypothesis]:
+    """Each turn's best gain, best turn first."""
+    out = []
     for rot in rotations:
-        for g, s in zip(gains, score(obs, pre, float(rot) % 360.0, gains, roughness)):
-            if best is None or s < best.score:
-                best = Hypothesis(name, float(rot) % 360.0, float(g), s)
-    return best
+        scores = score(obs, pre, float(rot) % 360.0, gains, roughness)
+        k = min(range(len(gains)), key=scores.__getitem__)
+        out.append(Hypothesis(name, float(rot) % 360.0, float(gains[k]), scores[k]))
+    return sorted(out, key=lambda h: h.score)
+
+
+def _refined(obs: PointViews, pre: PrefilteredEnvironment, starts: list[Hypothesis]) -> Hypothesis:
+    """The best hypothesis around each of ``starts`` (finer turns and gains, the finer material grid)."""
+    return min((_ranked(obs, h.env, pre, [h.rotation_deg + d for d in REFINE_ROTATIONS],
+                        [h.gain * f for f in REFINE_GAINS])[0] for h in starts), key=lambda h: h.score)
 
 
 def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironment], *,
@@ -94,10 +105,16 @@ def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironm
     if len(seen) > max_points:
         seen = np.sort(np.random.default_rng(seed).choice(seen, max_points, replace=False))
     sub = obs.subset(seen)
-    coarse = sorted((_best(sub, name, pre, rotations, gains, COARSE_ROUGHNESS) for name, pre in candidates.items()),
-                    key=lambda h: h.score)
-    refined = [_best(sub, h.env, candidates[h.env], [h.rotation_deg + d for d in REFINE_ROTATIONS],
-                     [h.gain * f for f in REFINE_GAINS]) for h in coarse[:REFINE_TOP]]
+    turns = {name: _ranked(sub, name, pre, rotations, gains, COARSE_ROUGHNESS) for name, pre in candidates.items()}
+    coarse = sorted((ranked[0] for ranked in turns.values()), key=lambda h: h.score)
+    refined = [_refined(sub, candidates[h.env], turns[h.env][:REFINE_TURNS]) for h in coarse[:REFINE_TOP]]
     ranking = tuple(sorted(refined, key=lambda h: h.score)) + tuple(coarse[REFINE_TOP:])
-    margin = ranking[1].score / max(ranking[0].score, 1e-12) if len(ranking) > 1 else float("inf")
-    return LightEstimate(best=ranking[0], margin=margin, ranking=ranking)
+    best = ranking[0]
+    margin = ranking[1].score / max(best.score, 1e-12) if len(ranking) > 1 else float("inf")
+    away = [h.score for h in turns[best.env] if _turn_distance(h.rotation_deg, best.rotation_deg) >= TURN_APART]
+    turn_margin = min(away) / max(best.score, 1e-12) if away else float("inf")
+    return LightEstimate(best=best, margin=margin, ranking=ranking, turn_margin=turn_margin)
+
+
+def _turn_distance(a: float, b: float) -> float:
+    return abs((a - b + 180.0) % 360.0 - 180.0)
