@@ -11,7 +11,7 @@ import torch
 from gspi.stage1.extract import unproject_renders
 from gspi.stage2.data import PointDataConfig, load_scene_points, local_condition
 from gspi.stage2.infer import point_conditions
-from gspi.stage2.light_condition import (LIGHT_READOUT_WIDTH, ToldLight, readout_table, scene_normals,
+from gspi.stage2.light_condition import (LIGHT_READOUT_WIDTH, ToldLight, cloud_normals_of, readout_table,
                                          training_light)
 from gspi.stage2.light_fit import capture_light
 from gspi.stage2.normalize import pbr_from_model
@@ -48,7 +48,7 @@ def test_training_and_inference_build_the_same_condition(lit):
     scene, root = lit
     renders = gt_views_as_renders(root)
     points = unproject_renders(renders, alpha_threshold=0.5)
-    normals = scene_normals(root, points.xyz.astype(np.float64), points.view, points.pixel, scene.cameras)
+    normals = cloud_normals_of(points.xyz.astype(np.float64), points.view, scene.cameras)
     light = ToldLight(env=ENV, pre=capture_light(root / "envmaps" / f"{ENV}.exr", 32))
     table = readout_table(renders.rgb, renders.depth, scene.cameras, points.xyz.astype(np.float64), normals, light)
     infer = point_conditions(points, "top_rgb_onehot", renders, light_table=table)
@@ -71,7 +71,7 @@ def test_a_wrong_light_is_told_and_fits_worse(lit):
                for t in (training_light(n, ENV, capture, others, 1.0) for n in names))
     turned = ToldLight(env=ENV, pre=capture, rotation_deg=120.0, wrong=True)
     rgb, depth = scene.lattice_linear(), scene.lattice_views()[1]
-    normals = scene_normals(root, scene.xyz, scene.view, scene.pixel, scene.cameras)
+    normals = cloud_normals_of(scene.xyz, scene.view, scene.cameras)
     right = readout_table(rgb, depth, scene.cameras, scene.xyz, normals, ToldLight(env=ENV, pre=capture))[1]
     wrong = readout_table(rgb, depth, scene.cameras, scene.xyz, normals, turned)[1]
     print("scene residual", right[0, 6], wrong[0, 6])

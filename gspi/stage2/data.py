@@ -183,13 +183,13 @@ class ScenePoints:
 
         if self._light is None:
             rgb, depth = self.lattice_linear(), self.lattice_views()[1]
-            normals = lc.scene_normals(self.root, self.xyz, self.view, self.pixel, self.cameras)
+            normals = lc.cloud_normals_of(self.xyz, self.view, self.cameras)
             light = self._told_light(cfg, rgb, depth, normals)
             self._light = lc.readout_table(rgb, depth, self.cameras, self.xyz, normals, light,
                                            tol_pixels=cfg.visibility_tol_pixels)
         return lc.readout_lookup(self._light, self.xyz[idx])
 
-    def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, normals: np.ndarray):
+    def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, normals):
         from eval.layout import read_scene
         from gspi.stage2 import light_condition as lc
         from gspi.stage2.light_fit import candidate_lights, capture_light

@@ -21,8 +21,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -79,12 +78,14 @@ def readout_rows(obs, light: ToldLight) -> np.ndarray:
 
 
 def readout_table(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
-                  normals: np.ndarray, light: ToldLight, *, tol_pixels: float = 2.0
+                  normals: Callable[[np.ndarray], np.ndarray], light: ToldLight, *, tol_pixels: float = 2.0
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """(subset xyz [m, 3], its rows [m, LIGHT_READOUT_WIDTH]) of the cloud xyz [n, 3] with unit
-    ``normals`` [n, 3], read in linear renders [V, H, W, 3] with depths [V, H, W]."""
+    """(subset xyz [m, 3], its rows [m, LIGHT_READOUT_WIDTH]) of the cloud xyz [n, 3], read in
+    linear renders [V, H, W, 3] with depths [V, H, W]; ``normals(indices)`` gives the unit normals
+    of those points (only the subset's are computed: ``cloud_normals`` over a 280k-point cloud
+    costs a minute)."""
     sub = readout_subset(len(xyz))
-    obs = observe_points(images, depth, cams, xyz[sub], normals[sub], tol_pixels=tol_pixels)
+    obs = observe_points(images, depth, cams, xyz[sub], normals(sub), tol_pixels=tol_pixels)
     return xyz[sub], readout_rows(obs, light)
 
 
@@ -94,11 +95,12 @@ def readout_lookup(table: tuple[np.ndarray, np.ndarray], xyz: np.ndarray) -> np.
 
 
 def estimate_scene_light(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
-                         normals: np.ndarray, candidates: dict[str, PrefilteredEnvironment], *,
-                         tol_pixels: float = 2.0) -> tuple[ToldLight, LightEstimate]:
-    """The light among ``candidates`` that explains the views of the cloud best."""
+                         normals: Callable[[np.ndarray], np.ndarray], candidates: dict[str, PrefilteredEnvironment],
+                         *, tol_pixels: float = 2.0) -> tuple[ToldLight, LightEstimate]:
+    """The light among ``candidates`` that explains the views of the cloud best (``normals`` as
+    in ``readout_table``)."""
     sub = readout_subset(len(xyz))
-    obs = observe_points(images, depth, cams, xyz[sub], normals[sub], tol_pixels=tol_pixels)
+    obs = observe_points(images, depth, cams, xyz[sub], normals(sub), tol_pixels=tol_pixels)
     est = estimate_light(obs, candidates)
     return ToldLight.from_estimate(est, candidates), est
 
@@ -118,11 +120,10 @@ def training_light(name: str, capture_env: str, capture: PrefilteredEnvironment,
     return ToldLight(env=capture_env, pre=capture, rotation_deg=float(rng.uniform(*WRONG_TURN_DEG)), wrong=True)
 
 
-def scene_normals(root: Path, xyz: np.ndarray, view: np.ndarray, pixel: np.ndarray,
-                  cams: LatticeCameras) -> np.ndarray:
-    """[n, 3] normals of a dataset scene's cloud ``xyz``: the plane of each point's nearest points
-    (``light_fit.cloud_normals``), as at inference from Stage I's cloud (``root`` and ``pixel``
-    are not read: the cloud alone gives them, in training and at inference alike)."""
+def cloud_normals_of(xyz: np.ndarray, view: np.ndarray, cams: LatticeCameras) -> Callable[[np.ndarray], np.ndarray]:
+    """``normals(indices)`` of a cloud ``xyz`` [n, 3] whose points come from lattice views ``view``
+    [n]: the plane of each point's nearest points of the whole cloud (``light_fit.cloud_normals``),
+    facing its source camera; the same rule in training (the GT cloud) and at inference (Stage I's)."""
     from gspi.stage2.light_fit import cloud_normals
 
-    return cloud_normals(xyz, xyz, cams.centers[view])
+    return lambda idx: cloud_normals(xyz, xyz[idx], cams.centers[view[idx]])

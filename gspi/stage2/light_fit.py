@@ -152,12 +152,12 @@ def inference_light_table(points: PointCloud, renders, asset: Gaussians2D, data_
     """Stage II's ``light_readout`` condition at inference: the light estimated among the model's
     ``stage2.data.light_candidates`` from the renders and the asset's surfel normals, and the
     read-out's table of the cloud under it (``gspi.stage2.light_condition``); plus what was found."""
-    from gspi.stage2.light_condition import estimate_scene_light, readout_table
+    from gspi.stage2.light_condition import cloud_normals_of, estimate_scene_light, readout_table
 
     cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
                           width=renders.rgb.shape[2], height=renders.rgb.shape[1])
     xyz = points.xyz.astype(np.float64)
-    normals = cloud_normals(xyz, xyz, cams.centers[points.view])
+    normals = cloud_normals_of(xyz, points.view, cams)
     candidates = candidate_lights(data_cfg.light_candidates, data_cfg.light_env_height)
     tol = float(data_cfg.visibility_tol_pixels)
     light, est = estimate_scene_light(renders.rgb, renders.depth, cams, xyz, normals, candidates, tol_pixels=tol)
