@@ -47,6 +47,7 @@ def quote_path_overrides(argv: list[str], keys: tuple[str, ...]) -> list[str]:
 ALIASES: dict[str, dict[str, str]] = {
     "gspi_run": {"data": "data_dir"},
     "gspi_train": {"data": "data_dir"},
+    "gspi_points_eval": {"data": "data_dir"},
     "gspi_data": {"preset": "data", "+preset": "data"},
     "gspi_eval": {"method": "method_name"},
     "gspi_export": {"system": "method"},

@@ -22,9 +22,13 @@ def wants_help(argv: list[str]) -> bool:
     return any(a in HELP_FLAGS for a in argv)
 
 
+FORMS = {"gspi_export_asset": "gspi-export"}  # a config of a second form of a tool: that tool's console script
+
+
 def tool_name(config_name: str) -> str:
-    """``gspi_export_asset`` -> ``gspi-export`` (the console script), ``gspi_eval`` -> ``gspi-eval``."""
-    return "-".join(config_name.split("_")[:2])
+    """``gspi_export_asset`` -> ``gspi-export`` (the console script, ``FORMS``), ``gspi_points_eval`` ->
+    ``gspi-points-eval``."""
+    return FORMS.get(config_name, config_name.replace("_", "-"))
 
 
 def header(lines: list[str], tool: str) -> tuple[Optional[str], Optional[str]]:

@@ -28,7 +28,7 @@ def documented_commands(doc: str) -> list[str]:
     found = []
     for block in FENCE.findall((ROOT / doc).read_text()):
         for line in block.replace("\\\n", " ").splitlines():
-            if re.match(r"\s*gspi-\w+\s", line):
+            if re.match(r"\s*gspi-[\w-]+\s", line):  # gspi-points-eval too
                 found.append(line.strip())
     return found
 

@@ -133,3 +133,12 @@ def test_mixed_with_gspi_eval_folders_is_refused(folders):
     (ev / "eval_meta.json").write_text(json.dumps({"method": "no_decomposition"}))
     with pytest.raises(ValueError, match="tabulate them separately"):
         load_sources([folders], ("table2",))
+
+
+def test_two_measures_are_never_tabulated_together(tmp_path):
+    """Scores of one DDIM step count and point subset but another measure knob (here the number of
+    samples averaged: eval.points_protocol's hash) are refused, like other scenes or data."""
+    write_scores(tmp_path / "full" / "eval", "full")
+    write_scores(tmp_path / "a1" / "eval", "a1_no_global_prior", num_samples=4)
+    with pytest.raises(ValueError, match="measure .eval.points_protocol hash."):
+        load_points_folders([tmp_path])

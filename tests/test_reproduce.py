@@ -189,6 +189,24 @@ def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, 
     assert [s.name for s in steps] == ["table"]  # adopted runs are neither trained nor measured
 
 
+def test_the_measure_is_the_console_script_under_the_named_measure(tmp_path, capsys):
+    """The measure step plans gspi-points-eval under conf/points_measure/table2 with the reproduce
+    file's ``measure:`` keys as its overrides; at scale=cpu they are the committed scores' measure."""
+    import yaml
+
+    from eval.points_protocol import MEASURE_DEFAULTS, measure_hash, recorded_measure_hash
+
+    assert cli.main(["table=2", "scale=smoke", f"data_root={tmp_path}", "dry_run=true"]) == 0
+    line = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("measure: full_s0"))
+    assert f"{BIN / 'gspi-points-eval'} checkpoint=" in line and "evaluate_points" not in line
+    assert "points_measure=table2 points_measure.num_steps=2 points_measure.max_points=500" in line
+    _, cfg, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu"])
+    group = yaml.safe_load((ROOT / "conf" / "points_measure" / "table2.yaml").read_text())
+    planned = {**group, **{k: v for k, v in cfg["measure"].items() if k in MEASURE_DEFAULTS}}
+    committed = json.loads((ROOT / "docs/results/scores/table2_cpu/full_s0/scores.json").read_text())
+    assert measure_hash(planned) == recorded_measure_hash(committed)
+
+
 def test_a_committed_checkpoint_stands_for_its_run_measured_and_never_trained(tmp_path, monkeypatch):
     """``checkpoints_from``: the shipped model is Full seed 0 of Table 2's recipe; with no committed
     scores it is measured on the work folder's held-out scenes (its checkpoint, not a run folder's),
@@ -200,7 +218,7 @@ def test_a_committed_checkpoint_stands_for_its_run_measured_and_never_trained(tm
     names = [s.name for s in steps]
     assert "measure: full_s0" in names and not any(n.startswith("train: ") for n in names)
     measure = steps[names.index("measure: full_s0")]
-    assert str(ROOT / "checkpoints" / "stage2_pool224_pixel_5k.pt") in measure.command
+    assert f"checkpoint={ROOT / 'checkpoints' / 'stage2_pool224_pixel_5k.pt'}" in measure.command
     with pytest.raises(FileNotFoundError, match="checkpoints_from.full_s0: .*nope.pt does not exist"):
         cli.plan([*argv, "checkpoints_from={full_s0:checkpoints/nope.pt}"])
     assert cli.main([*argv, "checkpoints_from={full_s0:checkpoints/nope.pt}", "dry_run=true"]) == 2  # one line

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from eval.points_protocol import recorded_measure_hash
 from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.eval_folder import META_NAME, SUMMARY_NAME, find_eval_folders, read_eval_meta, read_summary
 from eval.records.points_scores import (BASELINE_KEY, FORMAT, MODEL_KEY, SCORES_NAME, find_points_folders,
@@ -93,8 +94,9 @@ def load_eval_folders(paths: list[str | Path]) -> Sweep:
 
 # ---- Table 2's scores.json folders -----------------------------------------------------------
 def _same_evaluation(scores: dict[Path, dict]) -> None:
-    """All folders scored the same scenes of the same split and dataset, with the same
-    baseline (else one table would compare models on different inputs)."""
+    """All folders scored the same scenes of the same split and dataset, under the same measure
+    (``eval.points_protocol``: its hash) and with the same baseline (else one table would compare
+    models on different inputs)."""
     first_path, first = next(iter(scores.items()))
     summed = {p: d["checksums"] for p, d in scores.items() if (d.get("checksums") or {}).get("inputs")}
     if summed:  # recorded since session 27: the bytes each measure read
@@ -106,11 +108,12 @@ def _same_evaluation(scores: dict[Path, dict]) -> None:
                                  f"checksums differ for {len(differ)} scene(s), e.g. {', '.join(differ[:3])}: the "
                                  "data was rebuilt?); tabulate one evaluation at a time")
     ident = lambda d: (sorted(d["scenes"]), d["split"], d["data"], d.get("num_steps"),  # noqa: E731
-                       d.get("max_points"))
+                       d.get("max_points"), recorded_measure_hash(d))
     for path, data in scores.items():
         if ident(data) != ident(first):
             raise SweepError(f"{path} and {first_path}: scored on different scenes/split/data/DDIM "
-                             f"steps/points ({ident(data)} vs {ident(first)}); tabulate one evaluation at a time")
+                             f"steps/points/measure (eval.points_protocol hash) ({ident(data)} vs {ident(first)}); "
+                             "tabulate one evaluation at a time")
         if not _close(data["per_scene"][BASELINE_KEY], first["per_scene"][BASELINE_KEY]):
             raise SweepError(f"{path} and {first_path}: the no-decomposition baseline differs "
                              "(different training constants?); tabulate one evaluation at a time")

@@ -1,6 +1,6 @@
 """Table 2 at a named scale as steps (``gspi.reproduce.plan``): training pool -> held-out pool ->
 Stage 0 reconstructions of both -> one Stage II training per (variant, seed), in chunks ->
-Table 2's measure on the held-out scenes, its scores committed -> the table (gspi-table).
+Table 2's measure on the held-out scenes (gspi-points-eval), its scores committed -> the table (gspi-table).
 
 Config: conf/reproduce/table2_<scale>.yaml (its comments name every key). A (variant, seed)
 whose scores are committed (``scores_dir``, or a file ``scores_from`` names) needs nothing
@@ -201,17 +201,25 @@ def keep_training_state(cfg: Mapping[str, Any], *, root: Path) -> list[str]:
     return keep_state({n: work / runs / n for n in names}, measured, root / cfg["kept_state"])
 
 
+def measure_overrides(m: Mapping[str, Any]) -> list[str]:
+    """The reproduce file's ``measure:`` block as gspi-points-eval overrides: the measure it names
+    (``protocol``: conf/points_measure/<name>, default ``table2``) and each of its keys that is a
+    knob of the measure (``eval.points_protocol.MEASURE_DEFAULTS``) as an override of that measure."""
+    from eval.points_protocol import MEASURE_DEFAULTS
+
+    knobs = [f"points_measure.{k}={'null' if m[k] is None else m[k]}" for k in MEASURE_DEFAULTS if k in m]
+    return [f"points_measure={m.get('protocol') or 'table2'}", *knobs]
+
+
 def measure_step(cfg: Mapping[str, Any], work: Path, name: str, checkpoint: Path, eval_dir: Path, scores: Path,
                  root: Path) -> Step:
-    """Table 2's measure of ``checkpoint`` on the held-out scenes; its scores committed (portable)."""
+    """Table 2's measure of ``checkpoint`` on the held-out scenes (gspi-points-eval, the measure
+    named in ``measure``); its scores committed (portable)."""
     m = cfg["measure"]
-    measure = [*python_module("gspi.stage2.evaluate_points"), str(checkpoint),
-               str(work / f"rheldout_{cfg['recon']}"), str(eval_dir), "--num-steps", str(m["num_steps"]),
-               "--baseline-train", str(root / m["baseline"]) if m.get("baseline") else str(work / "baseline_train")]
-    if m.get("max_points"):
-        measure += ["--max-points", str(m["max_points"])]
-    if m.get("patch_points"):
-        measure += ["--patch-points", str(m["patch_points"])]
+    baseline = root / m["baseline"] if m.get("baseline") else work / "baseline_train"
+    heldout = work / f"rheldout_{cfg['recon']}"
+    measure = [tool("gspi-points-eval"), f"checkpoint={checkpoint}", f"data={heldout}", f"out={eval_dir}",
+               f"baseline={baseline}", *measure_overrides(m)]
     commit = lambda: write_portable_scores(eval_dir / "scores.json", scores,  # noqa: E731
                                            data_label=m["data_label"], roots={"<work>": work, "<repo>": root})
     n_scenes = scene_count([cfg["heldout_pool"]["test"]])

@@ -1,5 +1,6 @@
-"""Table 2's measure of a saved Stage II model: the one CLI (the measure itself is
-``gspi.stage2.points_measure``).
+"""Table 2's measure of a saved Stage II model (the measure itself is ``gspi.stage2.points_measure``;
+its console script, the measure named by a conf/points_measure option: ``gspi-points-eval``,
+gspi/cli/points_eval.py). This module's argparse CLI takes the same knobs as flags.
 
 ``evaluate_checkpoint`` scores a model on a split's GT point clouds and writes ``scores.json``
 (format ``gspi-points-eval``: the model's ablation, training seed, checkpoint, the dataset and
@@ -20,6 +21,7 @@ from typing import Any, Callable, Mapping
 import torch
 
 from eval.layout import LayoutError
+from eval.points_protocol import measure_record
 from eval.records.points_scores import write_points_scores
 from gspi.stage2.data import ScenePoints
 from gspi.stage2.points_measure import (CHANNELS, PSNR_CAP_DB, PointSampling, baseline_prediction,
@@ -109,7 +111,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                         write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
                         max_points: int | None = None, baseline_train: str | Path | None = None,
                         num_samples: int = 1, guidance_scale: float = 1.0, patch_points: int | None = None,
-                        patch_coverage: float = 2.0) -> dict[str, Any]:
+                        patch_coverage: float = 2.0, measure_name: str | None = None) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
@@ -122,6 +124,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     ``num_samples``: DDIM samples averaged per point (gspi-run's ``stage2.inference.num_samples``).
     ``guidance_scale``: classifier-free guidance (gspi-run's ``stage2.inference.guidance_scale``).
     ``patch_points`` / ``patch_coverage``: k-NN patch inference (``stage2.inference.patch_points``).
+    ``measure_name``: the conf/points_measure option these knobs came from (gspi-points-eval), recorded
+    with the knobs' hash as ``measure_protocol`` (``eval.points_protocol``); None: set by flags.
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
@@ -132,8 +136,11 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     def predict(scene: ScenePoints, index: int):
         return subset_prediction(model, scene, index, data_cfg, sampling, write_chunk=write_chunk)
 
+    measure = {"split": split, **{k: getattr(sampling, k) for k in ("num_steps", "max_points", "seed", "num_samples",
+                                                                    "guidance_scale", "patch_points", "patch_coverage")}}
     result = score_split(predict, cfg, data_dir, split, out_dir, baseline_train=baseline_train,
                          record={"ablation": str(cfg.get("ablation_name", "full")), **dict(source or {}),
+                                 "measure_protocol": measure_record(measure_name, measure),
                                  "num_steps": num_steps, "max_points": max_points, "seed": seed,
                                  **({"num_samples": num_samples} if num_samples != 1 else {}),
                                  **({"guidance_scale": guidance_scale} if guidance_scale != 1.0 else {}),
