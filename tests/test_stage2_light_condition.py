@@ -13,7 +13,7 @@ from gspi.stage2.data import PointDataConfig, load_scene_points, local_condition
 from gspi.stage2.infer import point_conditions
 from gspi.stage2.light_condition import (LIGHT_READOUT_WIDTH, ToldLight, cloud_normals_of, readout_table,
                                          training_light)
-from gspi.stage2.light_fit import capture_light
+from gspi.stage2.light_condition import capture_light
 from gspi.stage2.normalize import pbr_from_model
 from tests.stage2_fixtures import gt_views_as_renders, make_lattice_scene
 
@@ -94,7 +94,7 @@ def test_config_width_and_checks():
 
 
 def test_cloud_normals_are_the_surface_plane_facing_the_camera():
-    from gspi.stage2.light_fit import cloud_normals
+    from gspi.stage2.light_condition import cloud_normals
 
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(4000, 3))

@@ -84,7 +84,8 @@ class LightFitMethod(GspiMethod):
     def prepare(self) -> dict:
         from gspi.pipeline import LightFitContext
         from gspi.stage1.config import Stage1Config
-        from gspi.stage2.light_fit import LightFitConfig, candidate_lights
+        from gspi.stage2.light_condition import candidate_lights
+        from gspi.stage2.light_fit import LightFitConfig
         from gspi.stage3.config import Stage3Config
 
         cfg = LightFitConfig.from_mapping(self.cfg)

@@ -192,7 +192,7 @@ class ScenePoints:
     def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, normals):
         from eval.layout import read_scene
         from gspi.stage2 import light_condition as lc
-        from gspi.stage2.light_fit import candidate_lights, capture_light
+        from gspi.stage2.light_condition import candidate_lights, capture_light
 
         if self.light_source == "estimated":
             candidates = candidate_lights(cfg.light_candidates, cfg.light_env_height)

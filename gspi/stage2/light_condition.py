@@ -15,29 +15,36 @@ object in training and at inference); a point takes its nearest subset point's r
 in training the scene's own capture environment (``envmaps/``); at inference and in Table 2's
 measure the light estimated among ``stage2.data.light_candidates`` (``gspi.light.estimate``).
 Normals: the plane of each point's nearest points of the cloud (the GT cloud in training, Stage
-I's at inference: ``light_fit.cloud_normals``).
+I's at inference: ``cloud_normals``).
 """
 from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import torch
 
 from eval.colorspace import linear_to_srgb
-from eval.relight import PrefilteredEnvironment
+from eval.envmap import downsample_latlong
+from eval.imageio import read_exr
+from eval.relight import PrefilteredEnvironment, prefilter_environment
+from gspi.data.env_sets import make_named_environment, resolve_env_set
 from gspi.light.estimate import LightEstimate, estimate_light
 from gspi.light.readout import fit_grid, pool_neighbours, read_posterior
 from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_views import observe_points
 from gspi.stage2.view_statistics import neighbourhood_mean
+from scipy.spatial import cKDTree
 
 LIGHT_READOUT_WIDTH = 7
 READOUT_POINTS = 5000
 READOUT_SEED = 66
 WRONG_TURN_DEG = (60.0, 300.0)  # a wrong light by turning: U(60, 300) degrees
+CLOUD_NEIGHBOURS = 24  # cloud points whose plane (PCA) gives a point's normal
 _FLOOR = 1e-6
 
 
@@ -120,10 +127,46 @@ def training_light(name: str, capture_env: str, capture: PrefilteredEnvironment,
     return ToldLight(env=capture_env, pre=capture, rotation_deg=float(rng.uniform(*WRONG_TURN_DEG)), wrong=True)
 
 
+def cloud_normals(cloud: np.ndarray, xyz: np.ndarray, source_center: np.ndarray, k: int = CLOUD_NEIGHBOURS
+                  ) -> np.ndarray:
+    """[n, 3] unit normals at ``xyz`` [n, 3]: the least-variance direction (PCA) of each point's ``k``
+    nearest points of the whole ``cloud`` [P, 3], turned to face its source camera. On the held-out
+    pool a `recon=fast` asset's surfel normals are 10-15 degrees off the GT (median), which a
+    specular read doubles; the cloud unprojected from the renders' depth lies on the surface (the
+    GT cloud's PCA normals: < 0.5 degree off)."""
+    k = min(k, len(cloud))
+    _, nn = cKDTree(cloud).query(xyz, k=k)
+    nbrs = cloud[np.asarray(nn).reshape(len(xyz), k)]
+    centred = nbrs - nbrs.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    normal = vecs[:, :, 0]
+    facing = np.sign(np.einsum("nc,nc->n", normal, source_center - xyz))
+    return normal * np.where(facing == 0, 1.0, facing)[:, None]
+
+
+@cache
+def _candidate(name: str, source: str, height: int) -> PrefilteredEnvironment:
+    return prefilter_environment(make_named_environment(name, source, height))
+
+
+@cache
+def capture_light(path: Path, height: int) -> PrefilteredEnvironment:
+    """A scene's stored capture environment (``envmaps/<name>.exr``) at ~``height`` rows, prefiltered."""
+    env = torch.from_numpy(read_exr(Path(path)).astype(np.float32))
+    factor = max(1, env.shape[0] // int(height))
+    if factor > 1 and env.shape[0] % factor == 0 and env.shape[1] % factor == 0:
+        env = downsample_latlong(env, factor)
+    return prefilter_environment(env)
+
+
+def candidate_lights(spec, height: int) -> dict[str, PrefilteredEnvironment]:
+    """{name: prefiltered map} of the candidate set (``gspi.data.env_sets`` names its options)."""
+    spec = list(spec) if isinstance(spec, tuple) else spec
+    return {name: _candidate(name, source, int(height)) for name, source in resolve_env_set(spec, "capture").items()}
+
+
 def cloud_normals_of(xyz: np.ndarray, view: np.ndarray, cams: LatticeCameras) -> Callable[[np.ndarray], np.ndarray]:
     """``normals(indices)`` of a cloud ``xyz`` [n, 3] whose points come from lattice views ``view``
-    [n]: the plane of each point's nearest points of the whole cloud (``light_fit.cloud_normals``),
+    [n]: the plane of each point's nearest points of the whole cloud (``cloud_normals``),
     facing its source camera; the same rule in training (the GT cloud) and at inference (Stage I's)."""
-    from gspi.stage2.light_fit import cloud_normals
-
     return lambda idx: cloud_normals(xyz, xyz[idx], cams.centers[view[idx]])

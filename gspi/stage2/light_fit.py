@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass
-from functools import cache
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,20 +18,17 @@ import torch
 from scipy.spatial import cKDTree
 
 from eval.colorspace import linear_to_srgb
-from eval.envmap import downsample_latlong
-from eval.imageio import read_exr
-from eval.relight import PrefilteredEnvironment, prefilter_environment
-from gspi.data.env_sets import make_named_environment, resolve_env_set
+from eval.relight import PrefilteredEnvironment
 from gspi.gaussians.model import Gaussians2D
 from gspi.light.estimate import estimate_light
 from gspi.light.readout import NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, pool_neighbours, read_posterior
 from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.infer import subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
+from gspi.stage2.light_condition import candidate_lights, cloud_normals
 from gspi.stage2.light_views import observe_points
 
 SURFELS_PER_POINT = 8  # surfels whose normals (facing the source camera, weighted by opacity) a point takes
-CLOUD_NEIGHBOURS = 24  # cloud points whose plane (PCA) gives a point's normal
 
 
 @dataclass(frozen=True)
@@ -61,27 +56,6 @@ class LightFitConfig:
         return cls(**values)
 
 
-@cache
-def _candidate(name: str, source: str, height: int) -> PrefilteredEnvironment:
-    return prefilter_environment(make_named_environment(name, source, height))
-
-
-@cache
-def capture_light(path: Path, height: int) -> PrefilteredEnvironment:
-    """A scene's stored capture environment (``envmaps/<name>.exr``) at ~``height`` rows, prefiltered."""
-    env = torch.from_numpy(read_exr(Path(path)).astype(np.float32))
-    factor = max(1, env.shape[0] // int(height))
-    if factor > 1 and env.shape[0] % factor == 0 and env.shape[1] % factor == 0:
-        env = downsample_latlong(env, factor)
-    return prefilter_environment(env)
-
-
-def candidate_lights(spec, height: int) -> dict[str, PrefilteredEnvironment]:
-    """{name: prefiltered map} of the candidate set (``gspi.data.env_sets`` names its options)."""
-    spec = list(spec) if isinstance(spec, tuple) else spec
-    return {name: _candidate(name, source, int(height)) for name, source in resolve_env_set(spec, "capture").items()}
-
-
 def surfel_normals(asset: Gaussians2D, xyz: np.ndarray, source_center: np.ndarray) -> np.ndarray:
     """[n, 3] unit normals at ``xyz`` [n, 3]: the asset's nearest surfels' normals, each turned to
     face the point's source camera ``source_center`` [n, 3], averaged with opacity weights."""
@@ -97,23 +71,6 @@ def surfel_normals(asset: Gaussians2D, xyz: np.ndarray, source_center: np.ndarra
     mean = (nrm * (facing * opacity[nn])[..., None]).sum(axis=1)
     length = np.linalg.norm(mean, axis=1, keepdims=True)
     return np.where(length > 1e-9, mean / np.maximum(length, 1e-12), source_center - xyz)
-
-
-def cloud_normals(cloud: np.ndarray, xyz: np.ndarray, source_center: np.ndarray, k: int = CLOUD_NEIGHBOURS
-                  ) -> np.ndarray:
-    """[n, 3] unit normals at ``xyz`` [n, 3]: the least-variance direction (PCA) of each point's ``k``
-    nearest points of the whole ``cloud`` [P, 3], turned to face its source camera. On the held-out
-    pool a `recon=fast` asset's surfel normals are 10-15 degrees off the GT (median), which a
-    specular read doubles; the cloud unprojected from the renders' depth lies on the surface (the
-    GT cloud's PCA normals: < 0.5 degree off)."""
-    k = min(k, len(cloud))
-    _, nn = cKDTree(cloud).query(xyz, k=k)
-    nbrs = cloud[np.asarray(nn).reshape(len(xyz), k)]
-    centred = nbrs - nbrs.mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    normal = vecs[:, :, 0]
-    facing = np.sign(np.einsum("nc,nc->n", normal, source_center - xyz))
-    return normal * np.where(facing == 0, 1.0, facing)[:, None]
 
 
 def predict_light_fit(points: PointCloud, renders, asset: Gaussians2D, cfg: LightFitConfig,

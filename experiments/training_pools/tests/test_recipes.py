@@ -13,6 +13,8 @@ STUDY_CONF = Path(__file__).resolve().parents[1] / "conf"
 GOLDEN = json.loads((Path(__file__).with_name("golden_recipes.json")).read_text())
 # keys added after the golden was recorded, each off in every recipe (issue 52), as tests/test_stage2_recipes.py
 ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighbourhood"): False,
+             ("data", "light_readout"): False, ("data", "light_wrong_share"): 0.0,
+             ("data", "light_candidates"): "procedural", ("data", "light_env_height"): 64,
              ("data", "subset"): "local", ("inference", "patch_points"): None, ("inference", "patch_coverage"): 2.0}
 
 
