@@ -1,8 +1,24 @@
-"""Speed of the evaluation protocol's pieces at 128 and 512 px (medians, machine named).
+"""Speed of the evaluation protocol's pieces at 128 and 512 px (medians, machine named), and of
+the commands a user waits for.
 
     python -m benchmarks.bench_eval
+    python -m benchmarks.bench_eval --commands-only --gt demo_out/data \
+        --pred "demo_out/runs/method=light_fit/predictions" --runs demo_out/runs
+
+``--gt DATA --pred PRED``: wall seconds of ``gspi-eval gt=DATA pred=PRED out=<temp>``; ``--runs
+RUNS``: of ``gspi-report RUNS out=<temp>``; each run as a subprocess (start-up and imports
+included), ``--repeats`` times, alternating, every time printed.
 """
 from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
 
 import torch
 
@@ -12,8 +28,47 @@ from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.relight import clear_prefilter_cache, prefilter_environment, split_sum
 
 
+REPO = Path(__file__).resolve().parents[1]
+
+
+def command_seconds(name: str, args: list[str]) -> float:
+    """Wall seconds of the console script ``name`` (beside this Python) with ``args``."""
+    script = shutil.which(name, path=str(Path(sys.executable).parent))
+    if script is None:
+        raise SystemExit(f"{name}: not installed beside {sys.executable}")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    start = time.perf_counter()
+    subprocess.run([script, *args], check=True, env=env, capture_output=True)
+    return time.perf_counter() - start
+
+
+def time_commands(gt: Path | None, pred: Path | None, runs: Path | None, repeats: int) -> None:
+    commands = []
+    if gt is not None and pred is not None:
+        commands.append(("gspi-eval", lambda out: [f"gt={gt}", f"pred={pred}", f"out={out}"]))
+    if runs is not None:
+        commands.append(("gspi-report", lambda out: [str(runs), f"out={out}"]))
+    times = {name: [] for name, _ in commands}
+    for _ in range(repeats):
+        for name, args in commands:
+            with tempfile.TemporaryDirectory() as out:
+                times[name].append(command_seconds(name, args(Path(out) / "out")))
+    for name, ts in times.items():
+        print(f"{name}: " + ", ".join(f"{t:.1f}" for t in ts) + f" s wall ({len(ts)} run(s))")
+
+
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--gt", type=Path, help="GT dataset for the gspi-eval command")
+    ap.add_argument("--pred", type=Path, help="predictions for the gspi-eval command")
+    ap.add_argument("--runs", type=Path, help="runs folder for the gspi-report command")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--commands-only", action="store_true", help="skip the protocol's pieces")
+    args = ap.parse_args()
     print(f"machine: {machine()}")
+    time_commands(args.gt, args.pred, args.runs, args.repeats)
+    if args.commands_only:
+        return
     g = torch.Generator().manual_seed(0)
     net = load_lpips()
     for size in (128, 512):

@@ -16,6 +16,7 @@ prediction of every view of the scored split and applies, in the protocol's orde
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -65,16 +66,23 @@ class ScoredView:
 
 
 class EnvironmentCache:
-    """Prefiltered environments, one per EXR file, built on first use on ``device``."""
+    """Prefiltered environments, built on first use on ``device``, one per distinct map: files
+    with the same pixels (each scene of a dataset carries its own copy of a shared
+    environment) share one prefiltering, the costly step of relighting."""
 
     def __init__(self, device: torch.device = CPU):
         self._envs: dict[Path, object] = {}
+        self._by_content: dict[tuple, object] = {}
         self.device = torch.device(device)
 
     def get(self, path: Path):
         if path not in self._envs:
             from eval.relight import prefilter_environment
-            self._envs[path] = prefilter_environment(as_tensor(read_exr(path), self.device))
+            pixels = np.ascontiguousarray(read_exr(path))
+            key = (pixels.shape, pixels.dtype.str, hashlib.blake2b(pixels.tobytes(), digest_size=16).hexdigest())
+            if key not in self._by_content:
+                self._by_content[key] = prefilter_environment(as_tensor(pixels, self.device))
+            self._envs[path] = self._by_content[key]
         return self._envs[path]
 
 

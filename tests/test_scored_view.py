@@ -158,3 +158,21 @@ def test_relight_clamp_albedo_false_shades_the_unclamped_aligned_albedo(data):
                         envs.get(scene.envmap_path(env)), albedo_linear=lin.to(raw.dtype))
     assert not torch.allclose(kept[env].pred_linear, unkept[env].pred_linear)
     torch.testing.assert_close(unkept[env].pred_linear, want)
+
+
+def test_environment_cache_prefilters_each_distinct_map_once(tmp_path, monkeypatch):
+    """Files with the same pixels (each scene's copy of a shared map) share one prefiltering."""
+    import eval.relight as relight
+    from eval.imageio import write_exr
+
+    calls = []
+    real = relight.prefilter_environment
+    monkeypatch.setattr(relight, "prefilter_environment", lambda env: calls.append(1) or real(env))
+    g = np.random.default_rng(0)
+    sky, other = g.random((8, 16, 3), dtype=np.float32), g.random((8, 16, 3), dtype=np.float32)
+    for name, image in (("a", sky), ("b", sky), ("c", other)):
+        write_exr(tmp_path / f"{name}.exr", image)
+    cache = EnvironmentCache()
+    a, b, c = (cache.get(tmp_path / f"{n}.exr") for n in "abc")
+    assert a is b and a is not c and len(calls) == 2
+    assert cache.get(tmp_path / "a.exr") is a and len(calls) == 2

@@ -17,6 +17,7 @@ from eval.report_site.images import envmap_preview
 from eval.report_site.page import page, url
 from eval.report_site.panels import relight_config, scene_panels
 from eval.report_site.scene_page import SceneWriter
+from eval.scored_view import EnvironmentCache
 
 MAX_COPY_BYTES = 2_000_000   # a log longer than this is copied as its last 2 MB
 
@@ -112,10 +113,11 @@ def problems_html(problems: list[Problem]) -> str:
 
 
 def write_scene(out: Path, scene_dir: Path, jobs: list[Job], all_jobs: list[Job], per_view: dict,
-                *, max_views, thumb, quality) -> tuple[Path, tuple]:
-    """The scene's page; returns it and (the first view's panels, environments) for figures."""
+                *, max_views, thumb, quality, env_cache=None) -> tuple[Path, tuple]:
+    """The scene's page; returns it and (the first view's panels, environments) for figures.
+    ``env_cache``: an ``EnvironmentCache`` kept across the report's scenes."""
     scene = read_scene(scene_dir)
-    panels, envs = scene_panels(scene, jobs, per_view, max_views=max_views)
+    panels, envs = scene_panels(scene, jobs, per_view, max_views=max_views, env_cache=env_cache)
     protocol = next((j.protocol for j in jobs if j.protocol), {})
     cfg = relight_config(protocol)
     env_images = {e: envmap_preview(read_exr(scene.envmap_path(e)), cfg) for e in envs}
@@ -155,6 +157,7 @@ def build_report(paths: list[str | Path], out: str | Path, *, data: str | None =
     site = Site(out=out, index=out / "index.html", problems=problems, tables=tables)
     sources, first_views = scene_sources(jobs), {}
     scenes = sorted({s for j in jobs for s in j.scenes})
+    env_cache = EnvironmentCache()  # one prefiltering per distinct map over all scenes
     for k, scene in enumerate(scenes, 1):
         say(f"scene {k}/{len(scenes)}: {scene}")
         lacking = [j.label for j in shown if j.prediction(scene) is None]
@@ -166,7 +169,8 @@ def build_report(paths: list[str | Path], out: str | Path, *, data: str | None =
             continue
         try:
             site.scene_pages[scene], first_views[scene] = write_scene(out, sources[scene], shown, jobs, per_view,
-                                                  max_views=max_views, thumb=thumb, quality=quality)
+                                                  max_views=max_views, thumb=thumb, quality=quality,
+                                                  env_cache=env_cache)
         except (LayoutError, OSError, ValueError) as exc:
             problems.append(Problem(sources[scene], "scene page", f"{scene}: {exc}"))
     if figures and shown:

@@ -77,9 +77,10 @@ def _metrics(frame: pd.DataFrame, scene: str, view: str, channel: str, env: str 
 class SceneRenderer:
     """Builds `ViewPanels` for the views of one scene; prefiltered environments are shared."""
 
-    def __init__(self, scene: Scene, envs: list[str], split: str = "test"):
+    def __init__(self, scene: Scene, envs: list[str], split: str = "test",
+                 cache: EnvironmentCache | None = None):
         self.scene, self.env_names, self.split = scene, envs, split
-        self.cache = EnvironmentCache()
+        self.cache = EnvironmentCache() if cache is None else cache  # the report's, shared by its scenes
         self.gt_cache: dict = {}  # the scored GT views, read once for all jobs
 
     def environment(self, name: str):
@@ -159,11 +160,13 @@ def job_panels(renderer: SceneRenderer, job: Job, views: list, per_view: pd.Data
 
 
 def scene_panels(scene: Scene, jobs: list[Job], per_view: dict[str, pd.DataFrame], *,
-                 split: str = "test", max_views: int | None = None) -> tuple[list[ViewPanels], list[str]]:
-    """Panels of the first `max_views` views of `scene` for every job; and the environments."""
+                 split: str = "test", max_views: int | None = None,
+                 env_cache: EnvironmentCache | None = None) -> tuple[list[ViewPanels], list[str]]:
+    """Panels of the first `max_views` views of `scene` for every job; and the environments.
+    ``env_cache``: prefiltered environments kept across scenes (a dataset's scenes share maps)."""
     protocol = next((j.protocol for j in jobs if j.protocol), {})
     envs = list((protocol.get("relight") or {}).get("envs") or scene.relight_envs)
-    renderer = SceneRenderer(scene, envs, split)
+    renderer = SceneRenderer(scene, envs, split, env_cache)
     views = scene.split_views(split)[:max_views]
     cfg = relight_config(protocol)
     gts = {}

@@ -87,20 +87,29 @@ def drop_fragments(vertices: np.ndarray, faces: np.ndarray, min_fraction: float)
 SILHOUETTE_STRIDE = 2  # the silhouette fit casts every 2nd pixel's ray (a quarter of the pixels)
 
 
+def strided_rays(K: np.ndarray, w2c: np.ndarray, height: int, width: int,
+                 stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(camera centres [V, 3], unit directions [V, ceil(H / stride), ceil(W / stride), 3]) of
+    every ``stride``-th pixel's centre ray (``gspi.gaussians.cameras.pixel_rays``, OpenCV
+    cameras ``K``, ``w2c``)."""
+    from gspi.gaussians.cameras import camera_centers, pixel_rays
+
+    K, w2c = torch.as_tensor(K, dtype=torch.float64), torch.as_tensor(w2c, dtype=torch.float64)
+    return camera_centers(w2c).numpy(), pixel_rays(K, w2c, height, width)[:, ::stride, ::stride].numpy()
+
+
 def mesh_masks(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-               height: int, width: int, stride: int = 1) -> np.ndarray:
+               height: int, width: int, stride: int = 1,
+               rays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """[V, ceil(H / stride), ceil(W / stride)] bool: pixels (every ``stride``-th row and column)
-    whose centre ray (``gspi.gaussians.cameras.pixel_rays``, OpenCV cameras ``K``, ``w2c``)
-    meets the mesh."""
+    whose centre ray (``strided_rays``; ``rays``: its result for these cameras, when the
+    caller casts them at several meshes) meets the mesh."""
     import trimesh
 
     from gspi.data.assets.mesh_render import ray_intersector
-    from gspi.gaussians.cameras import camera_centers, pixel_rays
 
     caster = ray_intersector(trimesh.Trimesh(vertices, faces, process=False))
-    K, w2c = torch.as_tensor(K, dtype=torch.float64), torch.as_tensor(w2c, dtype=torch.float64)
-    dirs = pixel_rays(K, w2c, height, width)[:, ::stride, ::stride].numpy()
-    centres = camera_centers(w2c).numpy()
+    centres, dirs = strided_rays(K, w2c, height, width, stride) if rays is None else rays
     out = np.zeros(dirs.shape[:3], dtype=bool)
     for v in range(len(dirs)):
         d = np.ascontiguousarray(dirs[v].reshape(-1, 3))
@@ -134,12 +143,13 @@ def asset_surface(views: LatticeViews, centres: np.ndarray, cfg: MeshConfig) -> 
     height, width = views.valid.shape[1:]
     s = SILHOUETTE_STRIDE
     candidates, ious = [], []
+    rays = strided_rays(views.K, views.w2c, height, width, s) if len(cfg.levels) > 1 else None
     for level in cfg.levels:
         vertices, faces = zero_surface(tsdf, weight, grid, level=level)
         n_raw = len(faces)
         vertices, faces = drop_fragments(vertices, faces, cfg.min_fragment)
         candidates.append((vertices, faces, n_raw))
-        ious.append(mask_iou(mesh_masks(vertices, faces, views.K, views.w2c, height, width, s),
+        ious.append(mask_iou(mesh_masks(vertices, faces, views.K, views.w2c, height, width, s, rays),
                              views.valid[:, ::s, ::s]) if len(cfg.levels) > 1 else float("nan"))
     best = int(np.nanargmax(ious)) if len(cfg.levels) > 1 else 0
     vertices, faces, n_raw = candidates[best]

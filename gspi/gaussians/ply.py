@@ -74,7 +74,9 @@ def property_names(sh_degree: int, *, pbr: bool = False) -> list[str]:
 
 def _load_vertices(path: PathLike) -> np.ndarray:
     try:
-        ply = PlyData.read(str(path), mmap=False)
+        # mmap="c": plyfile reads a binary element of scalar properties as one array from a mapped
+        # file; mmap=False takes its per-value Python loop (1.9 s for a 6k-surfel asset).
+        ply = PlyData.read(str(path), mmap="c")
     except FileNotFoundError:
         raise
     except (PlyParseError, ValueError, EOFError, UnicodeDecodeError, IndexError) as exc:
@@ -85,7 +87,7 @@ def _load_vertices(path: PathLike) -> np.ndarray:
     if data.dtype.names is None:
         raise PlyFormatError(path, "'vertex' element has no scalar properties")
     _check_no_trailing_data(path, ply)
-    return data
+    return np.array(data)  # a copy in memory: the file is not held open
 
 
 def _check_no_trailing_data(path: PathLike, ply: PlyData) -> None:
