@@ -26,9 +26,11 @@ STAGE2_SCORES = HERE.parent / "view_dependence" / "log" / "retraining_shipped" /
 METAL_SCENES = tuple(f"p{i:04d}" for i in range(224, 231))
 PARTS_SCENES = tuple(f"p{i:04d}" for i in (224, 225, 226, 229, 230, 231, 233, 235, 238, 242, 243, 245, 246,
                                              247, 249, 250, 252, 253))
+LIGHT_FULL = ("Stage II `light_full` (the read-out as a condition; 64 training scenes' exact renders; measured "
+              "under the estimated light)")
 LEARNED = {  # results/<folder>: a light-aware Stage II measured on the exact renders (run.sh's training)
-    "light_full_s0_exact": "Stage II `light_full` (the read-out as a condition; 64 training scenes' exact renders; "
-                           "measured under the estimated light)",
+    "light_full_s0_step1000_exact": LIGHT_FULL,
+    "light_full_s0_exact": LIGHT_FULL,
 }
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
