@@ -91,16 +91,18 @@ def identify_table() -> str | None:
              "Each held-out scene's light is a member of the candidate set (the pool's 8 capture environments) "
              "turned by a seeded random angle, its radiance scaled by a seeded random gain in [0.5, 2]; "
              "`gspi.light.estimate.estimate_light` on 600 points with GT normals (seconds: the estimate alone, one "
-             "thread, 2-5 other jobs on the 2-core VM). Generated from results/identify_*.json.", "",
+             "thread, 2-5 other jobs on the 2-core VM). `stage1`: through Stage I (its cloud, renders and cloud normals) "
+             "on the first 8 scenes, lights unturned, the environment only. Generated from results/identify_*.json.", "",
              "A turn is not wrong where it changes nothing (`overcast` has no azimuthal structure): those scenes "
              "count as right.", "",
              "| views | scenes | environment right | and turn within 15 deg (or irrelevant) | median turn error (deg) | "
              "median abs log2 gain error | median seconds |", "|---|---|---|---|---|---|---|"]
     for path in files:
         s = json.loads(path.read_text())["summary"]
+        cell = lambda key, fmt="{}": fmt.format(s[key]) if key in s else "-"  # noqa: E731 (identify_stage1: unturned, env only)
         lines.append(f"| {path.stem.removeprefix('identify_')} | {s['scenes']} | {s['env_identified']} | "
-                     f"{s['env_and_rotation_within_15deg']} | {s['median_rotation_error_deg']:.1f} | "
-                     f"{s['median_abs_log2_gain_error']:.3f} | {s['median_seconds']:.1f} |")
+                     f"{cell('env_and_rotation_within_15deg')} | {cell('median_rotation_error_deg', '{:.1f}')} | "
+                     f"{cell('median_abs_log2_gain_error', '{:.3f}')} | {cell('median_seconds', '{:.1f}')} |")
     return "\n".join(lines) + "\n"
 
 
