@@ -39,9 +39,14 @@ TRAIN_KEYS="$KEYS data.parts.matte_finish=0.5"
   .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $TRAIN_KEYS
 [ -d "$WORK/train_view" ] || $PY -m gspi.data.pool.split "$WORK/train_pool" "$WORK/train_view" --train 0:64
 RUN="$WORK/runs/train_light_full_s0"
+KEPT=experiments/known_light/resume/light_full_s0/checkpoint.pt   # the training's state at the last session's stop
+if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
 .venv/bin/gspi-train data="$WORK/train_view" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_full seed=0 \
   stage2.train.stop_after_minutes=50 stage2.train.run_log=null
-[ -f "$RES/light_full_s0_exact/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
-  data="$WORK/heldout_test" out="$WORK/runs/light_full_s0_exact" baseline="$BASE" points_measure=table2 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/light_full_s0_exact/scores.json'), Path('$RES/light_full_s0_exact/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
+STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+M="light_full_s0_step${STEP}_exact"   # one measure per checkpoint step: a learning curve
+[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
+  data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
+  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
+cp "$RUN/checkpoint.pt" "$KEPT"   # the state travels in git while the training is under way
 $PY -m experiments.known_light.tables
