@@ -8,10 +8,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
 
-from eval.config import register_configs
+from tests.recipe_fixtures import composed_stage2
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -19,23 +17,6 @@ GOLDEN = json.loads((ROOT / "tests" / "golden" / "stage2_recipes.json").read_tex
 FLAT = ["cpu_pool224_pixel_5k", "cpu_pool224_pixel", "cpu_pool224_5k", "cpu_pool224", "cpu_mix_pool",  # shipped recipes
         "cpu_matte_pool", "cpu_parts_pool", "cpu_pool_recon", "cpu_pool_trunc_snr", "cpu_pool_xs", "cpu_small",
         "table2_cpu"]  # (checkpoints/README.md) and Table 2's CPU recipe, rewritten flat by issue 53
-
-
-# keys added after the golden was recorded, each off in every recipe (issue 52): (section, key) -> off value
-ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighbourhood"): False,
-             ("data", "light_readout"): False, ("data", "light_wrong_share"): 0.0,
-             ("data", "light_candidates"): "procedural", ("data", "light_env_height"): 64, ("data", "subset"): "local", ("inference", "patch_points"): None,
-             ("inference", "patch_coverage"): 2.0}
-
-
-def composed_stage2(override: str) -> dict:
-    """The composed stage2 section without ``ADDED_OFF``'s keys, after checking they are off."""
-    register_configs()
-    with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-        cfg = OmegaConf.to_container(compose("gspi_train", overrides=[override]).stage2, resolve=True)
-    for (section, key), off in ADDED_OFF.items():
-        assert cfg[section].pop(key) == off, f"{override}: stage2.{section}.{key} is not off"
-    return cfg
 
 
 def run_default_recipe() -> str:
