@@ -48,16 +48,16 @@ class Stage2Context:
     info: dict
     run_cfg: Any  # gspi.stage2.config.Stage2Config of the run
 
-    def predict(self, points, renders, asset: Gaussians2D, device) -> tuple[np.ndarray, dict]:
+    def predict(self, points, renders, device) -> tuple[np.ndarray, dict]:
         """[P, 5] PBR of a Stage I cloud (albedo sRGB, roughness, metallic) and stats."""
         from gspi.stage2.infer import predict_generated_points
 
         data_cfg = self.model_cfg["stage2"].data
         light_table, light = None, None
-        if getattr(data_cfg, "light_readout", False):  # checkpoints before issue 66 lack it
+        if data_cfg.light_readout:
             from gspi.stage2.light_fit import inference_light_table
 
-            light_table, light = inference_light_table(points, renders, asset.detach().to("cpu"), data_cfg)
+            light_table, light = inference_light_table(points, renders, data_cfg)
         pbr, stats = predict_generated_points(
             self.model, points, renders, local_mode=data_cfg.local_condition, encoder=self.encoder,
             cfg=self.run_cfg.inference,
@@ -77,10 +77,10 @@ class LightFitContext:
     cfg: Any          # gspi.stage2.light_fit.LightFitConfig
     candidates: dict  # {name: eval.relight.PrefilteredEnvironment}
 
-    def predict(self, points, renders, asset: Gaussians2D, device) -> tuple[np.ndarray, dict]:
+    def predict(self, points, renders, device) -> tuple[np.ndarray, dict]:
         from gspi.stage2.light_fit import predict_light_fit
 
-        return predict_light_fit(points, renders, asset.detach().to("cpu"), self.cfg, self.candidates)
+        return predict_light_fit(points, renders, self.cfg, self.candidates)
 
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:
@@ -123,7 +123,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     write_json_atomic(work_dir / "stage1.json", s1)
 
     with clock.stage("stage2"):
-        pbr, s2 = stage2.predict(points, renders, asset, device)
+        pbr, s2 = stage2.predict(points, renders, device)
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None

@@ -48,8 +48,7 @@ def main(argv=None) -> None:
     for name in names:
         t0 = time.perf_counter()
         points, renders, _ = extract_point_cloud(read_ply(args.recon / name / "asset" / "point_cloud.ply"), cfg)
-        cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
-                              width=renders.rgb.shape[2], height=renders.rgb.shape[1])
+        cams = LatticeCameras.from_renders(renders)
         xyz = points.xyz.astype(np.float64)
         sub = readout_subset(len(xyz))
         obs = observe_points(renders.rgb, renders.depth, cams, xyz[sub], cloud_normals_of(xyz, points.view, cams)(sub))

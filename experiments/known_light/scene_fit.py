@@ -11,11 +11,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from eval.colorspace import linear_to_srgb
 from eval.imageio import read_exr
 from eval.layout import read_scene, read_view_file
 from eval.relight import PrefilteredEnvironment, prefilter_environment
+from gspi.gaussians.model import Gaussians2D
 from gspi.light.observations import PointViews
 from gspi.light.readout import fit_grid, pool_neighbours, read_best, read_posterior
 from gspi.point_cloud import nearest_fill
@@ -24,6 +26,7 @@ from gspi.stage2.light_views import observe_points
 
 MAX_POINTS = 20000   # Table 2's measure: a seeded subset, 1-NN fill
 READOUTS = ("map", "knn_post")
+SURFELS_PER_POINT = 8  # surfels whose normals (facing the source camera, weighted by opacity) a point takes
 
 
 @dataclass(frozen=True)
@@ -73,12 +76,29 @@ def observations(points: ScenePoints, keep: np.ndarray, views_dir: Path, normals
     return observe_points(rgb, depth, points.cameras, points.xyz[keep], normals[keep])
 
 
+def surfel_normals(asset: Gaussians2D, xyz: np.ndarray, source_center: np.ndarray) -> np.ndarray:
+    """[n, 3] unit normals at ``xyz`` [n, 3]: the asset's nearest surfels' normals, each turned to
+    face the point's source camera ``source_center`` [n, 3], averaged with opacity weights."""
+    means = asset.means.detach().cpu().numpy().astype(np.float64)
+    normals = asset.normals.detach().cpu().numpy().astype(np.float64)
+    opacity = asset.opacities.detach().cpu().numpy().reshape(-1).astype(np.float64)
+    k = min(SURFELS_PER_POINT, len(means))
+    _, nn = cKDTree(means).query(xyz, k=k)
+    nn = np.asarray(nn).reshape(len(xyz), k)
+    nrm = normals[nn]                                          # [n, k, 3]
+    facing = np.sign(np.einsum("nkc,nc->nk", nrm, source_center - xyz))
+    facing[facing == 0] = 1.0
+    mean = (nrm * (facing * opacity[nn])[..., None]).sum(axis=1)
+    length = np.linalg.norm(mean, axis=1, keepdims=True)
+    return np.where(length > 1e-9, mean / np.maximum(length, 1e-12), source_center - xyz)
+
+
+
 def asset_normals(points: ScenePoints, keep: np.ndarray, views_dir: Path) -> np.ndarray:
     """[P, 3] normals of points ``keep`` from the Stage 0 asset of a reconstructed pool's scene
-    (``asset/point_cloud.ply``), as the product reads them (``gspi.stage2.light_fit.surfel_normals``);
-    zeros elsewhere."""
+    (``asset/point_cloud.ply``, ``surfel_normals``: the surfel normals the product does not read,
+    measured here); zeros elsewhere."""
     from gspi.gaussians.ply import read_ply
-    from gspi.stage2.light_fit import surfel_normals
 
     asset = read_ply(views_dir / "asset" / "point_cloud.ply")
     out = np.zeros((points.num_points, 3))

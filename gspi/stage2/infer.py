@@ -100,8 +100,7 @@ def point_conditions(points: PointCloud, mode: str, renders: LatticeRenders, *,
     spread over the renders that see the point appended (+D), in that order as in training."""
     local_condition_dim(mode)
     height, width = renders.image_size
-    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
-                          width=width, height=height)
+    cams = LatticeCameras.from_renders(renders)
     top = srgb_top_rgb(points.rgb)
     if mode == "top_rgb":
         cond = top

@@ -21,6 +21,13 @@ class LatticeCameras:
     width: int
     height: int
 
+    @classmethod
+    def from_renders(cls, renders) -> "LatticeCameras":
+        """The cameras of Stage I's lattice renders (``gspi.gaussians.lattice_render.LatticeRenders``)."""
+        height, width = renders.rgb.shape[1:3]
+        return cls(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
+                   width=width, height=height)
+
     @property
     def centers(self) -> np.ndarray:  # [V, 3] world camera centres
         R, t = self.w2c[:, :3, :3], self.w2c[:, :3, 3]

@@ -15,11 +15,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from eval.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
-from gspi.gaussians.model import Gaussians2D
 from gspi.light.estimate import estimate_light
 from gspi.light.readout import NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, pool_neighbours, read_posterior
 from gspi.point_cloud import PointCloud, nearest_fill
@@ -28,7 +26,6 @@ from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_condition import candidate_lights, cloud_normals
 from gspi.stage2.light_views import observe_points
 
-SURFELS_PER_POINT = 8  # surfels whose normals (facing the source camera, weighted by opacity) a point takes
 
 
 @dataclass(frozen=True)
@@ -56,29 +53,11 @@ class LightFitConfig:
         return cls(**values)
 
 
-def surfel_normals(asset: Gaussians2D, xyz: np.ndarray, source_center: np.ndarray) -> np.ndarray:
-    """[n, 3] unit normals at ``xyz`` [n, 3]: the asset's nearest surfels' normals, each turned to
-    face the point's source camera ``source_center`` [n, 3], averaged with opacity weights."""
-    means = asset.means.detach().cpu().numpy().astype(np.float64)
-    normals = asset.normals.detach().cpu().numpy().astype(np.float64)
-    opacity = asset.opacities.detach().cpu().numpy().reshape(-1).astype(np.float64)
-    k = min(SURFELS_PER_POINT, len(means))
-    _, nn = cKDTree(means).query(xyz, k=k)
-    nn = np.asarray(nn).reshape(len(xyz), k)
-    nrm = normals[nn]                                          # [n, k, 3]
-    facing = np.sign(np.einsum("nkc,nc->nk", nrm, source_center - xyz))
-    facing[facing == 0] = 1.0
-    mean = (nrm * (facing * opacity[nn])[..., None]).sum(axis=1)
-    length = np.linalg.norm(mean, axis=1, keepdims=True)
-    return np.where(length > 1e-9, mean / np.maximum(length, 1e-12), source_center - xyz)
-
-
-def predict_light_fit(points: PointCloud, renders, asset: Gaussians2D, cfg: LightFitConfig,
+def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
                       candidates: dict[str, PrefilteredEnvironment]) -> tuple[np.ndarray, dict]:
     """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found)."""
     t0 = time.perf_counter()
-    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
-                          width=renders.rgb.shape[2], height=renders.rgb.shape[1])
+    cams = LatticeCameras.from_renders(renders)
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
     xyz = pts.xyz.astype(np.float64)
@@ -104,15 +83,14 @@ def predict_light_fit(points: PointCloud, renders, asset: Gaussians2D, cfg: Ligh
     return pbr, stats
 
 
-def inference_light_table(points: PointCloud, renders, asset: Gaussians2D, data_cfg
+def inference_light_table(points: PointCloud, renders, data_cfg
                           ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
     """Stage II's ``light_readout`` condition at inference: the light estimated among the model's
-    ``stage2.data.light_candidates`` from the renders and the asset's surfel normals, and the
+    ``stage2.data.light_candidates`` from the renders and the cloud's normals, and the
     read-out's table of the cloud under it (``gspi.stage2.light_condition``); plus what was found."""
     from gspi.stage2.light_condition import cloud_normals_of, estimate_scene_light, readout_table
 
-    cams = LatticeCameras(K=np.asarray(renders.K, np.float64), w2c=np.asarray(renders.w2c, np.float64),
-                          width=renders.rgb.shape[2], height=renders.rgb.shape[1])
+    cams = LatticeCameras.from_renders(renders)
     xyz = points.xyz.astype(np.float64)
     normals = cloud_normals_of(xyz, points.view, cams)
     candidates = candidate_lights(data_cfg.light_candidates, data_cfg.light_env_height)
