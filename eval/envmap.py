@@ -30,6 +30,7 @@ __all__ = [
     "latlong_solid_angles",
     "direction_to_pixel",
     "sample_latlong",
+    "bilinear_latlong",
     "downsample_latlong",
     "zonal_filter",
 ]
@@ -127,9 +128,16 @@ def sample_latlong(envmap: torch.Tensor, directions: torch.Tensor) -> torch.Tens
         raise ValueError(f"envmap must be [H, W, C], got shape {tuple(envmap.shape)}")
     if directions.shape[-1:] != (3,):
         raise ValueError(f"directions must be [..., 3], got {tuple(directions.shape)}")
-    h, w, ch = envmap.shape
+    h, w, _ = envmap.shape
     lead = directions.shape[:-1]
     row, col = direction_to_pixel(directions.reshape(-1, 3).to(torch.float32), h, w)
+    return bilinear_latlong(envmap, row, col).reshape(*lead, envmap.shape[2])
+
+
+def bilinear_latlong(envmap: torch.Tensor, row: torch.Tensor, col: torch.Tensor) -> torch.Tensor:
+    """Bilinear lookup at continuous pixel coordinates [N] (``direction_to_pixel``'s: texel centres
+    at integers, rows clamped at the poles, columns wrapped) -> [N, C], dtype of ``envmap``."""
+    h, w, ch = envmap.shape
     row = row.clamp(0.0, h - 1.0)
     r0f = torch.floor(row)
     fr = (row - r0f)[:, None].to(envmap.dtype)
@@ -144,7 +152,7 @@ def sample_latlong(envmap: torch.Tensor, directions: torch.Tensor) -> torch.Tens
     v10, v11 = flat[r1 * w + c0], flat[r1 * w + c1]
     top = v00 + (v01 - v00) * fc
     bot = v10 + (v11 - v10) * fc
-    return (top + (bot - top) * fr).reshape(*lead, ch)
+    return top + (bot - top) * fr
 
 
 def downsample_latlong(envmap: torch.Tensor, factor: int) -> torch.Tensor:

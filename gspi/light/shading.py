@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from eval.brdf_lut import lookup_dfg
-from eval.envmap import direction_to_pixel
+from eval.envmap import bilinear_latlong, direction_to_pixel
 from eval.relight import PrefilteredEnvironment
 
 DIELECTRIC_F0 = 0.04  # the shader's F0 of a dielectric (eval.relight)
@@ -63,26 +63,15 @@ def rotate_latlong(envmap: Tensor, columns: int) -> Tensor:
 class _LatLongSampler:
     """Bilinear lookups of lat-long maps of any size at one set of directions, the angles computed
     once (``eval.envmap.sample_latlong`` recomputes them per call; a grid fit reads ~20 maps at the
-    same directions). Same convention and interpolation as ``sample_latlong`` (tested equal)."""
+    same directions); the lookup itself is ``eval.envmap.bilinear_latlong``, sample_latlong's own."""
 
     def __init__(self, directions: Tensor):
         row1, col1 = direction_to_pixel(directions.to(torch.float32), 1, 1)  # the map-size-free coordinates
         self.row_frac, self.col_frac = row1 + 0.5, col1 + 0.5
 
     def __call__(self, envmap: Tensor) -> Tensor:
-        h, w, ch = envmap.shape
-        row = (self.row_frac * h - 0.5).clamp(0.0, h - 1.0)
-        col = self.col_frac * w - 0.5
-        r0f, c0f = torch.floor(row), torch.floor(col)
-        fr, fc = (row - r0f)[:, None], (col - c0f)[:, None]
-        r0 = r0f.long()
-        r1 = (r0 + 1).clamp(max=h - 1)
-        c0 = torch.remainder(c0f.long(), w)
-        c1 = torch.remainder(c0 + 1, w)
-        flat = envmap.reshape(h * w, ch)
-        top = flat[r0 * w + c0] + (flat[r0 * w + c1] - flat[r0 * w + c0]) * fc
-        bot = flat[r1 * w + c0] + (flat[r1 * w + c1] - flat[r1 * w + c0]) * fc
-        return top + (bot - top) * fr
+        h, w, _ = envmap.shape
+        return bilinear_latlong(envmap, self.row_frac * h - 0.5, self.col_frac * w - 0.5)
 
 
 def _specular_at(pre: PrefilteredEnvironment, sample: _LatLongSampler, roughness: float) -> Tensor:
