@@ -47,7 +47,7 @@ def test_a_missing_key_gets_its_default_and_a_set_one_is_kept():
     ({"train": {"lrr": 1e-3}}, r"stage2\.train\.lrr"),
     ({"train": {"batch_size": "8"}}, r"stage2\.train\.batch_size='8': must be an integer"),
     ({"train": {"batch_size": 0}}, r"stage2\.train\.batch_size=0: must be an integer >= 1"),
-    ({"diffusion": {"prediction": "v"}}, r"stage2\.diffusion\.prediction='v': must be one of \['eps', 'x0'\]"),
+    ({"diffusion": {"prediction": "v"}}, r"stage2\.diffusion\.prediction='v': must be one of \['eps', 'x0', 'x0_readout'\]"),
     ({"prior": {"encoder": "clip"}}, "alexnet, dinov2, none"),
     ({"prior": {"alexnet": {"layer": "fc7"}}}, "relu5"),
     ({"data": {"local_condition": "depth"}}, r"local_condition='depth'"),

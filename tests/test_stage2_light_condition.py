@@ -106,3 +106,58 @@ def test_cloud_normals_are_the_surface_plane_facing_the_camera():
     back = -front  # the same points seen from the other side face the other way
     n_back = cloud_normals(sphere, back, np.broadcast_to(-camera, back.shape))
     assert np.all((n_back * back).sum(1) > 0.99)
+
+
+def tiny_readout_model(light: PointDataConfig):
+    from gspi.stage2.model import RCWConfig, RCWDenoiser
+
+    torch.manual_seed(0)
+    return RCWDenoiser(RCWConfig(num_latents=4, latent_dim=16, point_dim=16, num_blocks=1, num_compute_layers=1,
+                                 num_heads=2, local_cond_dim=light.condition_width(0), global_token_dim=0,
+                                 prediction="x0_readout", readout_column=light.light_readout_column()))
+
+
+def test_an_untrained_x0_readout_model_samples_the_readout(lit):
+    """x0_readout: the head corrects the read-out and starts at zero, so DDIM returns the read-out."""
+    from gspi.stage2.sampler import predict_point_pbr
+
+    scene, _ = lit
+    idx = np.arange(0, scene.num_points, 7)
+    cond = local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot", light=LIGHT)
+    assert LIGHT.light_readout_column() == 35
+    readout = cond[:, [37, 38, 39, 35, 36]].clip(0, 1)  # albedo sRGB, roughness, metallic
+    model = tiny_readout_model(LIGHT)
+    pbr = predict_point_pbr(model, scene.xyz[idx], cond, None, num_steps=5).numpy()
+    np.testing.assert_allclose(pbr, readout, atol=1e-4)
+    with torch.no_grad():
+        model.out.bias.fill_(0.2)  # a correction moves every channel (metallic 1 clamps)
+    moved = predict_point_pbr(model, scene.xyz[idx], cond, None, num_steps=5).numpy()
+    assert np.all((moved > readout + 0.05) | (readout > 0.85))
+
+
+def test_an_x0_readout_model_learns_a_correction(lit):
+    from gspi.stage2.data import scene_item
+    from gspi.stage2.inputs import Stage2Inputs
+    from gspi.stage2.loss import denoising_loss
+
+    scene, _ = lit
+    model = tiny_readout_model(LIGHT)
+    xyz, cond, f0 = scene_item(scene, np.arange(0, scene.num_points, 5)[:256], LIGHT, np.random.default_rng(0))
+    inputs = Stage2Inputs(xyz=torch.from_numpy(xyz)[None], local_cond=torch.from_numpy(cond)[None], global_tokens=None)
+    loss = denoising_loss(model, torch.from_numpy(f0)[None], inputs, generator=torch.Generator().manual_seed(0))
+    loss.backward()
+    assert model.out.weight.grad.abs().sum() > 0  # the zero layer is trained
+
+
+def test_x0_readout_needs_the_readout_condition():
+    from gspi.stage2.config import complete_stage2
+    from gspi.stage2.model import RCWConfig
+    from gspi.stage2.train import rcw_config
+
+    with pytest.raises(ValueError, match="needs stage2.data.light_readout=true"):
+        rcw_config(complete_stage2({"diffusion": {"prediction": "x0_readout"}}), 0)
+    cfg = rcw_config(complete_stage2({"diffusion": {"prediction": "x0_readout"},
+                                      "data": {"light_readout": True, "cross_view_radiance": True}}), 0)
+    assert cfg.readout_column == 35 + 5 and cfg.local_cond_dim == 35 + 5 + LIGHT_READOUT_WIDTH
+    with pytest.raises(ValueError, match="go together"):
+        RCWConfig(prediction="x0_readout")

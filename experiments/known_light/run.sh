@@ -49,4 +49,20 @@ M="light_full_s0_step${STEP}_exact"   # one measure per checkpoint step: a learn
   data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
   $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
 cp "$RUN/checkpoint.pt" "$KEPT"   # the state travels in git while the training is under way
+# What the learned rows are given: the condition's own read-out scored as the prediction.
+[ -f "$RES/condition_readout/scores.json" ] || $PY -m experiments.known_light.condition "$RUN/checkpoint.pt" \
+  "$WORK/heldout_test" "$WORK/runs/condition_readout" --baseline "$BASE" --results "$RES/condition_readout" \
+  --label "parts_pool[224:256] (exact renders)"
+# ablation=light_residual: the same, the x0 head correcting the read-out (starts as the read-out).
+RUN="$WORK/runs/train_light_residual_s0"
+KEPT=experiments/known_light/resume/light_residual_s0/checkpoint.pt
+if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
+.venv/bin/gspi-train data="$WORK/train_view" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=0 \
+  stage2.train.stop_after_minutes=50 stage2.train.run_log=null
+STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+M="light_residual_s0_step${STEP}_exact"
+[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
+  data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
+  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
+mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"
 $PY -m experiments.known_light.tables

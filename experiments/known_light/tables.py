@@ -26,9 +26,16 @@ STAGE2_SCORES = HERE.parent / "view_dependence" / "log" / "retraining_shipped" /
 METAL_SCENES = tuple(f"p{i:04d}" for i in range(224, 231))
 PARTS_SCENES = tuple(f"p{i:04d}" for i in (224, 225, 226, 229, 230, 231, 233, 235, 238, 242, 243, 245, 246,
                                              247, 249, 250, 252, 253))
-# results/light_full_s0_step<N>_exact: run.sh's light-aware Stage II at checkpoint step N (a learning curve)
-LIGHT_FULL = ("Stage II `light_full` (the read-out as a condition; 64 training scenes' exact renders; measured "
-              "under the estimated light)")
+# results/<ablation>_s0_step<N>_exact: run.sh's light-aware Stage II at checkpoint step N (a learning curve)
+LEARNED = {
+    "light_full": "Stage II `light_full` (the read-out as a condition; 64 training scenes' exact renders; measured "
+                  "under the estimated light)",
+    "light_residual": "Stage II `light_residual` (`light_full` whose x0 head corrects the read-out; same data and "
+                      "measure)",
+}
+# results/condition_readout: the condition's own read-out columns scored as the prediction (condition.py)
+CONDITION = ("the condition's read-out itself (estimated light, cloud normals, 5 000-point subset, 1-NN: what "
+             "the learned rows are given)")
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
     "exact_rotated90": "exact renders, the capture light turned 90 degrees (a wrong light)",
@@ -71,10 +78,14 @@ def read_table() -> str:
         lines += [f"## {caption}", "", head, row("no decomposition", scores["map"], "no_decomposition")]
         if folder == "exact_true":
             lines.append(row("Stage II `exact_whole_xv_nbhd` (trained and measured on exact renders)", stage2, "stage2"))
-            curve = sorted((json.loads(p.read_text()) for p in RESULTS.glob("light_full_s0_step*_exact/scores.json")),
-                           key=lambda sc: int(sc.get("checkpoint_step") or 0))
-            for learned in curve:
-                lines.append(row(f"{LIGHT_FULL}, step {learned.get('checkpoint_step')}", learned, "stage2"))
+            for name, label in LEARNED.items():
+                curve = sorted((json.loads(p.read_text()) for p in RESULTS.glob(f"{name}_s0_step*_exact/scores.json")),
+                               key=lambda sc: int(sc.get("checkpoint_step") or 0))
+                for learned in curve:
+                    lines.append(row(f"{label}, step {learned.get('checkpoint_step')}", learned, "stage2"))
+            given = RESULTS / "condition_readout" / "scores.json"
+            if given.is_file():
+                lines.append(row(CONDITION, json.loads(given.read_text()), "stage2"))
         lines += [row(f"per-point fit, `{r}`", s, "stage2") for r, s in scores.items()] + [""]
     return "\n".join(lines)
 

@@ -25,15 +25,15 @@ from typing import Any, ClassVar, Mapping, Optional
 from gspi.stage2.data import LOCAL_CONDITIONS, PointDataConfig
 from gspi.stage2.encoders import PriorConfig
 from gspi.stage2.infer import InferenceConfig
-from gspi.stage2.model import RCWConfig
+from gspi.stage2.model import PREDICTIONS, RCWConfig
 from gspi.stage2.validate import ValidationConfig
 from gspi.strict_config import dataclass_from_dict
 
 # RCWConfig fields that the rest of the config decides (rcw_config in gspi/stage2/train.py)
 DERIVED_MODEL_KEYS = ("feature_dim", "local_cond_dim", "use_view_onehot", "global_token_dim",
-                      "global_grid_cells", "num_lattice_views", "prediction", "num_train_timesteps")
+                      "global_grid_cells", "num_lattice_views", "prediction", "readout_column",
+                      "num_train_timesteps")
 MODEL_KEYS = tuple(f.name for f in fields(RCWConfig) if f.name not in DERIVED_MODEL_KEYS)
-PREDICTIONS = ("eps", "x0")
 
 
 @dataclass
@@ -42,7 +42,7 @@ class DiffusionConfig:
     min_snr_gamma: float = 5.0        # Min-SNR-gamma loss weights
     min_snr_floor: float = 0.0        # x0-space weight floor: 0 = Min-SNR (paper), 1 = truncated SNR
     self_condition_prob: float = 0.5  # batches that take the self-conditioning pass
-    prediction: str = "eps"           # output head: eps (paper) | x0 (read as eps; docs/STAGE2.md)
+    prediction: str = "eps"           # output head: eps (paper) | x0 (read as eps; docs/STAGE2.md) | x0_readout (docs/LIGHT.md)
 
     RANGES: ClassVar[dict] = {"num_train_timesteps": (2, None), "min_snr_gamma": (0.0, None),
                               "min_snr_floor": (0.0, None), "self_condition_prob": (0.0, 1.0)}

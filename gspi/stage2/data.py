@@ -428,6 +428,14 @@ class PointDataConfig:
                 + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0)
                 + (LIGHT_READOUT_WIDTH if self.light_readout else 0))
 
+    def light_readout_column(self) -> int:
+        """Where the light read-out's columns start in the local condition (``local_condition``'s order)."""
+        if not self.light_readout:
+            raise ValueError("stage2.diffusion.prediction=x0_readout corrects the light read-out: "
+                             "it needs stage2.data.light_readout=true")
+        return (local_condition_dim(self.local_condition) + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0)
+                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0))
+
     @property
     def needs_feature_maps(self) -> bool:
         """Whether the local condition samples the prior encoder's unpooled maps."""

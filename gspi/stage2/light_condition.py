@@ -41,6 +41,7 @@ from gspi.stage2.view_statistics import neighbourhood_mean
 from scipy.spatial import cKDTree
 
 LIGHT_READOUT_WIDTH = 7
+READOUT_PBR_COLUMNS = (2, 3, 4, 0, 1)  # the rows' material in Stage II's feature order (albedo RGB, roughness, metallic)
 READOUT_POINTS = 5000
 READOUT_SEED = 66
 WRONG_TURN_DEG = (60.0, 300.0)  # a wrong light by turning: U(60, 300) degrees

@@ -11,6 +11,13 @@ Latent stream (method-notes 1.1: conditioning and time enter as tokens, not AdaL
     z += LN_zero(p + MLP(p)),  p = stopgrad(previous latent stream)   (latent self-conditioning)
 then ``num_blocks`` RCW blocks and ``eps_hat = Linear(LN(x))`` [B, N, 5].
 
+The head's output is eps (the paper), x0 (read as eps at t), or ``x0_readout`` (issue 66; not
+the paper): x0 as a correction to the light read-out's material carried in the local condition,
+``x0 = pbr_to_model(read-out) + Linear(LN(x))``, with that last layer zero at init, so an
+untrained model samples the read-out itself and training learns only where to depart from it.
+The offset is read from the condition before the classifier-free drop (the read-out is the
+starting point, not a condition to guide).
+
 Classifier-free guidance: ``cond_keep`` [B] multiplies the local condition and the global
 tokens by 0 for dropped samples (PointInfinity: the null condition is the learned embedding
 of zeros). Geometry (xyz) is never dropped: it is the frozen prior, not a condition to guide.
@@ -26,8 +33,12 @@ from torch import Tensor, nn
 
 from gspi.stage2.blocks import Mlp, RCWBlock, fourier_dim, fourier_features, timestep_sinusoid
 from gspi.stage2.inputs import Stage2Inputs
+from gspi.stage2.light_condition import READOUT_PBR_COLUMNS
+from gspi.stage2.normalize import pbr_to_model
 from gspi.stage2.schedule import cosine_alphas_cumprod, eps_from_f0
 
+PREDICTIONS = ("eps", "x0", "x0_readout")  # what the output head predicts (RCWDenoiser.forward)
+READOUT_MATERIAL = len(READOUT_PBR_COLUMNS)
 VIEW_ONEHOT_DIM = 32  # V = 32 lattice views (paper Sec. "Learned View-Direction Conditioning")
 
 
@@ -57,7 +68,8 @@ class RCWConfig:
     self_condition: bool = True  # latent self-conditioning input
     point_global_skip: bool = False  # also add LN(mean of the global tokens) to every point token (a per-point MLP that sees the pooled prior)
     cond_drop_prob: float = 0.1  # training probability of the null condition (CFG)
-    prediction: str = "eps"  # what the output head predicts: "eps" (paper) or "x0" (see forward)
+    prediction: str = "eps"  # what the output head predicts: "eps" (paper), "x0" or "x0_readout" (see forward)
+    readout_column: Optional[int] = None  # x0_readout: where the light read-out's columns start in local_cond
     num_train_timesteps: int = 1000  # cosine schedule length (the x0 -> eps conversion uses it)
 
     def __post_init__(self) -> None:
@@ -67,8 +79,14 @@ class RCWConfig:
         if self.use_view_onehot and self.local_cond_dim < VIEW_ONEHOT_DIM:
             raise ValueError(f"use_view_onehot needs local_cond_dim >= {VIEW_ONEHOT_DIM}, "
                              f"got {self.local_cond_dim}")
-        if self.prediction not in ("eps", "x0"):
-            raise ValueError(f"prediction must be 'eps' or 'x0', got {self.prediction!r}")
+        if self.prediction not in PREDICTIONS:
+            raise ValueError(f"prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
+        if (self.prediction == "x0_readout") != (self.readout_column is not None):
+            raise ValueError("prediction 'x0_readout' and readout_column go together (the column where the light "
+                             f"read-out starts in the local condition), got {self.prediction!r} and {self.readout_column}")
+        if self.readout_column is not None and not 0 <= self.readout_column <= self.local_cond_dim - READOUT_MATERIAL:
+            raise ValueError(f"readout_column={self.readout_column} leaves no {READOUT_MATERIAL} read-out columns in a "
+                             f"{self.local_cond_dim}-dim local condition")
         if not 0.0 <= self.cond_drop_prob < 1.0:
             raise ValueError(f"cond_drop_prob must be in [0, 1), got {self.cond_drop_prob}")
 
@@ -133,6 +151,8 @@ class RCWDenoiser(nn.Module):
         if self.config.self_condition:
             nn.init.zeros_(self.self_cond_norm.weight)
             nn.init.zeros_(self.self_cond_norm.bias)
+        if self.config.prediction == "x0_readout":  # the untrained model is the read-out
+            nn.init.zeros_(self.out.weight)
 
     def forward(
         self,
@@ -153,8 +173,18 @@ class RCWDenoiser(nn.Module):
         t = torch.as_tensor(t, device=f_t.device).expand(inputs.xyz.shape[0])
         head, latents = self.head(f_t, t, inputs, prev_latents=prev_latents, cond_keep=cond_keep,
                                   write_chunk=write_chunk)
-        eps = head if self.config.prediction == "eps" else self.eps_from_x0(head, f_t, t)
-        return DenoiserOutput(eps=eps, latents=latents)
+        if self.config.prediction == "eps":
+            return DenoiserOutput(eps=head, latents=latents)
+        return DenoiserOutput(eps=self.eps_from_x0(self.x0_of_head(head, inputs), f_t, t), latents=latents)
+
+    def x0_of_head(self, head: Tensor, inputs: Stage2Inputs) -> Tensor:
+        """[B, N, 5] the clean-feature estimate of an x0 head's output: itself, or with
+        ``x0_readout`` the light read-out's material (diffusion space) plus it."""
+        if self.config.prediction != "x0_readout":
+            return head
+        c = int(self.config.readout_column)
+        columns = [c + k for k in READOUT_PBR_COLUMNS]
+        return pbr_to_model(inputs.local_cond[..., columns].to(head.dtype).clamp(0.0, 1.0)) + head
 
     def head(self, f_t: Tensor, t: Tensor, inputs: Stage2Inputs, *, prev_latents: Optional[Tensor] = None,
              cond_keep: Optional[Tensor] = None, write_chunk: Optional[int] = None) -> tuple[Tensor, Tensor]:
