@@ -48,8 +48,14 @@ class Stage2Context:
     info: dict
     run_cfg: Any  # gspi.stage2.config.Stage2Config of the run
 
-    def predict(self, points, renders, device) -> tuple[np.ndarray, dict]:
-        """[P, 5] PBR of a Stage I cloud (albedo sRGB, roughness, metallic) and stats."""
+    @property
+    def reads_photos(self) -> bool:
+        """Whether the model's light read-out reads the scene's photos (``stage2.inference.light_views``)."""
+        return bool(self.model_cfg["stage2"].data.light_readout) and self.run_cfg.inference.light_views == "photos"
+
+    def predict(self, points, renders, device, photos=None) -> tuple[np.ndarray, dict]:
+        """[P, 5] PBR of a Stage I cloud (albedo sRGB, roughness, metallic) and stats; ``photos``:
+        the scene's photos at the lattice cameras for the light read-out (``reads_photos``)."""
         from gspi.stage2.infer import predict_generated_points
 
         data_cfg = self.model_cfg["stage2"].data
@@ -57,7 +63,7 @@ class Stage2Context:
         if data_cfg.light_readout:
             from gspi.stage2.light_fit import inference_light_table
 
-            light_table, light = inference_light_table(points, renders, data_cfg)
+            light_table, light = inference_light_table(points, renders, data_cfg, photos)
         pbr, stats = predict_generated_points(
             self.model, points, renders, local_mode=data_cfg.local_condition, encoder=self.encoder,
             cfg=self.run_cfg.inference,
@@ -77,10 +83,14 @@ class LightFitContext:
     cfg: Any          # gspi.stage2.light_fit.LightFitConfig
     candidates: dict  # {name: eval.relight.PrefilteredEnvironment}
 
-    def predict(self, points, renders, device) -> tuple[np.ndarray, dict]:
+    @property
+    def reads_photos(self) -> bool:
+        return self.cfg.views == "photos"
+
+    def predict(self, points, renders, device, photos=None) -> tuple[np.ndarray, dict]:
         from gspi.stage2.light_fit import predict_light_fit
 
-        return predict_light_fit(points, renders, self.cfg, self.candidates)
+        return predict_light_fit(points, renders, self.cfg, self.candidates, photos)
 
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:
@@ -123,7 +133,14 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
     write_json_atomic(work_dir / "stage1.json", s1)
 
     with clock.stage("stage2"):
-        pbr, s2 = stage2.predict(points, renders, device)
+        photos, views = None, None
+        if stage2.reads_photos:  # the light read from the photos, the asset for geometry (docs/LIGHT.md)
+            from gspi.stage2.light_views import lattice_photos
+
+            photos, views = lattice_photos(scene.root, renders)
+        pbr, s2 = stage2.predict(points, renders, device, photos)
+        if views is not None:
+            s2 = {**s2, "light": {**s2.get("light", {}), "views": views}}
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)
 
     points_scores = None

@@ -161,3 +161,24 @@ def test_x0_readout_needs_the_readout_condition():
     assert cfg.readout_column == 35 + 5 and cfg.local_cond_dim == 35 + 5 + LIGHT_READOUT_WIDTH
     with pytest.raises(ValueError, match="go together"):
         RCWConfig(prediction="x0_readout")
+
+
+def test_the_light_is_read_in_the_photos_where_they_were_taken_at_the_lattice(lit):
+    """Issue 66, item 3: the scene's photos at the lattice cameras, the asset for geometry only."""
+    import dataclasses
+
+    from gspi.stage2.light_views import lattice_photos, views_to_read
+
+    _, root = lit
+    renders = gt_views_as_renders(root)
+    photos, views = lattice_photos(root, renders)
+    assert views == "photos" and photos.rgb.shape == renders.rgb.shape
+    flat = dataclasses.replace(renders, rgb=np.full_like(renders.rgb, 0.3))  # an asset that lost every highlight
+    images, depth = views_to_read(flat, photos)
+    np.testing.assert_array_equal(images, renders.rgb)
+    assert np.all(depth[~photos.mask] == 0) and np.array_equal(depth[photos.mask], renders.depth[photos.mask])
+    np.testing.assert_array_equal(views_to_read(flat, None)[0], flat.rgb)
+    moved = dataclasses.replace(renders, w2c=renders.w2c.copy())
+    moved.w2c[3, 0, 3] += 0.01
+    assert lattice_photos(root, moved) == (None, "renders (the photos were not taken at the lattice cameras)")
+    assert lattice_photos(root.parent / "nowhere", renders)[0] is None

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Optional
+from typing import ClassVar, Optional
 
 import numpy as np
 import torch
@@ -38,6 +38,7 @@ from gspi.stage2.data import (LatticeCameras, PointDataConfig, feature_spread_ov
                               multiview_condition_from_views, sample_pixel_features, srgb_top_rgb)
 from gspi.stage2.encoders import pool_grid
 from gspi.stage2.light_condition import readout_lookup
+from gspi.stage2.light_views import LIGHT_VIEWS
 from gspi.stage2.model import RCWDenoiser
 from gspi.stage2.oom import run_with_chunk_halving
 from gspi.stage2.sampler import mean_point_pbr
@@ -56,6 +57,10 @@ class InferenceConfig:
     patch_coverage: float = 2.0  # patches per point on average (patch_points only)
     write_chunk: Optional[int] = 32768  # points per Write chunk (memory bound)
     seed: int = 0
+    light_views: str = "photos"  # a light-aware model (stage2.data.light_readout) reads the light in the scene's
+    #                              photos at the lattice cameras where it has them (else the renders) | renders
+
+    CHOICES: ClassVar[dict] = {"light_views": LIGHT_VIEWS}
 
     @classmethod
     def from_mapping(cls, cfg) -> "InferenceConfig":

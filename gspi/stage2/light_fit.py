@@ -24,7 +24,7 @@ from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.infer import subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_condition import candidate_lights, cloud_normals
-from gspi.stage2.light_views import observe_points
+from gspi.stage2.light_views import LIGHT_VIEWS, LatticePhotos, observe_points, views_to_read
 
 
 
@@ -39,6 +39,7 @@ class LightFitConfig:
     neighbours: int = NEIGHBOURS
     temperature: float = POSTERIOR_TEMPERATURE
     tol_pixels: float = 2.0          # the views' depth test (as Stage II's conditions)
+    views: str = "photos"            # read the scene's photos at the lattice cameras (else the renders) | renders
     seed: int = 0
 
     @classmethod
@@ -50,19 +51,24 @@ class LightFitConfig:
         values = {k: cfg[k] for k in known if k in cfg}
         if isinstance(values.get("candidates"), (list, tuple)):
             values["candidates"] = tuple(str(c) for c in values["candidates"])
+        if values.get("views", "photos") not in LIGHT_VIEWS:
+            raise ValueError(f"method.views={values['views']!r}: must be one of {', '.join(LIGHT_VIEWS)}")
         return cls(**values)
 
 
 def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
-                      candidates: dict[str, PrefilteredEnvironment]) -> tuple[np.ndarray, dict]:
-    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found)."""
+                      candidates: dict[str, PrefilteredEnvironment], photos: LatticePhotos | None = None
+                      ) -> tuple[np.ndarray, dict]:
+    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found),
+    read in ``photos`` at the lattice cameras when given, else in the renders."""
     t0 = time.perf_counter()
+    images, depth = views_to_read(renders, photos)
     cams = LatticeCameras.from_renders(renders)
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
     xyz = pts.xyz.astype(np.float64)
     normal = cloud_normals(points.xyz.astype(np.float64), xyz, cams.centers[pts.view])
-    obs = observe_points(renders.rgb, renders.depth, cams, xyz, normal, tol_pixels=cfg.tol_pixels)
+    obs = observe_points(images, depth, cams, xyz, normal, tol_pixels=cfg.tol_pixels)
     t_obs = time.perf_counter()
     light = estimate_light(obs, candidates, max_points=cfg.identify_points, seed=cfg.seed)
     t_light = time.perf_counter()
@@ -83,11 +89,12 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
     return pbr, stats
 
 
-def inference_light_table(points: PointCloud, renders, data_cfg
+def inference_light_table(points: PointCloud, renders, data_cfg, photos: LatticePhotos | None = None
                           ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
     """Stage II's ``light_readout`` condition at inference: the light estimated among the model's
-    ``stage2.data.light_candidates`` from the renders and the cloud's normals, and the
-    read-out's table of the cloud under it (``gspi.stage2.light_condition``); plus what was found."""
+    ``stage2.data.light_candidates`` from the views (``photos`` at the lattice cameras when given,
+    else the renders) and the cloud's normals, and the read-out's table of the cloud under it
+    (``gspi.stage2.light_condition``); plus what was found."""
     from gspi.stage2.light_condition import cloud_normals_of, estimate_scene_light, readout_table
 
     cams = LatticeCameras.from_renders(renders)
@@ -95,7 +102,8 @@ def inference_light_table(points: PointCloud, renders, data_cfg
     normals = cloud_normals_of(xyz, points.view, cams)
     candidates = candidate_lights(data_cfg.light_candidates, data_cfg.light_env_height)
     tol = float(data_cfg.visibility_tol_pixels)
-    light, est = estimate_scene_light(renders.rgb, renders.depth, cams, xyz, normals, candidates, tol_pixels=tol)
-    table = readout_table(renders.rgb, renders.depth, cams, xyz, normals, light, tol_pixels=tol)
+    images, depth = views_to_read(renders, photos)
+    light, est = estimate_scene_light(images, depth, cams, xyz, normals, candidates, tol_pixels=tol)
+    table = readout_table(images, depth, cams, xyz, normals, light, tol_pixels=tol)
     return table, {"env": est.env, "rotation_deg": round(est.rotation_deg, 2), "gain": round(est.gain, 4),
                    "margin": round(est.margin, 3)}
