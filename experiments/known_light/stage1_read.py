@@ -1,0 +1,103 @@
+"""The training-free read-out end to end on the held-out pool's Stage 0 assets (issue 66, items 3
+and 5 under the conditions users' assets have): Stage I's cloud and renders of each scene's
+``recon=fast`` asset, the light estimated among the pool's capture environments and each point's
+material read (``method=light_fit``'s ``predict_light_fit``), in the scene's photos (the asset for
+geometry and visibility) and, with ``--renders``, in the asset's renders; scored on the generated
+cloud by Table 2's measure (``score_generated_points``) beside no decomposition on the same cloud
+(Top-RGB, the recorded training constants), with the metal class IoU over the lattice pixels.
+
+    python -m experiments.known_light.stage1_read HELDOUT_TEST RHELDOUT OUT.json --baseline SCORES.json [--renders]
+
+HELDOUT_TEST: the GT scenes (photos, truth); RHELDOUT: their reconstructed pool (``asset/point_cloud.ply``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+log = logging.getLogger(__name__)
+
+
+def metal_iou(points, metallic: np.ndarray, scene_dir: Path) -> float | None:
+    """IoU of {metallic > 0.5} between the prediction scattered into the lattice views and the GT
+    maps, over the pixels both the GT mask and the cloud cover; None when neither has metal."""
+    from gspi.data.gt_maps import read_gt_view_maps
+    from gspi.stage2.score_generated import scatter_point_values
+
+    gt, mask = read_gt_view_maps(scene_dir)  # [V, H, W, 5], [V, H, W]
+    pred, hit = scatter_point_values(points, metallic[:, None], height=gt.shape[1], width=gt.shape[2],
+                                     num_views=len(mask))
+    truth = gt[..., 4] > 0.5
+    cover = mask & hit
+    p, t = pred[..., 0][cover] > 0.5, truth[cover]
+    union = int(np.count_nonzero(p | t))
+    return None if union == 0 else float(np.count_nonzero(p & t)) / union
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("data", type=Path)
+    ap.add_argument("assets", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--baseline", type=Path, required=True, help="a scores.json whose baseline constants to reuse")
+    ap.add_argument("--renders", action="store_true", help="also read in the asset's renders")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    torch.set_num_threads(1)
+    from eval.layout import read_scene
+    from eval.lpips.net import load_lpips
+    from gspi.gaussians.ply import read_ply
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage1.extract import extract_point_cloud
+    from gspi.stage2.data import srgb_top_rgb
+    from gspi.stage2.evaluate_points import recorded_constants
+    from gspi.stage2.light_condition import candidate_lights
+    from gspi.stage2.light_fit import LightFitConfig, predict_light_fit
+    from gspi.stage2.light_views import lattice_photos
+    from gspi.stage2.score_generated import score_generated_points
+
+    rough, metal = recorded_constants(args.baseline)
+    cfg = LightFitConfig()
+    candidates = candidate_lights(cfg.candidates, cfg.env_height)
+    net = load_lpips()
+    done = json.loads(args.out.read_text()) if args.out.is_file() else {"scenes": {}}
+    done.update(baseline_constants={"roughness": rough, "metallic": metal}, config=str(cfg))
+    for name, row in done["scenes"].items():  # rows of an earlier version lack their truth
+        row.setdefault("capture_env", read_scene(args.data / name).capture_env)
+    names = sorted(p.parent.parent.name for p in args.assets.glob("*/asset/point_cloud.ply"))
+    for name in names:
+        if name in done["scenes"]:
+            continue
+        t0 = time.perf_counter()
+        scene_dir = args.data / name
+        size = read_scene(scene_dir).width  # the pool's scenes are 64 or 128 px
+        points, renders, _ = extract_point_cloud(read_ply(args.assets / name / "asset" / "point_cloud.ply"),
+                                                 Stage1Config(image_size=size))
+        photos, views = lattice_photos(scene_dir, renders)
+        nodec = np.c_[srgb_top_rgb(points.rgb), np.full((len(points), 2), [rough, metal], dtype=np.float32)]
+        preds = {"no_decomposition": (nodec, None)}
+        preds["photos"] = predict_light_fit(points, renders, cfg, candidates, photos)
+        if args.renders:
+            preds["renders"] = predict_light_fit(points, renders, cfg, candidates, None)
+        row = {"views": views, "capture_env": read_scene(scene_dir).capture_env,
+               "seconds": round(time.perf_counter() - t0, 1)}
+        for key, (pbr, stats) in preds.items():
+            row[key] = {"scores": score_generated_points(points, pbr, scene_dir, lpips_net=net),
+                        "metal_iou": metal_iou(points, pbr[:, 4], scene_dir),
+                        **({"light": {k: v for k, v in stats["light"].items() if k != "ranking"}} if stats else {})}
+        done["scenes"][name] = row
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(done, indent=1))
+        log.info("%s: %s", name, {k: round(v["scores"]["avg"]["psnr"], 2) for k, v in row.items() if isinstance(v, dict)})
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(done, indent=1))
+
+
+if __name__ == "__main__":
+    main()
