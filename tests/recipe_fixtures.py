@@ -14,7 +14,8 @@ from eval.config import CONF_DIR, register_configs
 ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighbourhood"): False,
              ("data", "light_readout"): False, ("data", "light_wrong_share"): 0.0,
              ("data", "light_candidates"): "procedural", ("data", "light_env_height"): 64,
-             ("data", "subset"): "local", ("inference", "patch_points"): None, ("inference", "patch_coverage"): 2.0}
+             ("data", "subset"): "local", ("inference", "patch_points"): None, ("inference", "patch_coverage"): 2.0,
+             ("inference", "light_views"): "photos"}  # light_views: read only by a light_readout model
 
 
 def composed_stage2(*overrides: str, study_conf: Path | None = None) -> dict:
