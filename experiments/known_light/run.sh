@@ -48,7 +48,8 @@ M="light_full_s0_step${STEP}_exact"   # one measure per checkpoint step: a learn
 [ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
   data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
   $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
-cp "$RUN/checkpoint.pt" "$KEPT"   # the state travels in git while the training is under way
+# the state travels in git while the training is under way, and leaves when it ends
+if [ "$STEP" -lt 5000 ]; then cp "$RUN/checkpoint.pt" "$KEPT"; else rm -f "$KEPT"; fi
 # What the learned rows are given: the condition's own read-out scored as the prediction.
 [ -f "$RES/condition_readout/scores.json" ] || $PY -m experiments.known_light.condition "$RUN/checkpoint.pt" \
   "$WORK/heldout_test" "$WORK/runs/condition_readout" --baseline "$BASE" --results "$RES/condition_readout" \
@@ -64,5 +65,5 @@ M="light_residual_s0_step${STEP}_exact"
 [ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
   data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
   $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
-mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"
+if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -f "$KEPT"; fi
 $PY -m experiments.known_light.tables
