@@ -1,7 +1,7 @@
 """Per-stage times of GS-PI on one demo scene, and GS-PI vs joint IR material time, in one run.
 
 The demo's settings (conf/experiment/demo.yaml: the shipped ``recon=fast`` asset, the default
-Stage II checkpoint, 300 Stage III iterations), one scene, one thread: ``gspi-run`` runs
+Stage II checkpoint at 10 DDIM steps, 100 Stage III iterations), one scene, one thread: ``gspi-run`` runs
 ``method=gspi`` and then ``method=joint_ir`` one after the other in fresh processes, and the
 times come from what the runs recorded (``predictions/<scene>/meta.json``: the StageClock of
 each stage; material time = Stage I + II + III + render for GS-PI, the optimisation for joint
@@ -28,7 +28,19 @@ from benchmarks.common import machine
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
-DEMO = ["assets=checkpoints/demo_assets", "recon=fast", "stage3.iterations=300"]  # conf/experiment/demo.yaml
+
+
+def demo_overrides() -> list[str]:
+    """The demo's settings as gspi-run overrides, read from conf/experiment/demo.yaml (its one definition)."""
+    import yaml
+
+    demo = yaml.safe_load((REPO / "conf" / "experiment" / "demo.yaml").read_text())
+    recon = next(d["override /recon"] for d in demo["defaults"] if isinstance(d, dict) and "override /recon" in d)
+    return [f"assets={demo['assets']}", f"recon={recon}", f"stage3.iterations={demo['stage3']['iterations']}",
+            f"stage2.inference.num_steps={demo['stage2']['inference']['num_steps']}"]
+
+
+DEMO = demo_overrides()
 GSPI_STAGES = ("stage1", "stage2", "stage3", "render")
 
 
