@@ -64,14 +64,8 @@ class Stage2Context:
             from gspi.stage2.light_fit import inference_light_table
 
             light_table, light = inference_light_table(points, renders, data_cfg, photos)
-        pbr, stats = predict_generated_points(
-            self.model, points, renders, local_mode=data_cfg.local_condition, encoder=self.encoder,
-            cfg=self.run_cfg.inference,
-            tol_pixels=float(data_cfg.visibility_tol_pixels), pixel_features=data_cfg.pixel_features,
-            pixel_feature_spread=data_cfg.pixel_feature_spread,
-            cross_view_radiance=getattr(data_cfg, "cross_view_radiance", False),  # checkpoints before issue 52 lack it
-            cross_view_neighbourhood=getattr(data_cfg, "cross_view_neighbourhood", False),  # before session 26
-            light_table=light_table, device=device)
+        pbr, stats = predict_generated_points(self.model, points, renders, data=data_cfg, encoder=self.encoder,
+                                              cfg=self.run_cfg.inference, light_table=light_table, device=device)
         return pbr, (stats if light is None else {**stats, "light": light})
 
 

@@ -256,6 +256,7 @@ def stage2_on_test_scene(checkpoint: Path, dataset: Path):
     from eval.layout import read_splits
     from gspi.stage1.extract import unproject_renders
     from gspi.stage2.encoders import build_encoder
+    from gspi.stage2.data import PointDataConfig
     from gspi.stage2.infer import InferenceConfig, predict_generated_points
     from tests.stage2_fixtures import gt_views_as_renders
 
@@ -266,8 +267,8 @@ def stage2_on_test_scene(checkpoint: Path, dataset: Path):
     cfg = InferenceConfig(num_steps=2, max_points=300)
 
     def predict(**keys) -> np.ndarray:
-        return predict_generated_points(model, points, renders, local_mode="top_rgb_onehot", encoder=encoder,
-                                        cfg=cfg, **keys)[0]
+        data = PointDataConfig(local_condition="top_rgb_onehot", **keys)
+        return predict_generated_points(model, points, renders, data=data, encoder=encoder, cfg=cfg)[0]
     return model, saved, points, predict
 
 

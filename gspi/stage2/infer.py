@@ -145,27 +145,25 @@ def subsample_indices(num_points: int, max_points: Optional[int], seed: int) -> 
 
 
 def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: LatticeRenders, *,
-                             local_mode: str, encoder, cfg: InferenceConfig, tol_pixels: float = 2.0,
-                             pixel_features: bool = False, pixel_feature_spread: bool = False,
-                             cross_view_radiance: bool = False, cross_view_neighbourhood: bool = False,
+                             data: PointDataConfig, encoder, cfg: InferenceConfig,
                              light_table: Optional[tuple[np.ndarray, np.ndarray]] = None,
                              device: Optional[torch.device] = None) -> tuple[np.ndarray, dict]:
     """Stage II on a Stage I cloud and its lattice renders: [P, 5] (albedo sRGB RGB, roughness,
-    metallic) in [0, 1] + stats. ``device``: where the sampling runs (None: the model's, as before);
-    the conditions and prior features move there once, the PBR comes back as numpy.
-    ``pixel_features`` / ``pixel_feature_spread``: the model's ``stage2.data`` keys of those names."""
+    metallic) in [0, 1] + stats. ``data``: the model's ``stage2.data`` (its conditions, as trained);
+    ``light_table``: the light read-out's table when ``data.light_readout`` (``light_fit.inference_light_table``).
+    ``device``: where the sampling runs (None: the model's, as before); the conditions and prior
+    features move there once, the PBR comes back as numpy."""
     t0 = time.perf_counter()
-    data = PointDataConfig(local_condition=local_mode, pixel_features=pixel_features,
-                           pixel_feature_spread=pixel_feature_spread, cross_view_radiance=cross_view_radiance,
-                           cross_view_neighbourhood=cross_view_neighbourhood, light_readout=light_table is not None)
+    if data.light_readout != (light_table is not None):
+        raise ValueError(f"stage2.data.light_readout={data.light_readout} but "
+                         f"{'no' if light_table is None else 'a'} light read-out table was given")
     width = data.condition_width(encoder.feature_dim)
     if model.config.local_cond_dim != width:
         raise ValueError(f"the Stage II model expects a {model.config.local_cond_dim}-dim local condition, "
-                         f"stage2.data.local_condition={local_mode!r} (cross_view_radiance={cross_view_radiance}, "
-                         f"cross_view_neighbourhood={cross_view_neighbourhood}, "
-                         f"pixel_features={pixel_features}, "
-                         f"pixel_feature_spread={pixel_feature_spread}) "
-                         f"gives {width}")
+                         f"stage2.data.local_condition={data.local_condition!r} (cross_view_radiance="
+                         f"{data.cross_view_radiance}, cross_view_neighbourhood={data.cross_view_neighbourhood}, "
+                         f"light_readout={data.light_readout}, pixel_features={data.pixel_features}, "
+                         f"pixel_feature_spread={data.pixel_feature_spread}) gives {width}")
     # with pixel features the encoder runs once: the grid is the pooled map, as encode() computes it
     maps = prior_features(encoder, renders.rgb, unpooled=True) if data.needs_feature_maps else None
     feats = pool_grid(maps) if maps is not None else prior_features(encoder, renders.rgb)
@@ -174,10 +172,11 @@ def predict_generated_points(model: RCWDenoiser, points: PointCloud, renders: La
                          f"(global_token_dim={model.config.global_token_dim})")
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
-    cond = point_conditions(pts, local_mode, renders, tol_pixels=tol_pixels, feature_maps=maps,
-                            pixel_features=pixel_features, pixel_feature_spread=pixel_feature_spread,
-                            cross_view_radiance=cross_view_radiance, cross_view_neighbourhood=cross_view_neighbourhood,
-                            light_table=light_table)
+    cond = point_conditions(pts, data.local_condition, renders, tol_pixels=float(data.visibility_tol_pixels),
+                            feature_maps=maps, pixel_features=data.pixel_features,
+                            pixel_feature_spread=data.pixel_feature_spread,
+                            cross_view_radiance=data.cross_view_radiance,
+                            cross_view_neighbourhood=data.cross_view_neighbourhood, light_table=light_table)
     t_cond = time.perf_counter() - t0
     model = model if device is None else model.to(device)
 
