@@ -164,8 +164,8 @@ def test_the_cpu_table2_plan_trains_the_runs_the_table_needs_before_a4s_later_se
     seeds = [int(name.rsplit("_s", 1)[1]) for name in order[:-2]]
     assert seeds == sorted(seeds) and order[0] == "full_s0" and f"{a4}_s0" in order[:6]
     # variant_seeds: the light-aware rows at seeds 0 and 1 only
-    assert {n for n in order if n.startswith("light_")} == {"light_full_s0", "light_a2_s0", "light_full_s1",
-                                                           "light_a2_s1"}
+    assert {n for n in order if n.startswith("light_")} == {"light_residual_s0", "light_residual_a2_s0",
+                                                           "light_residual_s1", "light_residual_a2_s1"}
 
 
 def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, monkeypatch, capsys):
