@@ -20,14 +20,13 @@ import numpy as np
 import torch
 
 from gspi.stage2.data import PointDataConfig
-
-MATERIAL_COLUMNS = [2, 3, 4, 0, 1]  # the condition's (roughness, metallic, albedo sRGB) -> (albedo, roughness, metallic)
+from gspi.stage2.light_condition import READOUT_PBR_COLUMNS
 
 
 def condition_prediction(scene, data_cfg: PointDataConfig) -> np.ndarray:
     """[P, 5] (albedo sRGB, roughness, metallic) of every point: the condition's read-out columns."""
     rows = scene.light_features(np.arange(scene.num_points), data_cfg)
-    return np.ascontiguousarray(rows[:, MATERIAL_COLUMNS].clip(0.0, 1.0))
+    return np.ascontiguousarray(rows[:, list(READOUT_PBR_COLUMNS)].clip(0.0, 1.0))
 
 
 def main(argv: list[str] | None = None) -> None:

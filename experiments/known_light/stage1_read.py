@@ -24,13 +24,12 @@ import torch
 log = logging.getLogger(__name__)
 
 
-def metal_iou(points, metallic: np.ndarray, scene_dir: Path) -> float | None:
+def metal_iou(points, metallic: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> float | None:
     """IoU of {metallic > 0.5} between the prediction scattered into the lattice views and the GT
-    maps, over the pixels both the GT mask and the cloud cover; None when neither has metal."""
-    from gspi.data.gt_maps import read_gt_view_maps
+    maps ``gt`` [V, H, W, 5] (``read_gt_view_maps``), over the pixels both the GT ``mask`` [V, H, W]
+    and the cloud cover; None when neither has metal."""
     from gspi.stage2.score_generated import scatter_point_values
 
-    gt, mask = read_gt_view_maps(scene_dir)  # [V, H, W, 5], [V, H, W]
     pred, hit = scatter_point_values(points, metallic[:, None], height=gt.shape[1], width=gt.shape[2],
                                      num_views=len(mask))
     truth = gt[..., 4] > 0.5
@@ -52,6 +51,7 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     from eval.layout import read_scene
     from eval.lpips.net import load_lpips
+    from gspi.data.gt_maps import read_gt_view_maps
     from gspi.gaussians.ply import read_ply
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud
@@ -85,11 +85,12 @@ def main(argv: list[str] | None = None) -> None:
         preds["photos"] = predict_light_fit(points, renders, cfg, candidates, photos)
         if args.renders:
             preds["renders"] = predict_light_fit(points, renders, cfg, candidates, None)
+        gt, mask = read_gt_view_maps(scene_dir)  # read once for every prediction's metal IoU
         row = {"views": views, "capture_env": read_scene(scene_dir).capture_env,
                "seconds": round(time.perf_counter() - t0, 1)}
         for key, (pbr, stats) in preds.items():
             row[key] = {"scores": score_generated_points(points, pbr, scene_dir, lpips_net=net),
-                        "metal_iou": metal_iou(points, pbr[:, 4], scene_dir),
+                        "metal_iou": metal_iou(points, pbr[:, 4], gt, mask),
                         **({"light": {k: v for k, v in stats["light"].items() if k != "ranking"}} if stats else {})}
         done["scenes"][name] = row
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -420,21 +420,22 @@ class PointDataConfig:
             raise ValueError(f"stage2.data.subset must be one of {sorted(SUBSETS)}, got {out.subset!r}")
         return out
 
+    def _width_before_light(self) -> int:
+        """Width of the condition's columns that come before the light read-out (``local_condition``'s order)."""
+        return (local_condition_dim(self.local_condition) + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0)
+                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0))
+
     def condition_width(self, feature_dim: int) -> int:
         """The local condition's width with an encoder of ``feature_dim`` channels."""
-        return (local_condition_dim(self.local_condition) + (feature_dim if self.pixel_features else 0)
-                + (feature_dim if self.pixel_feature_spread else 0)
-                + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0)
-                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0)
-                + (LIGHT_READOUT_WIDTH if self.light_readout else 0))
+        return (self._width_before_light() + (LIGHT_READOUT_WIDTH if self.light_readout else 0)
+                + (feature_dim if self.pixel_features else 0) + (feature_dim if self.pixel_feature_spread else 0))
 
     def light_readout_column(self) -> int:
-        """Where the light read-out's columns start in the local condition (``local_condition``'s order)."""
+        """Where the light read-out's columns start in the local condition."""
         if not self.light_readout:
             raise ValueError("stage2.diffusion.prediction=x0_readout corrects the light read-out: "
                              "it needs stage2.data.light_readout=true")
-        return (local_condition_dim(self.local_condition) + (len(RADIANCE_FIELDS) if self.cross_view_radiance else 0)
-                + (NEIGHBOURHOOD_WIDTH if self.cross_view_neighbourhood else 0))
+        return self._width_before_light()
 
     @property
     def needs_feature_maps(self) -> bool:
