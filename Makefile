@@ -65,9 +65,9 @@ demo: install
 	@echo "report: open $(abspath $(DEMO))/report/index.html"
 
 # The result tables of the docs (README Table 1, docs/results/*.md) from the committed scores
-# (docs/log/demo/, docs/log/heldout/; docs/RESULTS.md); tests/test_docs_results.py checks them.
+# (the store results/; docs/RESULTS.md); tests/test_docs_results.py checks them.
 results: install
-	$(PY) -m eval.tables.docs_results
+	$(PY) -m gspi.publish
 
 # Headless Chromium for the report's browser test (tests/test_report_browser.py; skipped without).
 chromium:

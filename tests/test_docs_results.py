@@ -1,8 +1,8 @@
-"""`make results` (eval/tables/docs_results.py): every committed result table equals what the
+"""`make results` (gspi/publish/docs.py): every committed result table equals what the
 command generates from the committed scores, and the generator fails loudly on broken markers."""
 import pytest
 
-from eval.tables import docs_results
+from gspi.publish import docs as docs_results
 from tests.machine_paths import MACHINE_PATH
 
 
@@ -41,9 +41,9 @@ def test_table2_is_built_from_the_reproduce_commands_committed_scores():
 
 
 def test_models_of_heldout_files():
-    assert docs_results.model_of("cpu_parts_pool_pixel_5k_224_s1.json") == docs_results.DEFAULT_MODEL
-    assert docs_results.model_of("cpu_parts_pool_a1_no_global_prior_pixel_5k_224_s0.json") == ""
-    assert docs_results.model_of("stage2_pool224.json") == "stage2_pool224"
+    assert docs_results.model_of("cpu_parts_pool_pixel_5k_224_s1") == docs_results.DEFAULT_MODEL
+    assert docs_results.model_of("cpu_parts_pool_a1_no_global_prior_pixel_5k_224_s0") == ""
+    assert docs_results.model_of("stage2_pool224") == "stage2_pool224"
 
 
 def test_no_generated_number_is_typed_in_the_docs_that_link_to_it():

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("eval", "gspi", "baselines", "experiments")
 PRODUCT = ("eval", "gspi", "baselines")  # experiments/ (the studies) sits above them all
 
-LOWER = ("eval", "gspi.strict_config", "gspi.device", "gspi.data", "gspi.gaussians",
+LOWER = ("eval", "gspi.repo", "gspi.strict_config", "gspi.device", "gspi.data", "gspi.gaussians",
          "gspi.point_cloud", "gspi.light")
 STAGE = LOWER + ("gspi.stage_clock",)
 # floor -> the floors (or modules) it may import besides itself. A floor missing here fails the
@@ -25,6 +25,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "gspi.strict_config": ("eval",),  # eval.errors: ConfigError is a stated error
     "gspi.device": ("eval",),  # device=auto|cpu|cuda (issue #16): re-exports eval.device
     "gspi.stage_clock": (),
+    "gspi.repo": (),  # the repository root, resolved once
     "gspi.data": ("eval", "gspi.strict_config"),
     "gspi.gaussians": ("eval", "gspi.data"),
     # Stage I's output record (points with their source pixels) and its scatter/fill, read by
@@ -46,7 +47,9 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "gspi.run": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
                          "gspi.relight", "gspi.export", "baselines"),
     # gspi-reproduce (issue 53) runs the tools as commands, one subprocess per step: it imports none
-    "gspi.reproduce": ("eval",),
+    "gspi.reproduce": ("eval", "gspi.repo"),
+    # make results: the results store (results/) and the docs' tables built from it by eval.tables
+    "gspi.publish": ("eval", "gspi.repo"),
     "gspi.cli": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
                          "gspi.relight", "gspi.export", "gspi.run", "gspi.reproduce", "baselines"),
     # the studies (issue 40): they use the product; nothing in the product imports them

@@ -21,7 +21,7 @@ def test_table2_is_the_measure_the_committed_scores_were_taken_with():
     assert {k: TABLE2[k] for k in ("num_steps", "max_points", "seed")} == {"num_steps": 10, "max_points": 20000,
                                                                           "seed": 0}
     assert set(TABLE2) == {"name", *MEASURE_DEFAULTS}  # every knob stated
-    committed = sorted((ROOT / "docs" / "results" / "scores" / "table2_cpu").glob("*/scores.json"))
+    committed = sorted((ROOT / "results" / "table2" / "cpu").glob("*/scores.json"))
     assert committed and {recorded_measure_hash(json.loads(p.read_text())) for p in committed} == {measure_hash(TABLE2)}
 
 

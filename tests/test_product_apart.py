@@ -3,7 +3,8 @@ can delete.
 
 The rule, checked here:
 - The product is gspi/, eval/, baselines/, benchmarks/, conf/, tests/, the Makefile, README.md,
-  pyproject.toml, .ci/ and the docs (docs/*.md and the generated docs/results/*.md). docs/log/ is
+  pyproject.toml, .ci/, the results store (results/) and the docs (docs/*.md and the generated
+  docs/results/*.md). docs/log/ is
   the diary: it keeps the dated history, the studies' included, and is not checked.
 - A study that stands apart (its folder holds a README.md: its findings and commands) is named
   nowhere in the product: not its folder (``experiments/<study>``, ``experiments.<study>``), not its
@@ -24,7 +25,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = ROOT / "experiments"
 PRODUCT = ("gspi", "eval", "baselines", "benchmarks", "conf", "tests", ".ci", "Makefile", "README.md",
-           "pyproject.toml", "docs/*.md", "docs/results/*.md")
+           "pyproject.toml", "docs/*.md", "docs/results/*.md", "results")
 TEXT = {".py", ".yaml", ".yml", ".md", ".toml", ".sh", ".txt", ".cfg", ".json", ""}
 SIZES = ("smoke", "cpu")
 # product file -> the studies it still names; each is issue 67's work left (move the study apart)

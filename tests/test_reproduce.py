@@ -175,8 +175,8 @@ def test_a_dry_run_writes_nothing_and_lists_the_scores_it_would_adopt(tmp_path, 
     scores = tmp_path / "scores"
     argv = [f"data_root={tmp_path}", "table=2", "scale=cpu", f"scores_dir={scores}", "seeds=[0]",
             "variants=[full,a1_no_global_prior]", "checkpoints_from=null",
-            "scores_from={full_s0:docs/log/heldout/stage2_pool224_pixel_5k.json,"
-            "a1_no_global_prior_s0:docs/log/heldout/cpu_parts_pool_a1_no_global_prior_pixel_5k_224_s0.json}"]
+            "scores_from={full_s0:results/heldout/cpu/stage2_pool224_pixel_5k/scores.json,"
+            "a1_no_global_prior_s0:results/heldout/cpu/cpu_parts_pool_a1_no_global_prior_pixel_5k_224_s0/scores.json}"]
     assert cli.main([*argv, "dry_run=true"]) == 0
     out = capsys.readouterr().out
     assert "adopt: full_s0" in out and "adopt: a1_no_global_prior_s0" in out
@@ -203,7 +203,7 @@ def test_the_measure_is_the_console_script_under_the_named_measure(tmp_path, cap
     _, cfg, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu"])
     group = yaml.safe_load((ROOT / "conf" / "points_measure" / "table2.yaml").read_text())
     planned = {**group, **{k: v for k, v in cfg["measure"].items() if k in MEASURE_DEFAULTS}}
-    committed = json.loads((ROOT / "docs/results/scores/table2_cpu/full_s0/scores.json").read_text())
+    committed = json.loads((ROOT / "results/table2/cpu/full_s0/scores.json").read_text())
     assert measure_hash(planned) == recorded_measure_hash(committed)
 
 

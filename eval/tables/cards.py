@@ -4,11 +4,11 @@ Each `checkpoints/stage2_<name>.json` card keeps, per seed, what the shipping ru
 checkpoints/README.md): the demo's s004 metal IoU and metallic PSNR, and the mean PSNR over the 19
 real objects (albedo, roughness, metallic, relight), beside the held-out average. Cards written in
 different sessions spell these three ways; :func:`read_card` reads each into one record, so the
-shipping-rule and real-object tables (eval.tables.docs_results) are generated, never retyped.
+shipping-rule and real-object tables (gspi.publish) are generated, never retyped.
 
 A card's ``status`` says what the product does with its file (``STATUSES``), derived from the
 configs by :func:`configured_statuses` and written by ``make results`` (:func:`cards_with_status`,
-part of eval.tables.docs_results' targets), so it never disagrees with them:
+part of gspi.publish' targets), so it never disagrees with them:
 
 - ``default``: the checkpoint gspi-run loads (conf/gspi_run.yaml's ``stage2`` option's ``checkpoint``);
 - ``table``: one a product table measures (a ``checkpoints_from`` entry of conf/reproduce/*.yaml);

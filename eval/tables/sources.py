@@ -139,7 +139,7 @@ def points_sweep(scores: dict[Path, dict], *, seed_key: str | None = None) -> Sw
 
     Args:
         seed_key: the key holding each run's training seed (e.g. "train_seed", as
-            docs/log/heldout/*.json carry it), so Δ pairs runs of one seed; None numbers the
+            results/heldout/cpu/*/scores.json carry it), so Δ pairs runs of one seed; None numbers the
             runs of each ablation 0, 1, ... in file order.
     """
     _same_evaluation(scores)

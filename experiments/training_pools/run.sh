@@ -26,7 +26,7 @@
 #
 # PLAN_ONLY=1 prints the run names and data it would use and stops.
 # Progress: $WORK/run.log; finished training chunks: docs/log/stage2_runs.jsonl (committed); each
-# run's held-out scores: docs/log/heldout/<run>_s<seed>.json (commit them: $WORK may not survive).
+# run's held-out scores: results/heldout/cpu/<run>_s<seed>/scores.json (commit them: $WORK may not survive).
 # Two cores: data and reconstruction use 2 workers of one thread; the seeds train side by side,
 # one thread each.
 # The body is one { ... } group, so bash reads all of it before running any: editing this file
@@ -105,8 +105,8 @@ for s in $SEEDS; do
   [ -f "$out/eval/scores.json" ] || $BIN/python -m gspi.stage2.evaluate_points "$out/checkpoint.pt" "$HELDOUT/rpool64" \
     "$out/eval" --num-steps 10 --max-points 20000 --baseline-train "$HELDOUT/pool64" >> "$WORK/run.log" 2>&1
   # the per-scene scores outlive $WORK (a lost data folder cost session 22 every run's scores):
-  # committed copies that summary.py reads like the folder (NAME=docs/log/heldout/<run>.json)
-  mkdir -p docs/log/heldout && cp "$out/eval/scores.json" "docs/log/heldout/${RUN}_s$s.json"
+  # committed copies that summary.py reads like the folder (NAME=results/heldout/cpu/<run>/scores.json)
+  mkdir -p "results/heldout/cpu/${RUN}_s$s" && cp "$out/eval/scores.json" "results/heldout/cpu/${RUN}_s$s/scores.json"
 done
 log "done"
 exit

@@ -1,7 +1,7 @@
 """Issue 42's held-out table: Stage II models on the multi-part pool's held-out scenes.
 
 Reads ``scores.json`` folders of ``gspi.stage2.evaluate_points`` (one per model and seed; or the
-copies run.sh commits as ``docs/log/heldout/<run>.json``, which outlive the run folders), groups
+copies run.sh commits as ``results/heldout/cpu/<run>/scores.json``, which outlive the run folders), groups
 the scenes by what the pool made of them (``scene.json``: multi-part or one class; the metal
 class by name) and prints, per model, the mean over seeds of the per-seed scene means, the seed
 spread, metal-class metallic and metal IoU, multi-part roughness, and the paired differences to
@@ -44,7 +44,7 @@ def scene_groups(pool: Path, scenes: list[str]) -> dict[str, set[str]]:
 
 def units(source: Path, key: str = "stage2") -> tuple[dict, dict, int]:
     """({(scene, seed): {channel: psnr, "avg": ...}}, {scene: metal IoU}, seed) of one scores folder,
-    or of a ``scores.json`` kept under docs/log/heldout/ (run.sh copies each run's there)."""
+    or of a ``scores.json`` kept under results/heldout/cpu/<run>/ (run.sh copies each run's there)."""
     data = json.loads((source if source.suffix == ".json" else source / "scores.json").read_text())
     seed = data.get("train_seed")
     out = {}

@@ -24,13 +24,13 @@ unless they start with docs/ or benchmarks/ (the product's committed scores):
   (``results/scores/table2_probe_<name>/``) or of its checkpoints measured before the last
   step (``log/retraining/<name>.json``), one row per Stage 0 config;
 * ``retraining_shipped.md``: the same at the shipped scale, Table 2's Full runs under ``recon=fast``
-  (``docs/results/scores/table2_cpu/``) against ``scale=cpu_view``'s (``results/scores/table2_cpu_<recon>/``, or a
+  (``results/table2/cpu/``) against ``scale=cpu_view``'s (``results/scores/table2_cpu_<recon>/``, or a
   checkpoint measured before its last step: ``log/retraining_shipped/<recon>_s<seed>.json``;
   ``<recon>`` = ``exact_<departures>``: trained and measured on the exact renders),
   with issue 52's held-out targets met or not;
 * ``stage0_only.md``: the shipped Stage II unchanged behind another Stage 0, end to end: the demo's
   four scenes (``log/stage0_only/demo_<recon>.json`` against the committed demo run,
-  docs/log/demo/, whose assets are ``recon=fast``'s) and the controlled pairs
+  results/table1/cpu/, whose assets are ``recon=fast``'s) and the controlled pairs
   (``log/stage0_only/controlled_pairs_<recon>.json`` against
   benchmarks/results/controlled_pairs_fast.json).
 * ``retrained_real_objects.md``: the 19 real objects end to end behind ``recon=fast_view_mild``
@@ -65,14 +65,14 @@ STUDY = Path(__file__).resolve().parent
 PROBES = STUDY / "log"  # the probes' committed scores
 OUT = STUDY / "results"  # the tables this module writes
 SCORES = STUDY / "results" / "scores"  # the study's Table 2 scores (gspi-reproduce study=view_dependence)
-PRODUCT_SCORES = ROOT / "docs" / "results" / "scores"  # the product's Table 2 scores (table2_cpu: the shipped recipe)
+PRODUCT_SCORES = {"table2_cpu": ROOT / "results" / "table2" / "cpu"}  # the product's Table 2 scores (the shipped recipe)
 CHANNELS = ("albedo", "roughness", "metallic")
 
 
 def scores_file(folder: str, run: str) -> Path:
     """A run's committed Table 2 scores: the study's folder, or the product's (``table2_cpu``)."""
     own = SCORES / folder / run / "scores.json"
-    return own if own.parent.is_dir() else PRODUCT_SCORES / folder / run / "scores.json"
+    return own if own.parent.is_dir() else PRODUCT_SCORES[folder] / run / "scores.json"
 
 
 def scene_avg(per_scene: dict) -> dict[str, float]:
@@ -200,9 +200,9 @@ def targets_table(by_recon: dict[str, list[dict]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-DEMO = ROOT / "docs" / "log" / "demo"
+DEMO = ROOT / "results" / "table1" / "cpu"
 # GS-PI's recon=fast column: the demo run these probes were measured against (25 DDIM steps, Stage III
-# 300 iterations; docs/log/demo/method=gspi/eval/eval_meta.json as committed at b6c8cad), kept here
+# 300 iterations; results/table1/cpu/method=gspi/eval/eval_meta.json as committed at b6c8cad), kept here
 # since the demo's budget became 10 steps / 100 iterations (session 34): every column at one budget
 GSPI_REFERENCE = ROOT / "experiments" / "view_dependence" / "log" / "stage0_only" / "reference_gspi_fast_300.json"
 DEMO_CHANNELS = ("albedo", "roughness", "metallic", "relight")
@@ -462,7 +462,7 @@ def tables() -> dict[str, str]:
                                 "Stage 0's conditions and measured on the 32 held-out scenes reconstructed by the same "
                                 "Stage 0 (10 DDIM steps, 20000 points).\n\n" + retraining_table(by_recon))
     shipped: dict[str, list[dict]] = {"fast": [json.loads(p.read_text()) for p in sorted(
-        (PRODUCT_SCORES / "table2_cpu").glob("full_s*/scores.json"))]}
+        PRODUCT_SCORES["table2_cpu"].glob("full_s*/scores.json"))]}
     for p in sorted(SCORES.glob("table2_cpu_*/full_s*/scores.json")):
         shipped.setdefault(p.parent.parent.name.removeprefix("table2_cpu_"), []).append(json.loads(p.read_text()))
     for p in sorted((PROBES / "retraining_shipped").glob("*.json")):  # <recon>_s<seed>: measured before the last step
@@ -503,7 +503,7 @@ def tables() -> dict[str, str]:
         out["inference_recon.md"] = behind
     real = PROBES / "retrained_real_objects"
     if (real / "real_no_decomposition.json").is_file():
-        from eval.tables.docs_results import DEFAULT_MODEL
+        from gspi.publish.docs import DEFAULT_MODEL
 
         card = json.loads((ROOT / "checkpoints" / f"{DEFAULT_MODEL}.json").read_text())["real_objects_19_small"]
         runs = {p.stem.removeprefix("real_"): json.loads(p.read_text()) for p in sorted(real.glob("real_*__*.json"))}

@@ -2,7 +2,7 @@
 
 Examples:
     gspi-points-eval checkpoint=runs/s2/checkpoint.pt data=DATA out=runs/s2/eval
-    gspi-points-eval checkpoint=... data=HELDOUT out=... baseline=docs/results/scores/table2_cpu/full_s0/scores.json
+    gspi-points-eval checkpoint=... data=HELDOUT out=... baseline=results/table2/cpu/full_s0/scores.json
     gspi-points-eval checkpoint=... data=... out=... points_measure.num_steps=50
 
 The measure's knobs come from conf/points_measure/<name>.yaml (``table2``: 10 DDIM steps, a seeded

@@ -23,9 +23,9 @@ import sys
 from pathlib import Path
 
 from eval.errors import EXIT_STATED, StatedError, one_line
+from gspi.repo import REPO
 
 log = logging.getLogger("gspi-reproduce")
-REPO = Path(__file__).resolve().parents[2]
 ROOT_KEYS = ("data_root", "dry_run", "only", "keep_state")
 ROOT_FLAGS = ("dry_run", "keep_state")  # true or false
 STUDIES = REPO / "experiments"  # a study's configs: STUDIES / <study> / "conf" (its groups beside conf/'s)

@@ -20,8 +20,9 @@ import logging
 import shutil
 from pathlib import Path
 
+from gspi.repo import REPO  # stored paths become relative to it
+
 log = logging.getLogger(__name__)
-REPO = Path(__file__).resolve().parents[2]  # the root under which stored paths become relative
 STATE_FILES = ("checkpoint.pt", "metrics.jsonl", "best.pt")
 
 

@@ -4,7 +4,7 @@ committed -> the table (gspi-table over the committed scores).
 
 Config: conf/reproduce/table{1,3}_<scale>.yaml. The committed scores of a job are its record
 (``result.json``), its gspi-eval summary and metadata and its scenes' ``meta.json`` (paths made
-portable; ``commit_sweep_records``), which ``gspi-table`` reads as a sweep (docs/log/demo/ holds
+portable; ``commit_sweep_records``), which ``gspi-table`` reads as a sweep (results/table1/cpu/ holds
 Table 1's).
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from gspi.reproduce.plan import Step
 from eval.portable import portable
 from gspi.reproduce.table2 import tool
 
-# what a job folder's record is made of (gspi-table reads a sweep of such folders; docs/log/demo/README.md)
+# what a job folder's record is made of (gspi-table reads a sweep of such folders; results/table1/cpu/README.md)
 RECORD_FILES = ("result.json", "eval/eval_meta.json", "eval/summary.json", "points_eval/points_summary.json")
 
 

@@ -16,13 +16,13 @@ from typing import Any, Mapping
 
 from eval.layout import read_splits
 from gspi.pipeline import Stage2Context
+from gspi.repo import REPO
 from gspi.run.locks import file_lock
 from gspi.run.record import config_hash
 from gspi.run.scene_digest import scenes_digest
 from gspi.strict_config import ConfigError
 
 log = logging.getLogger(__name__)
-REPO_ROOT = Path(__file__).resolve().parents[2]
 # Keys of `stage2` that do not change the trained weights.
 NOT_TRAINING = ("eval", "inference", "checkpoint", "validate")
 
@@ -32,7 +32,7 @@ def resolve_path(path: str | Path) -> Path:
     p = Path(path)
     if p.exists() or p.is_absolute():
         return p
-    return REPO_ROOT / p
+    return REPO / p
 
 
 def training_hash(cfg: Mapping[str, Any]) -> str:

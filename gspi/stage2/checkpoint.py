@@ -113,7 +113,9 @@ def portable_config(config: dict) -> dict:
     machine's folders, issue 53; the paths are a record only, nothing reads them back)."""
     from eval.portable import portable
 
-    return portable(config, {"": Path(__file__).resolve().parents[2]})
+    from gspi.repo import REPO
+
+    return portable(config, {"": REPO})
 
 
 def ema_only(ckpt: dict, *, half: bool = False) -> dict:

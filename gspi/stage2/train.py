@@ -162,7 +162,8 @@ def append_run_log(path: str | Path, out_dir: Path, stats: dict, *, cpu_s: float
 
     from eval.portable import portable_path
 
-    repo = Path(__file__).resolve().parents[2]
+    from gspi.repo import REPO as repo
+
     path = Path(path)
     if not path.is_absolute():
         path = repo / path
@@ -285,11 +286,12 @@ def train(cfg: Mapping[str, Any], out_dir: str | Path, *, stop_at: Optional[int]
         metrics.truncate_after(-1)
         init_from = train_cfg.init_from
         if init_from:  # fine-tuning: weights (not optimizer or step) of another Stage II model
+            from gspi.repo import REPO
             from gspi.stage2.checkpoint import read_checkpoint, load_weights
 
             init_from = Path(init_from)
             if not init_from.exists() and not init_from.is_absolute():  # relative to the repository
-                init_from = Path(__file__).resolve().parents[2] / init_from
+                init_from = REPO / init_from
             src = read_checkpoint(init_from)
             weights = src.get("ema") or src.get("model")
             load_weights(state.model, weights, init_from, "init_from")

@@ -1,5 +1,5 @@
 """experiments/training_pools/summary.py reads a run's held-out scores from its eval folder or from the
-copy run.sh commits under docs/log/heldout/ (the copy outlives the data folder): both give the
+copy run.sh commits under results/heldout/cpu/ (the copy outlives the data folder): both give the
 same units, and the scene average is the mean of the three channels."""
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """The study's tables (results/*.md) are generated from its committed scores (log/, results/scores/)
-and the product's (docs/results/scores/table2_cpu/, docs/log/demo/), like the product's result tables;
+and the product's (results/table2/cpu/, results/table1/cpu/), like the product's result tables;
 every reproduce file of the study composes and plans through gspi-reproduce study=view_dependence."""
 from pathlib import Path
 

@@ -1,0 +1,5 @@
+import sys
+
+from gspi.publish.docs import main
+
+sys.exit(main())
