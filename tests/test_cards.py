@@ -115,3 +115,39 @@ def test_the_committed_cards_status_matches_the_configs():
     assert [stem for stem, status in statuses.items() if status == "default"] == [Path(named).stem]
     described = [card.stem for card in cards if "default" in json.loads(card.read_text())]
     assert described == [Path(named).stem]  # the card that says why it is the default is the default
+
+
+def test_every_shipped_card_names_the_command_that_rebuilds_it(tmp_path, capsys):
+    """A card the product ships (default or table) carries ``rebuild``: a gspi-reproduce call whose
+    dry run plans the training of the card's recipe (not a measure of the committed file)."""
+    import shlex
+
+    from gspi.cli import reproduce as cli
+
+    root = Path(__file__).resolve().parents[1]
+    shipped = {c: json.loads(c.read_text()) for c in sorted((root / "checkpoints").glob("stage2_*.json"))}
+    shipped = {c: card for c, card in shipped.items() if card["status"] in ("default", "table")}
+    assert shipped
+    for path, card in shipped.items():
+        command = shlex.split(card.get("rebuild", ""))
+        assert command[:1] == ["gspi-reproduce"], f"{path.name}: no rebuild command (make results writes it)"
+        assert cli.main([*command[1:], f"data_root={tmp_path}", "dry_run=true"]) == 0
+        out = capsys.readouterr().out
+        recipe = Path(card["file"]).stem.removeprefix("stage2_")
+        trains = [line for line in out.splitlines() if line.startswith("train: ")]
+        assert trains and all(f"stage2=cpu_{recipe}" in line for line in trains), out
+        assert not any("checkpoints/" in line for line in out.splitlines() if line.startswith("measure: "))
+
+
+def test_a_model_reproduce_file_rebuilds_the_default_only(tmp_path):
+    from eval.tables.cards import configured_rebuilds
+
+    root = _fake_repo(tmp_path)
+    assert configured_rebuilds(root) == {}
+    (root / "conf" / "reproduce" / "model_default_cpu.yaml").write_text("model: default\n")
+    assert configured_rebuilds(root) == {"stage2_a": "gspi-reproduce model=default scale=cpu"}
+    texts = cards_with_status(root)
+    assert list(json.loads(texts[root / "checkpoints" / "stage2_a.json"])) == ["file", "status", "rebuild", "sha256"]
+    (root / "conf" / "reproduce" / "model_other_cpu.yaml").write_text("model: other\n")
+    with pytest.raises(ValueError, match="model_other_cpu.yaml: model 'other'"):
+        configured_rebuilds(root)

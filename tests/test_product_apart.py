@@ -12,7 +12,8 @@ The rule, checked here:
   files). Only the convention is named (``experiments/<study>/conf``, ``study=<name>``).
 - The studies not yet moved apart are named only where ``NOT_YET_APART`` says (issue 67's rest):
   the list may shrink, never grow.
-- Every product reproduce file is a size (``table<N>_<smoke|cpu>``) and dry-runs.
+- Every product reproduce file is a table or a shipped model at a size (``table<N>_<smoke|cpu>``,
+  ``model_<name>_<smoke|cpu>``) and dry-runs.
 """
 from __future__ import annotations
 
@@ -106,16 +107,16 @@ REPRODUCE = sorted((ROOT / "conf" / "reproduce").glob("*.yaml"))
 
 
 def test_a_product_reproduce_file_is_a_table_at_a_size():
-    bad = [p.name for p in REPRODUCE if not re.fullmatch(rf"table\d_({'|'.join(SIZES)})\.yaml", p.name)]
-    assert REPRODUCE and not bad, f"conf/reproduce holds only table<N>_<size> ({SIZES}): {bad}"
+    sizes = "|".join(SIZES)
+    bad = [p.name for p in REPRODUCE if not re.fullmatch(rf"(table\d|model_[a-z0-9]+)_({sizes})\.yaml", p.name)]
+    assert REPRODUCE and not bad, f"conf/reproduce holds only table<N>_<size> or model_<name>_<size> ({SIZES}): {bad}"
 
 
 @pytest.mark.parametrize("path", REPRODUCE, ids=[p.stem for p in REPRODUCE])
 def test_every_product_reproduce_file_dry_runs(path, tmp_path, capsys):
     from gspi.cli import reproduce as cli
 
-    table, scale = path.stem.removeprefix("table").split("_", 1)
-    assert cli.main([f"table={table}", f"scale={scale}", f"data_root={tmp_path}", "dry_run=true"]) == 0
+    assert cli.main([*cli.call_name(path.stem).split(), f"data_root={tmp_path}", "dry_run=true"]) == 0
     out = capsys.readouterr().out
     assert "step(s) to do" in out or "nothing left to do" in out
     assert not any(tmp_path.iterdir())  # a dry run writes nothing

@@ -331,9 +331,11 @@ def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["table=9", "scale=cpu"], "no conf/reproduce/table9_cpu.yaml; known: table=1 scale=cpu"),
-    (["table=2"], "needs both table=N and scale=S"),
-    (["scale=cpu"], "needs both table=N and scale=S"),
+    (["table=9", "scale=cpu"], "no conf/reproduce/table9_cpu.yaml; known: model=default scale=cpu, table=1 scale=cpu"),
+    (["model=best", "scale=cpu"], "model=best scale=cpu: no conf/reproduce/model_best_cpu.yaml"),
+    (["table=2"], "needs table=N (or model=NAME) and scale=S"),
+    (["scale=cpu"], "needs table=N (or model=NAME) and scale=S"),
+    (["table=2", "model=default", "scale=cpu"], "needs table=N (or model=NAME) and scale=S"),
     (["table=2", "scale=smoke", "seedz=[1]"], "table2_smoke"),
     (["table2"], "expected key=value"),
     (["table=2", "scale=smoke", "keep_state=maybe"], "keep_state='maybe': expected true or false"),

@@ -13,6 +13,10 @@ part of gspi.publish' targets), so it never disagrees with them:
 - ``default``: the checkpoint gspi-run loads (conf/gspi_run.yaml's ``stage2`` option's ``checkpoint``);
 - ``table``: one a product table measures (a ``checkpoints_from`` entry of conf/reproduce/*.yaml);
 - ``retired``: every other card; its file stays (tables of earlier sessions were measured with it).
+
+A shipped card (``default`` or ``table``) also names the product command that rebuilds its model
+from nothing (``rebuild``, :func:`configured_rebuilds`: ``gspi-reproduce model=<name> scale=<s>`` of
+a conf/reproduce/model_<name>_<s>.yaml); ``make results`` writes it beside the status.
 """
 from __future__ import annotations
 
@@ -120,6 +124,21 @@ def configured_statuses(root: Path) -> dict[str, str]:
     return {c.stem: "default" if c.stem == default else "table" if c.stem in tables else "retired" for c in cards}
 
 
+def configured_rebuilds(root: Path) -> dict[str, str]:
+    """{checkpoint stem: the gspi-reproduce call that rebuilds it} from conf/reproduce/model_*_*.yaml
+    (``model: default`` rebuilds gspi-run's default checkpoint)."""
+    import yaml
+
+    out = {}
+    for path in sorted((Path(root) / "conf" / "reproduce").glob("model_*_*.yaml")):
+        model = (yaml.safe_load(path.read_text()) or {}).get("model")
+        if model != "default":
+            raise ValueError(f"{path}: model {model!r}: only the default model is rebuilt by a reproduce file")
+        scale = path.stem.rsplit("_", 1)[1]
+        out[default_checkpoint(root)] = f"gspi-reproduce model={model} scale={scale}"
+    return out
+
+
 def read_status(path: Path) -> str:
     """The card's ``status``; ValueError naming the card when it is missing or not one of ``STATUSES``."""
     status = json.loads(Path(path).read_text()).get("status")
@@ -128,25 +147,26 @@ def read_status(path: Path) -> str:
     return status
 
 
-def with_status(card: dict, status: str) -> dict:
-    """The card with ``status`` set, placed after ``file`` (the rest keeps its order)."""
+def with_status(card: dict, status: str, rebuild: Optional[str] = None) -> dict:
+    """The card with ``status`` (and ``rebuild`` when given) set, placed after ``file`` (the rest
+    keeps its order)."""
     if status not in STATUSES:
         raise ValueError(f"status {status!r}: expected one of {list(STATUSES)}")
+    placed = {"status": status, **({"rebuild": rebuild} if rebuild else {})}
     out = {}
     for key, value in card.items():
-        if key != "status":
+        if key not in ("status", "rebuild"):
             out[key] = value
         if key == "file":
-            out["status"] = status
-    out.setdefault("status", status)
-    return out
+            out.update(placed)
+    return {**out, **{k: v for k, v in placed.items() if k not in out}}
 
 
 def cards_with_status(root: Path) -> dict[Path, str]:
     """{card path: its text with the configured status} (the cards' layout: indent 2, newline)."""
-    statuses = configured_statuses(root)
+    statuses, rebuilds = configured_statuses(root), configured_rebuilds(root)
     out = {}
     for path in sorted((Path(root) / "checkpoints").glob(CARD_GLOB)):
         card = json.loads(path.read_text())
-        out[path] = json.dumps(with_status(card, statuses[path.stem]), indent=2) + "\n"
+        out[path] = json.dumps(with_status(card, statuses[path.stem], rebuilds.get(path.stem)), indent=2) + "\n"
     return out

@@ -6,8 +6,11 @@
     gspi-reproduce table=2 scale=cpu seeds=[0,1] variants=[full] recon=tiny   # any key of the table's config
     gspi-reproduce table=1 scale=cpu                  # Table 1 (the demo's sweep); table=3 the same for Table 3
     gspi-reproduce table=2 scale=cpu keep_state=true  # copy begun trainings' state to the repository (to commit)
+    gspi-reproduce model=default scale=cpu            # the shipped default Stage II model, rebuilt from nothing
 
 The table's config is conf/reproduce/table<N>_<scale>.yaml; ``scale`` is its size (smoke, cpu).
+``model=<name>`` instead of ``table=N`` rebuilds a shipped model (conf/reproduce/model_<name>_<scale>.yaml:
+the Table 2 training that made it, trained rather than taken from the repository).
 ``study=<name>`` adds a study's configs (``experiments/<name>/conf``, principle 10 of the style
 guide: the product names no study) to the search path of this call and of every command it runs, so
 a study's reproduce files (``<study conf>/reproduce/table<N>_<scale>.yaml``) and Stage 0 or Stage II
@@ -55,7 +58,14 @@ def searchpath_override(study: str | None) -> list[str]:
 
 def available(study: str | None = None) -> list[str]:
     """The reproduce files a call can name: conf/reproduce's, and the study's with ``study=``."""
-    return sorted({p.stem for d in conf_dirs(study) for p in (d / "reproduce").glob("table*_*.yaml")})
+    return sorted({p.stem for d in conf_dirs(study) for pattern in ("table*_*.yaml", "model_*_*.yaml")
+                   for p in (d / "reproduce").glob(pattern)})
+
+
+def call_name(name: str) -> str:
+    """How a call names the reproduce file ``name``: ``table=2 scale=cpu`` or ``model=default scale=cpu``."""
+    what, scale = name.rsplit("_", 1)
+    return f"model={what[len('model_'):]} scale={scale}" if what.startswith("model_") else f"table={what[5:]} scale={scale}"
 
 
 def compose(argv: list[str]):
@@ -75,15 +85,16 @@ def compose(argv: list[str]):
         key, value = arg.split("=", 1)
         pairs.setdefault(key, []).append(value)
     table, scale = pairs.pop("table", [None])[-1], pairs.pop("scale", [None])[-1]
+    model = pairs.pop("model", [None])[-1]
     study = pairs.pop("study", [None])[-1]
-    name = f"table{table}_{scale}"
     found = available(study)
-    known = ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in found)
-    if table is None or scale is None:
-        raise ReproduceError(f"needs both table=N and scale=S (e.g. table=2 scale=cpu); known: {known}")
+    known = ", ".join(call_name(n) for n in found)
+    if (table is None) == (model is None) or scale is None:
+        raise ReproduceError(f"needs table=N (or model=NAME) and scale=S (e.g. table=2 scale=cpu); known: {known}")
+    name, asked = (f"table{table}_{scale}", f"table={table}") if model is None else (f"model_{model}_{scale}", f"model={model}")
     if name not in found:
         files = " nor ".join(str(d.relative_to(REPO) / "reproduce" / f"{name}.yaml") for d in conf_dirs(study))
-        raise ReproduceError(f"table={table} scale={scale}: no {files}; known: {known}")
+        raise ReproduceError(f"{asked} scale={scale}: no {files}; known: {known}")
     overrides = [f"{k if k in ROOT_KEYS else 'reproduce.' + k}={v}" for k, vs in pairs.items() for v in vs]
     searchpath = searchpath_override(study)
     try:
@@ -122,9 +133,10 @@ def main(argv: list[str] | None = None) -> int:
         from eval.config import CONF_DIR
 
         # its own keys (conf/gspi_reproduce.yaml), the tables it knows, then the module's examples
-        tables = ", ".join(f"table={n[5]} scale={n.split('_', 1)[1]}" for n in available())
+        tables = ", ".join(call_name(n) for n in available())
         print(usage(CONF_DIR, "gspi_reproduce", groups=False, hydra=False) +
-              f"\n\ntables (table=N scale=S; any other key=value sets a key of that config): {tables}\n\n" +
+              f"\n\ntables and models (table=N or model=NAME, and scale=S; any other key=value sets a key of "
+              f"that config): {tables}\n\n" +
               "more examples:\n" + "\n".join("  " + line.strip() for line in __doc__.splitlines()
                                                 if line.startswith("    gspi-reproduce ")))
         return 0
@@ -158,6 +170,13 @@ def main(argv: list[str] | None = None) -> int:
     if left:  # only= left some out, or another call runs them
         print(f"{len(left)} step(s) left ({left[0]}, ...): left out by only= or run by another call "
               f"(its log: {work / 'reproduce.log'}); run the same command again to go on")
+        return 0
+    if cfg.get("model"):  # a shipped model rebuilt: where the checkpoint and its scores are
+        from gspi.reproduce.table2 import run_name, runs_folder
+
+        name = run_name(cfg["variants"][0], cfg["seeds"][0])
+        print(f"done: model {cfg['model']} at scale {cfg['scale']}: {work / runs_folder(cfg) / name / 'checkpoint.pt'} "
+              f"(its scores: {REPO / cfg['scores_dir'] / name / 'scores.json'})")
         return 0
     tables = REPO / cfg["tables_dir"]
     print(f"done: table {cfg['table']} at scale {cfg['scale']}: {tables}/table{cfg['table']}.md")

@@ -263,7 +263,8 @@ def table2_steps(cfg: Mapping[str, Any], *, root: Path) -> list[Step]:
     scores_dir, tables_dir = root / cfg["scores_dir"], root / cfg["tables_dir"]
     adopted = adopt_steps(cfg, root, scores_dir)
     shipped = cfg.get("checkpoints_from") or {}
-    rates = cache(partial(rates_and_steps, root, cfg["stage2"], runs_folder(cfg)))
+    # the run log of this runs folder, or of the one ``rates_from`` names (the same recipe trained elsewhere)
+    rates = cache(partial(rates_and_steps, root, cfg["stage2"], cfg.get("rates_from") or runs_folder(cfg)))
     runs = []
     for variant, seed in run_order(cfg):
         name = run_name(variant, seed)
