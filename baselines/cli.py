@@ -1,5 +1,5 @@
-"""`gspi-export` / `gspi-import`: move a canonical scene to an external system and back; and
-`gspi-export asset=`: a PBR-GS asset as a relightable glTF 2.0 file.
+"""`gspi-export system=` / `gspi-import`: move a canonical scene to an external system and back
+(gspi-export's door is gspi/cli/export.py: ``asset=`` is the GLB export, ``system=`` lands here).
 
     gspi-export system=gs_ir scene=data/small/s002_multipart_ceramic out=exports/gs_ir/s002
     gspi-export system=gs_ir scene=... out=... run=true method.checkout=~/src/GS-IR  # + train
@@ -17,17 +17,6 @@ them in `method.checkout` and times them (`<model>/gspi_runtime.json`, read back
 `gspi-import`). `gspi-import` writes `<out>/<scene name>/<split>/<view id>/*.png` + `meta.json` (`split=test`, or
 `lattice` = `train`, the lattice views, where the system's commands rendered them).
 Configs: conf/gspi_export.yaml, conf/gspi_import.yaml. The working directory never changes.
-
-    gspi-export asset=runs/method=gspi/work/s002/pbr_gs.ply out=asset.glb
-    gspi-export asset=.../pbr_gs.ply out=asset.glb export.texture.size=1024 export.preview=false
-
-With `asset=` and no `system=`/`method=`, `gspi-export` writes the asset as a GLB instead: the
-2DGS surface as a triangle mesh (TSDF fusion of the lattice depth renders), a UV atlas
-(xatlas) and base-colour and metallic-roughness textures baked from the surfels' PBR
-attributes, plus `<stem>_preview.png` beside it (gspi/export/, docs/EXPORT.md; config
-conf/gspi_export_asset.yaml; a bad asset is one line naming the file, exit 2). It prints one
-progress line per step (mesh, UV atlas, textures, GLB, preview: what each made and its seconds)
-and a summary line.
 """
 from __future__ import annotations
 
@@ -97,41 +86,14 @@ def _run_import_and_print(cfg: DictConfig) -> dict:
 
 
 PATH_KEYS = ("src", "scene", "out")  # quoted for Hydra's grammar (eval/argv.py)
-ASSET_KEY = "asset="
-
-
-def run_asset_export(cfg: DictConfig) -> dict:
-    """`gspi-export asset=... out=...`: the GLB export (module docstring); returns its record."""
-    import torch
-
-    from gspi.export.asset import export_asset
-    from gspi.export.config import ExportConfig
-    from gspi.strict_config import check_value
-
-    torch.set_num_threads(check_value("threads", cfg.threads, int, lo=1, hi=1024))
-    export_cfg = ExportConfig.from_dict(OmegaConf.to_container(cfg.export, resolve=True))
-    return export_asset(Path(cfg.asset), Path(cfg.out), export_cfg)  # a progress line per step, then a summary
-
-
-_export_asset = hydra_cli(run_asset_export, "gspi_export_asset", path_keys=("asset", "out"))
-
-
-def is_asset_export(argv: list[str]) -> bool:
-    """The command line asks for the GLB export: it has `asset=` and no `system=`/`method=`."""
-    return any(a.startswith(ASSET_KEY) for a in argv) and not any(a.startswith(("system=", "method=")) for a in argv)
-
-
-_export = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS)
+export_system_main = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS)
 import_main = hydra_cli(_run_import_and_print, "gspi_import", path_keys=PATH_KEYS)
 
 
-def export_main() -> None:
-    """`gspi-export`: the GLB export with `asset=`, else a system's input folder with `system=`."""
-    (_export_asset if is_asset_export(sys.argv[1:]) else _export)()
 
 
 if __name__ == "__main__":  # python -m baselines.cli {export|import} system=... ...
     command = sys.argv.pop(1) if len(sys.argv) > 1 else ""
     if command not in ("export", "import"):
         sys.exit("usage: python -m baselines.cli {export|import} system=<name> ...")
-    export_main() if command == "export" else import_main()
+    export_system_main() if command == "export" else import_main()

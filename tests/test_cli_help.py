@@ -57,7 +57,7 @@ def test_help_exits_0_from_the_installed_script():
 
 def test_the_export_asset_form_has_its_own_help(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["gspi-export", "asset=x.ply", "--help"])
-    importlib.import_module("baselines.cli").export_main()
+    importlib.import_module("gspi.cli.export").main()
     out = capsys.readouterr().out
     assert "conf/gspi_export_asset.yaml" in out and "\n  export={mesh, texture, preview, backend}" in out
 

@@ -194,14 +194,14 @@ def test_empty_asset_is_refused(tmp_path):
 
 
 def test_cli_dispatch_and_one_line_error(tmp_path, monkeypatch, capsys):
-    from baselines import cli
+    from gspi.cli import export as cli
 
     assert cli.is_asset_export(["asset=a.ply", "out=a.glb"])
     assert not cli.is_asset_export(["system=gs_ir", "scene=s", "out=o"])  # the scene export keeps its form
     assert not cli.is_asset_export(["method=gs_ir", "asset=a.ply", "out=o"])
     monkeypatch.setattr(sys, "argv", ["gspi-export", f"asset={tmp_path}/none.ply", f"out={tmp_path}/a.glb"])
     with pytest.raises(SystemExit) as exc:
-        cli.export_main()
+        cli.main()
     assert exc.value.code == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and "none.ply: asset file not found" in err[0], err

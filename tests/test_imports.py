@@ -43,7 +43,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     # (what gspi-run predicts and gspi-eval scores), so it reads them from Stage III
     "gspi.export": LOWER + ("gspi.stage3",),
     "gspi.pipeline": STAGE + ("gspi.stage1", "gspi.stage2", "gspi.stage3"),
-    "baselines": LOWER + ("gspi.recon", "gspi.export"),  # gspi-export asset= (baselines/cli.py)
+    "baselines": LOWER + ("gspi.recon",),
     "gspi.run": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
                          "gspi.relight", "gspi.export", "baselines"),
     # gspi-reproduce (issue 53) runs the tools as commands, one subprocess per step: it imports none

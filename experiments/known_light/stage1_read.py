@@ -46,6 +46,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("out", type=Path)
     ap.add_argument("--baseline", type=Path, required=True, help="a scores.json whose baseline constants to reuse")
     ap.add_argument("--renders", action="store_true", help="also read in the asset's renders")
+    ap.add_argument("--normal-search", type=float, nargs="*", default=None,
+                    help="also read in the photos with a normal search (rings in degrees, e.g. 4 8)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
@@ -85,6 +87,11 @@ def main(argv: list[str] | None = None) -> None:
         preds["photos"] = predict_light_fit(points, renders, cfg, candidates, photos)
         if args.renders:
             preds["renders"] = predict_light_fit(points, renders, cfg, candidates, None)
+        if args.normal_search:
+            from dataclasses import replace
+
+            searched = replace(cfg, normal_search_deg=tuple(args.normal_search))
+            preds["photos_normal_search"] = predict_light_fit(points, renders, searched, candidates, photos)
         gt, mask = read_gt_view_maps(scene_dir)  # read once for every prediction's metal IoU
         row = {"views": views, "capture_env": read_scene(scene_dir).capture_env,
                "seconds": round(time.perf_counter() - t0, 1)}

@@ -10,6 +10,7 @@ it needs. It is also a method of its own (``method=light_fit``) and Stage II's c
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,44 @@ def fit_grid(obs: PointViews, pre: PrefilteredEnvironment, *, roughness=ROUGHNES
     rough = torch.as_tensor(roughness, dtype=torch.float32)
     terms = view_terms(pre, obs.normal[obs.point], obs.view_dir, rough, rotation_deg=rotation_deg)
     return fit_terms(obs, terms, rough, metallic, gain=gain)
+
+
+def cone_normals(normal: Tensor, rings_deg=(), per_ring: int = 6) -> Tensor:
+    """[C, n, 3] candidate unit normals around each ``normal`` [n, 3]: the normal itself, then
+    ``per_ring`` directions at each angle of ``rings_deg`` (degrees) around it, evenly turned."""
+    n = torch.nn.functional.normalize(normal.float(), dim=-1)
+    helper = torch.where((n[:, :1].abs() < 0.9), torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 1.0, 0.0]))
+    t1 = torch.nn.functional.normalize(torch.cross(helper, n, dim=-1), dim=-1)
+    t2 = torch.cross(n, t1, dim=-1)
+    out = [n]
+    for ring, theta in enumerate(rings_deg):
+        th = math.radians(float(theta))
+        for j in range(per_ring):
+            phi = 2 * math.pi * (j + 0.5 * (ring % 2)) / per_ring  # alternate rings offset by half a step
+            out.append(math.cos(th) * n + math.sin(th) * (math.cos(phi) * t1 + math.sin(phi) * t2))
+    return torch.stack(out)
+
+
+def fit_grid_normal_search(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
+                           roughness=ROUGHNESS_GRID, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
+                           gain: float = 1.0) -> MaterialGrid:
+    """``fit_grid`` with each point's normal a nuisance: per cell, the smallest error over the
+    candidate normals of ``cone_normals`` (and that normal's albedo), as photometric stereo
+    refines a normal from the views. For normals a few degrees off (a reconstructed asset's
+    cloud), whose mirror directions miss a sharp light's highlights."""
+    best: MaterialGrid | None = None
+    for normal in cone_normals(obs.normal, rings_deg, per_ring):
+        grid = fit_grid(PointViews(point=obs.point, colour=obs.colour, view_dir=obs.view_dir, normal=normal,
+                                   xyz=obs.xyz), pre, roughness=roughness, metallic=metallic,
+                        rotation_deg=rotation_deg, gain=gain)
+        if best is None:
+            best = grid
+            continue
+        better = grid.error < best.error
+        best = MaterialGrid(error=torch.where(better, grid.error, best.error),
+                            albedo=torch.where(better[..., None], grid.albedo, best.albedo),
+                            roughness=best.roughness, metallic=best.metallic, views=best.views)
+    return best
 
 
 @dataclass(frozen=True)

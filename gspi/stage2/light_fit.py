@@ -19,7 +19,8 @@ import torch
 from eval.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
 from gspi.light.estimate import estimate_light
-from gspi.light.readout import NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, pool_neighbours, read_posterior
+from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, pool_neighbours,
+                                read_posterior)
 from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.infer import subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
@@ -40,6 +41,7 @@ class LightFitConfig:
     temperature: float = POSTERIOR_TEMPERATURE
     tol_pixels: float = 2.0          # the views' depth test (as Stage II's conditions)
     views: str = "photos"            # read the scene's photos at the lattice cameras (else the renders) | renders
+    normal_search_deg: tuple = ()    # rings (degrees) of candidate normals around each cloud normal; () = none
     seed: int = 0
 
     @classmethod
@@ -51,6 +53,8 @@ class LightFitConfig:
         values = {k: cfg[k] for k in known if k in cfg}
         if isinstance(values.get("candidates"), (list, tuple)):
             values["candidates"] = tuple(str(c) for c in values["candidates"])
+        if "normal_search_deg" in values:
+            values["normal_search_deg"] = tuple(float(d) for d in values["normal_search_deg"] or ())
         if values.get("views", "photos") not in LIGHT_VIEWS:
             raise ValueError(f"method.views={values['views']!r}: must be one of {', '.join(LIGHT_VIEWS)}")
         return cls(**values)
@@ -72,7 +76,11 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
     t_obs = time.perf_counter()
     light = estimate_light(obs, candidates, max_points=cfg.identify_points, seed=cfg.seed)
     t_light = time.perf_counter()
-    grid = fit_grid(obs, candidates[light.env], rotation_deg=light.rotation_deg, gain=light.gain)
+    if cfg.normal_search_deg:
+        grid = fit_grid_normal_search(obs, candidates[light.env], rings_deg=cfg.normal_search_deg,
+                                      rotation_deg=light.rotation_deg, gain=light.gain)
+    else:
+        grid = fit_grid(obs, candidates[light.env], rotation_deg=light.rotation_deg, gain=light.gain)
     albedo, rough, metal = read_posterior(grid, pool_neighbours(grid, obs.xyz, k=cfg.neighbours), cfg.temperature)
     pbr = torch.cat([linear_to_srgb(albedo), rough[:, None], metal[:, None]], dim=1).numpy().astype(np.float32)
     if sub is not None:
