@@ -12,34 +12,17 @@ included), ``--repeats`` times, alternating, every time printed.
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import torch
 
-from benchmarks.common import machine, median_seconds
+from benchmarks.common import command_seconds, machine, median_seconds
 from eval.lpips.net import load_lpips
 from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.relight import clear_prefilter_cache, prefilter_environment, split_sum
 
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def command_seconds(name: str, args: list[str]) -> float:
-    """Wall seconds of the console script ``name`` (beside this Python) with ``args``."""
-    script = shutil.which(name, path=str(Path(sys.executable).parent))
-    if script is None:
-        raise SystemExit(f"{name}: not installed beside {sys.executable}")
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    start = time.perf_counter()
-    subprocess.run([script, *args], check=True, env=env, capture_output=True)
-    return time.perf_counter() - start
 
 
 def time_commands(gt: Path | None, pred: Path | None, runs: Path | None, repeats: int) -> None:

@@ -35,11 +35,10 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from benchmarks.common import machine
+from benchmarks.common import REPO, command_seconds, machine
 from eval.layout import MATERIAL_CHANNELS, read_scene, read_view_file
 from eval.metrics import masked_psnr
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def export_config(overrides: list[str]):
@@ -98,20 +97,13 @@ def gt_scores(asset, glb: Path, gt_dir: Path) -> dict:
 
 
 def export_command(ply: Path, glb: Path, *, cold: bool) -> float:
-    """Wall seconds of ``gspi-export asset=<ply> out=<glb>`` (module docstring)."""
-    import shutil
+    """Wall seconds of ``gspi-export asset=<ply> out=<glb>`` (module docstring); ``cold``: an empty
+    numba cache (the first call on a fresh machine)."""
     import tempfile
-    import time
 
-    script = shutil.which("gspi-export", path=str(Path(sys.executable).parent))
-    cmd = [script] if script else [sys.executable, "-m", "baselines.cli", "export"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
     with tempfile.TemporaryDirectory() as numba_cache:
-        if cold:
-            env["NUMBA_CACHE_DIR"] = numba_cache
-        start = time.perf_counter()
-        subprocess.run([*cmd, f"asset='{ply}'", f"out='{glb}'"], check=True, env=env, capture_output=True)
-        return time.perf_counter() - start
+        return command_seconds("gspi-export", [f"asset='{ply}'", f"out='{glb}'"],
+                               env={"NUMBA_CACHE_DIR": numba_cache} if cold else None)
 
 
 def main() -> None:

@@ -19,15 +19,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.common import machine
+from benchmarks.common import REPO, command_seconds, machine
 
-REPO = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
 
 
 def demo_overrides() -> list[str]:
@@ -44,16 +40,9 @@ DEMO = demo_overrides()
 GSPI_STAGES = ("stage1", "stage2", "stage3", "render")
 
 
-def run(cmd: list[str]) -> None:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise SystemExit(f"bench_pipeline: {' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
-
-
 def method_meta(data: Path, scene: str, method: str, out: Path) -> dict:
     """Runs one method on one scene (the demo's settings); returns its prediction's meta.json."""
-    run([str(BIN / "gspi-run"), f"data={data}", f"out={out}", f"method={method}", f"scenes=[{scene}]",
+    command_seconds("gspi-run", [f"data={data}", f"out={out}", f"method={method}", f"scenes=[{scene}]",
          "threads=1", "logger=none", *DEMO])
     return json.loads((out / "predictions" / scene / "meta.json").read_text())
 
@@ -70,7 +59,7 @@ def main() -> None:
         data = args.data
         if data is None:
             data = tmp / "data"
-            run([str(BIN / "gspi-data"), "preset=small", f"out={data}", "seed=0", "data.only_splits=[test]",
+            command_seconds("gspi-data", ["preset=small", f"out={data}", "seed=0", "data.only_splits=[test]",
                  "data.workers=1"])
         gspi = method_meta(data.resolve(), args.scene, "gspi", tmp / "gspi")
         joint = method_meta(data.resolve(), args.scene, "joint_ir", tmp / "joint_ir")

@@ -113,35 +113,62 @@ def identify_table() -> str | None:
     return "\n".join(lines) + "\n"
 
 
-def stage1_table() -> str | None:
-    """results/stage1_read.json (stage1_read.py): the read-out end to end behind Stage 0 and Stage I."""
-    path = RESULTS / "stage1_read.json"
-    if not path.is_file():
-        return None
+# results/<file> of stage1_read.py: the Stage 0 it read behind (each file's no decomposition is on its own cloud)
+STAGE1_READS = {
+    "stage1_read.json": "`recon=fast`",
+    "stage1_read_normal_search.json": "`recon=fast`",
+    "stage1_read_normal_early.json": "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)",
+}
+STAGE1_LABELS = {"no_decomposition": "no decomposition (Top-RGB, training constants)",
+                 "photos": "read-out in the photos (the asset for geometry)",
+                 "renders": "read-out in the asset's renders",
+                 "photos_normal_search": "read-out in the photos, each normal searched in a cone (rings 4 and 8 degrees)"}
+
+
+def stage1_rows(path: Path, stage0: str, base_row: bool) -> list[str]:
+    """The table rows of one stage1_read.py file: each read-out (its no decomposition first when
+    ``base_row``), roughness paired against that file's own no decomposition."""
     scenes = json.loads(path.read_text())["scenes"]
-    methods = [m for m in ("no_decomposition", "photos", "renders") if all(m in r for r in scenes.values())]
-    labels = {"no_decomposition": "no decomposition (Top-RGB, training constants)",
-              "photos": "read-out in the photos (the asset for geometry)",
-              "renders": "read-out in the asset's renders"}
-    lines = [f"# The read-out behind Stage 0 (`recon=fast`) and Stage I: {len(scenes)} held-out pool scenes", "",
-             "`method=light_fit`'s read-out (the light estimated among the pool's 8 capture environments, 256-neighbour "
-             "cloud normals) on Stage I's cloud of each scene's `recon=fast` asset, scored on that cloud by Table 2's "
-             "measure (`score_generated_points`: per-view masked PSNR over the lattice pixels the cloud covers); metal "
-             "IoU over the same pixels. Generated from results/stage1_read.json (`stage1_read.py`).", "",
-             "| read-out | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | metal class IoU | "
-             "multi-material IoU | light right |", "|---|---|---|---|---|---|---|---|---|"]
+    if len(scenes) < 2:  # a run just begun: nothing to pair yet
+        return []
+    methods = [m for m in STAGE1_LABELS if all(m in r for r in scenes.values())]
     psnr = {m: {n: {c: r[m]["scores"][c]["psnr"] for c in ("albedo", "roughness", "metallic", "avg")}
                 for n, r in scenes.items()} for m in methods}
+    count = "" if len(scenes) == 32 else f" ({len(scenes)} scenes)"
+    lines = []
     for m in methods:
+        if m == "no_decomposition" and not base_row:
+            continue
         mean = {c: float(np.mean([v[c] for v in psnr[m].values()])) for c in ("albedo", "roughness", "metallic", "avg")}
         rough = {n: v["roughness"] for n, v in psnr[m].items()}
         base = {n: v["roughness"] for n, v in psnr["no_decomposition"].items()}
         d, lo, hi = paired_bootstrap_ci(rough, base) if m != "no_decomposition" else (0.0, 0.0, 0.0)
         ious = {n: r[m]["metal_iou"] for n, r in scenes.items()}
         right = [r[m]["light"]["env"] == r["capture_env"] for r in scenes.values() if "light" in r[m]]
-        lines.append(f"| {labels[m]} | {mean['albedo']:.2f} | {mean['roughness']:.2f} | {mean['metallic']:.2f} | "
-                     f"{mean['avg']:.2f} | {d:+.2f} [{lo:+.2f}, {hi:+.2f}] | {iou_mean(ious, METAL_SCENES):.2f} | "
-                     f"{iou_mean(ious, PARTS_SCENES):.2f} | {f'{sum(right)}/{len(right)}' if right else '-'} |")
+        lines.append(f"| {stage0}{count} | {STAGE1_LABELS[m]} | {mean['albedo']:.2f} | {mean['roughness']:.2f} | "
+                     f"{mean['metallic']:.2f} | {mean['avg']:.2f} | {d:+.2f} [{lo:+.2f}, {hi:+.2f}] | "
+                     f"{iou_mean(ious, METAL_SCENES):.2f} | {iou_mean(ious, PARTS_SCENES):.2f} | "
+                     f"{f'{sum(right)}/{len(right)}' if right else '-'} |")
+    return lines
+
+
+def stage1_table() -> str | None:
+    """results/stage1_read*.json (stage1_read.py): the read-out end to end behind Stage 0 and Stage I."""
+    files = [(RESULTS / name, stage0) for name, stage0 in STAGE1_READS.items() if (RESULTS / name).is_file()]
+    if not files:
+        return None
+    lines = ["# The read-out behind Stage 0 and Stage I: 32 held-out pool scenes", "",
+             "`method=light_fit`'s read-out (the light estimated among the pool's 8 capture environments, 256-neighbour "
+             "cloud normals) on Stage I's cloud of each scene's Stage 0 asset, scored on that cloud by Table 2's "
+             "measure (`score_generated_points`: per-view masked PSNR over the lattice pixels the cloud covers); metal "
+             "IoU over the same pixels; roughness paired against no decomposition on the same cloud. Generated from "
+             "results/stage1_read*.json (`stage1_read.py`).", "",
+             "| Stage 0 | read-out | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | "
+             "metal class IoU | multi-material IoU | light right |", "|---|---|---|---|---|---|---|---|---|---|"]
+    seen_stage0 = set()
+    for path, stage0 in files:
+        lines += stage1_rows(path, stage0, base_row=stage0 not in seen_stage0)
+        seen_stage0.add(stage0)
     return "\n".join(lines) + "\n"
 
 
