@@ -96,3 +96,27 @@ def test_inhouse_baselines_get_the_runs_device(monkeypatch):
     monkeypatch.setattr(method.module, "predict_scene", fake_predict_scene)
     method.predict(None, Path("."), asset=None, clock=StageClock("s"), work_dir=Path("."), split="test")
     assert seen["device"] == resolve_device("auto") and isinstance(seen["device"], torch.device)
+
+
+def test_the_stage_configs_are_parsed_once_at_the_door(monkeypatch):
+    """check_run_config returns the checked stage configs; a method built with them hands them to
+    its stages as they are (no second parse), and parses once itself only when built without them."""
+    from gspi.run.config_check import StageConfigs, check_run_config
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage3.config import Stage3Config
+
+    cfg = {"split": "test", "data_dir": "d", "out": "o", "stage1": {}, "stage3": {}}
+    stages = check_run_config(cfg)
+    assert isinstance(stages, StageConfigs) and stages.stage2 is None and stages.recon is None
+    assert isinstance(stages.stage1, Stage1Config) and isinstance(stages.stage3, Stage3Config)
+    method = build_method(method_cfg("light_fit"), cfg, Path("."), stages)
+
+    def no_second_parse(*_a, **_k):
+        raise AssertionError("a stage config parsed twice")
+
+    monkeypatch.setattr(Stage1Config, "from_dict", classmethod(no_second_parse))
+    method.prepare()
+    assert method.shared["stage1"] is stages.stage1 and method.shared["stage3"] is stages.stage3
+    unparsed = build_method(method_cfg("light_fit"), cfg, Path("."))
+    with pytest.raises(AssertionError, match="parsed twice"):
+        unparsed.stages  # noqa: B018 - built without them: it parses (here: the patched parser) on first use

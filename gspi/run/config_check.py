@@ -1,13 +1,15 @@
 """Start-up check of a `gspi-run` job config: every value the job will use, before it writes.
 
-The stage configs are built (and so checked: names, types, ranges) by the same
-``from_dict`` the stages call later (gspi/strict_config.py), the protocol by
-``eval.config.validate_protocol``, the job's own keys here. A bad value fails the job at
-start-up with ``<key>=<value>: must be ...``, never half-way through a scene.
+The stage configs are built (and so checked: names, types, ranges) once, here, and handed down
+as the checked objects (:class:`StageConfigs`: the run's methods take them, nothing parses a
+stage node again); the protocol by ``eval.config.validate_protocol``, the job's own keys here. A
+bad value fails the job at start-up with ``<key>=<value>: must be ...``, never half-way through
+a scene.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Any, Mapping, Optional
 
 from gspi.strict_config import ConfigError, check_value
 
@@ -15,18 +17,38 @@ from gspi.strict_config import ConfigError, check_value
 JOB_KEYS = {"seed": (int, 0, None), "threads": (int, 1, 1024), "scene_workers": (int, 1, 1024)}
 
 
-def check_run_config(cfg: Mapping[str, Any]) -> None:
-    """Raises a stated error (:class:`ConfigError`, ``ProtocolError``, ``MissingInputError``) naming
-    the first key whose value is not allowed or whose file is missing."""
+@dataclass(frozen=True)
+class StageConfigs:
+    """The run's stage configs, checked: ``ReconConfig``, ``Stage1Config``, ``Stage2Config``,
+    ``Stage3Config`` (None where the run config has no such node)."""
+
+    recon: Optional[Any] = None
+    stage1: Optional[Any] = None
+    stage2: Optional[Any] = None
+    stage3: Optional[Any] = None
+
+
+def parse_stage_configs(cfg: Mapping[str, Any]) -> StageConfigs:
+    """Each stage node of ``cfg`` built by its config class (a bad value: a ConfigError naming it)."""
+    from gspi.recon.trainer import ReconConfig
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage2.config import Stage2Config
+    from gspi.stage3.config import Stage3Config
+
+    kinds = {"recon": ReconConfig, "stage1": Stage1Config, "stage2": Stage2Config, "stage3": Stage3Config}
+    return StageConfigs(**{key: kind.from_dict(dict(cfg[key])) for key, kind in kinds.items()
+                           if cfg.get(key) is not None})
+
+
+def check_run_config(cfg: Mapping[str, Any]) -> StageConfigs:
+    """The run's checked stage configs; raises a stated error (:class:`ConfigError`,
+    ``ProtocolError``, ``MissingInputError``) naming the first key whose value is not allowed or
+    whose file is missing."""
     from omegaconf import OmegaConf
 
     from eval.config import validate_protocol
     from eval.layout import SPLITS
     from gspi.device import resolve_device
-    from gspi.recon.trainer import ReconConfig
-    from gspi.stage1.config import Stage1Config
-    from gspi.stage2.config import Stage2Config
-    from gspi.stage3.config import Stage3Config
 
     for key, (kind, lo, hi) in JOB_KEYS.items():
         if key in cfg:
@@ -44,15 +66,13 @@ def check_run_config(cfg: Mapping[str, Any]) -> None:
         from eval.layout import check_name
         for name in cfg["scenes"]:
             check_name(name, "scenes")
-    for key, kind in (("recon", ReconConfig), ("stage1", Stage1Config), ("stage2", Stage2Config),
-                      ("stage3", Stage3Config)):
-        if cfg.get(key) is not None:
-            kind.from_dict(dict(cfg[key]))
+    stages = parse_stage_configs(cfg)
     if cfg.get("stage2") is not None:
         check_no_time_budget(cfg["stage2"])
         check_checkpoint_exists(cfg["stage2"])
     if cfg.get("eval") is not None:
         validate_protocol(OmegaConf.create(dict(cfg["eval"])))
+    return stages
 
 
 def check_checkpoint_exists(stage2: Mapping[str, Any]) -> None:

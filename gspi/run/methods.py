@@ -16,13 +16,16 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import TYPE_CHECKING, Any, Mapping, Optional
 
 from hydra.utils import get_class
 
 from eval.layout import Scene
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage_clock import StageClock
+
+if TYPE_CHECKING:
+    from gspi.run.config_check import StageConfigs
 
 
 class MethodUnavailable(RuntimeError):
@@ -38,10 +41,21 @@ class Method:
     # stages whose time is the method's "material estimation" runtime (Table 1)
     material_stages = ("stage1", "stage2", "stage3", "render", "material", "import")
 
-    def __init__(self, cfg: Mapping[str, Any], run_cfg: Mapping[str, Any], cache_root: Path):
+    def __init__(self, cfg: Mapping[str, Any], run_cfg: Mapping[str, Any], cache_root: Path,
+                 stages: "StageConfigs | None" = None):
         self.cfg, self.run_cfg, self.cache_root = {k: v for k, v in cfg.items() if k != "_target_"}, run_cfg, cache_root
         self.name = str(cfg["name"])
+        self._stages = stages  # the run's checked stage configs (gspi.run.config_check), parsed at the door
         self.shared: dict[str, Any] = {}
+
+    @property
+    def stages(self) -> "StageConfigs":
+        """The run's checked stage configs: those the door parsed, else parsed here once."""
+        if self._stages is None:
+            from gspi.run.config_check import parse_stage_configs
+
+            self._stages = parse_stage_configs(self.run_cfg)
+        return self._stages
 
     def prepare(self) -> dict:
         """Per-run set-up; returns what the run record should keep about it."""
@@ -58,14 +72,10 @@ class GspiMethod(Method):
 
     def prepare(self) -> dict:
         from gspi.run.stage2_model import load_stage2_context
-        from gspi.stage1.config import Stage1Config
-        from gspi.stage3.config import Stage3Config
 
-        ctx = load_stage2_context(self.run_cfg, self.cache_root)
+        ctx = load_stage2_context(self.run_cfg, self.cache_root, self.stages.stage2)
         self.shared["stage2"] = ctx
-        # Stages I and III's configs checked once per run and passed down (no per-scene re-parse)
-        self.shared["stage1"] = Stage1Config.from_dict(dict(self.run_cfg["stage1"]))
-        self.shared["stage3"] = Stage3Config.from_dict(dict(self.run_cfg["stage3"]))
+        self.shared["stage1"], self.shared["stage3"] = self.stages.stage1, self.stages.stage3
         return {"stage2": {k: v for k, v in ctx.info.items() if k != "train_stats"}}
 
     def predict(self, scene, out_scene_dir, *, asset, clock, work_dir, split, progress=False) -> dict:
@@ -83,15 +93,12 @@ class LightFitMethod(GspiMethod):
 
     def prepare(self) -> dict:
         from gspi.pipeline import LightFitContext
-        from gspi.stage1.config import Stage1Config
         from gspi.stage2.light_condition import candidate_lights
         from gspi.stage2.light_fit import LightFitConfig
-        from gspi.stage3.config import Stage3Config
 
         cfg = LightFitConfig.from_mapping(self.cfg)
         self.shared["stage2"] = LightFitContext(cfg=cfg, candidates=candidate_lights(cfg.candidates, cfg.env_height))
-        self.shared["stage1"] = Stage1Config.from_dict(dict(self.run_cfg["stage1"]))
-        self.shared["stage3"] = Stage3Config.from_dict(dict(self.run_cfg["stage3"]))
+        self.shared["stage1"], self.shared["stage3"] = self.stages.stage1, self.stages.stage3
         return {"light_fit": {"candidates": sorted(self.shared["stage2"].candidates)}}
 
 
@@ -99,8 +106,8 @@ class InhouseMethod(Method):
     """A baseline run here: ``baselines.<name>.predict_scene`` (and its optional ``prepare``),
     given the run's resolved ``device`` (every in-house baseline takes ``device=``)."""
 
-    def __init__(self, cfg, run_cfg, cache_root):
-        super().__init__(cfg, run_cfg, cache_root)
+    def __init__(self, cfg, run_cfg, cache_root, stages=None):
+        super().__init__(cfg, run_cfg, cache_root, stages)
         self.module = importlib.import_module(f"baselines.{self.name}")
 
     def prepare(self) -> dict:
@@ -144,12 +151,14 @@ class ExternalMethod(Method):
         return {"imported_from": str(Path(self.cfg["outputs"]) / scene.name)}
 
 
-def build_method(cfg: Mapping[str, Any], run_cfg: Mapping[str, Any], cache_root: Path) -> Method:
-    """The :class:`Method` that ``cfg["_target_"]`` names, for the run ``run_cfg``."""
+def build_method(cfg: Mapping[str, Any], run_cfg: Mapping[str, Any], cache_root: Path,
+                 stages: "StageConfigs | None" = None) -> Method:
+    """The :class:`Method` that ``cfg["_target_"]`` names, for the run ``run_cfg`` whose checked
+    stage configs are ``stages`` (gspi.run.config_check; parsed on first use when not given)."""
     target = cfg.get("_target_")
     if not target:
         raise ValueError(f"method {cfg.get('name')!r}: no _target_ (conf/method/<name>.yaml names the Method class)")
     cls = get_class(str(target))
     if not (isinstance(cls, type) and issubclass(cls, Method)):
         raise ValueError(f"method {cfg.get('name')!r}: _target_ {target} is not a gspi.run.methods.Method")
-    return cls(cfg, run_cfg, cache_root)
+    return cls(cfg, run_cfg, cache_root, stages)

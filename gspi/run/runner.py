@@ -293,7 +293,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
         return read_result(out)
     from gspi.run.config_check import check_run_config
 
-    check_run_config(cfg)  # bad types or ranges fail here, before anything is written
+    stages = check_run_config(cfg)  # bad types or ranges fail here, before anything is written
     names = select_scenes(data_dir, cfg["split"], cfg.get("scenes"))  # a bad data path too (no wandb yet)
     out.mkdir(parents=True, exist_ok=True)
     old = invalidate_result(out)  # from here on, no record describes this folder until ours
@@ -310,7 +310,7 @@ def run_job(cfg: Mapping[str, Any], *, reraise: bool = True) -> dict:
     tracker = make_tracker(cfg.get("logger"), cfg, out)
     t0 = time.perf_counter()
     try:
-        method = build_method(method_cfg, cfg, cache_root)
+        method = build_method(method_cfg, cfg, cache_root, stages)
         prepared = method.prepare()
         errors = {}
         scene_args = dict(data_dir=data_dir, method=method, cfg=cfg, out=out, cfg_hash=cfg_hash,

@@ -74,12 +74,13 @@ def check_compatible(have, want, path: Path) -> None:
                          f"set stage2.checkpoint=null to train a matching model")
 
 
-def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path) -> Stage2Context:
-    """The run's :class:`~gspi.pipeline.Stage2Context`: :func:`load_or_train` plus the prior's encoder."""
+def load_stage2_context(cfg: Mapping[str, Any], cache_root: Path, stage2=None) -> Stage2Context:
+    """The run's :class:`~gspi.pipeline.Stage2Context`: :func:`load_or_train` plus the prior's
+    encoder; ``stage2``: the run's checked Stage2Config (parsed from ``cfg`` when not given)."""
     from gspi.stage2.config import complete_stage2
     from gspi.stage2.encoders import build_encoder
 
-    stage2 = complete_stage2(cfg["stage2"])  # the run's Stage II config, checked once
+    stage2 = complete_stage2(cfg["stage2"] if stage2 is None else stage2)
     model, model_cfg, info = load_or_train(cfg, stage2, cache_root)
     return Stage2Context(model=model, model_cfg=model_cfg, encoder=build_encoder(model_cfg["stage2"].prior),
                          info=info, run_cfg=stage2)
