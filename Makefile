@@ -78,12 +78,14 @@ report-check: install
 	GSPI_REPORT=$(DEMO)/report $(PY) -m pytest -q tests/test_report_browser.py -k existing
 
 # Every benchmark at its CPU defaults, one torch thread each (~7 min on the 2-core VM; bench_pipeline
-# generates the demo's data and runs GS-PI and joint IR on one scene, ~3 min); each
-# prints the machine it ran on. Paper sizes: see each module's docstring (--paper, --sizes 512).
+# generates the demo's data and runs GS-PI and joint IR on one scene, ~3 min, then the same on a
+# `tiny` scene); each prints the machine it ran on. Paper sizes: see each module's docstring
+# (--paper, --sizes 512).
 BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage2_train bench_stage3 bench_flatten3dgs bench_light \
   bench_pipeline
 bench: install
 	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done
+	@echo "== benchmarks/bench_pipeline.py --preset tiny"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.bench_pipeline --preset tiny
 
 # The one-shot GPU check (docs/REPRODUCE.md "GPU check"): wheels + weights for the device call,
 # then the call to paste; its CPU smoke run (tiny sizes, ~35 s).

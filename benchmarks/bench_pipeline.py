@@ -13,6 +13,11 @@ the demo's data are generated into a temp folder first (``gspi-data preset=small
 'data.only_splits=[test]'``, ~1 min).
 
     python -m benchmarks.bench_pipeline [--data demo_out/data] [--scene s004_superquadric_metal]
+    python -m benchmarks.bench_pipeline --preset tiny   # a `tiny` scene (64 px), its asset made by recon=tiny
+
+``--preset tiny``: the issue's other scale (``gspi-data preset=tiny seed=0``, its first test scene);
+there is no shipped asset, so each run reconstructs it (``recon=tiny``, counted apart from the
+material time, as Table 1 counts Stage 0); the rest of the demo's settings as above.
 """
 from __future__ import annotations
 
@@ -40,17 +45,26 @@ DEMO = demo_overrides()
 GSPI_STAGES = ("stage1", "stage2", "stage3", "render")
 
 
-def method_meta(data: Path, scene: str, method: str, out: Path) -> dict:
+def preset_overrides(preset: str) -> list[str]:
+    """The demo's settings (``small``: its shipped assets), or at ``tiny`` the same but the asset
+    reconstructed by recon=tiny (no shipped asset)."""
+    if preset == "small":
+        return DEMO
+    return [o for o in DEMO if not o.startswith(("assets=", "recon="))] + ["recon=tiny"]
+
+
+def method_meta(data: Path, scene: str, method: str, out: Path, preset: str = "small") -> dict:
     """Runs one method on one scene (the demo's settings); returns its prediction's meta.json."""
     command_seconds("gspi-run", [f"data={data}", f"out={out}", f"method={method}", f"scenes=[{scene}]",
-         "threads=1", "logger=none", *DEMO])
+                                 "threads=1", "logger=none", *preset_overrides(preset)])
     return json.loads((out / "predictions" / scene / "meta.json").read_text())
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=None, help="a `small` test set (default: generate it)")
-    parser.add_argument("--scene", default="s004_superquadric_metal")
+    parser.add_argument("--preset", choices=("small", "tiny"), default="small", help="the data's preset")
+    parser.add_argument("--data", type=Path, default=None, help="a test set of that preset (default: generate it)")
+    parser.add_argument("--scene", default=None, help="default: s004_superquadric_metal (small), the first test scene (tiny)")
     args = parser.parse_args()
     print(machine())
     print(f"load average at start: {os.getloadavg()[0]:.2f}")
@@ -59,16 +73,18 @@ def main() -> None:
         data = args.data
         if data is None:
             data = tmp / "data"
-            command_seconds("gspi-data", ["preset=small", f"out={data}", "seed=0", "data.only_splits=[test]",
-                 "data.workers=1"])
-        gspi = method_meta(data.resolve(), args.scene, "gspi", tmp / "gspi")
-        joint = method_meta(data.resolve(), args.scene, "joint_ir", tmp / "joint_ir")
-        work = tmp / "gspi" / "work" / args.scene
+            command_seconds("gspi-data", [f"preset={args.preset}", f"out={data}", "seed=0", "data.only_splits=[test]",
+                                          "data.workers=1"])
+        scene = args.scene or ("s004_superquadric_metal" if args.preset == "small"
+                               else json.loads((data / "splits.json").read_text())["test"][0])
+        gspi = method_meta(data.resolve(), scene, "gspi", tmp / "gspi", args.preset)
+        joint = method_meta(data.resolve(), scene, "joint_ir", tmp / "joint_ir", args.preset)
+        work = tmp / "gspi" / "work" / scene
         stage1 = json.loads((work / "stage1.json").read_text())["seconds"]
         stage3 = json.loads((work / "stage3.json").read_text())
     stages = {k: gspi["stages"][k]["seconds"] for k in GSPI_STAGES if k in gspi["stages"]}
     g_mat, j_mat = gspi["runtime_s"]["material"], joint["runtime_s"]["material"]
-    print(f"\n{args.scene}, demo settings, one thread; seconds")
+    print(f"\n{scene} ({args.preset}), demo settings, one thread; seconds")
     print(f"  GS-PI   Stage I {stages['stage1']:.1f} (lattice render {stage1['render']:.1f}, filters "
           f"{stage1['filters']:.1f}) | Stage II {stages['stage2']:.1f} | Stage III {stages['stage3']:.1f} "
           f"({1e3 * stage3['seconds_per_iteration']:.1f} ms/iteration x {stage3['iterations']}) | render "

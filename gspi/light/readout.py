@@ -77,26 +77,39 @@ def cone_normals(normal: Tensor, rings_deg=(), per_ring: int = 6) -> Tensor:
     return torch.stack(out)
 
 
-def fit_grid_normal_search(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
-                           roughness=ROUGHNESS_GRID, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
-                           gain: float = 1.0) -> MaterialGrid:
-    """``fit_grid`` with each point's normal a nuisance: per cell, the smallest error over the
-    candidate normals of ``cone_normals`` (and that normal's albedo), as photometric stereo
-    refines a normal from the views. For normals a few degrees off (a reconstructed asset's
-    cloud), whose mirror directions miss a sharp light's highlights."""
-    best: MaterialGrid | None = None
+SEARCH_ROUGHNESS = (0.0, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)  # refine_normals' coarse grid
+
+
+def refine_normals(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
+                   roughness=SEARCH_ROUGHNESS, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
+                   gain: float = 1.0) -> Tensor:
+    """[n, 3] each point's normal among ``cone_normals`` around its given one: the candidate whose
+    best cell of a coarse grid fits the views with the smallest error, as photometric stereo
+    refines a normal. For normals a few degrees off (a reconstructed asset's cloud), whose mirror
+    directions miss a sharp light's highlights; a point no view sees keeps its normal."""
+    best_normal, best_error = obs.normal, None
     for normal in cone_normals(obs.normal, rings_deg, per_ring):
         grid = fit_grid(PointViews(point=obs.point, colour=obs.colour, view_dir=obs.view_dir, normal=normal,
                                    xyz=obs.xyz), pre, roughness=roughness, metallic=metallic,
                         rotation_deg=rotation_deg, gain=gain)
-        if best is None:
-            best = grid
+        error = grid.best_error()
+        if best_error is None:
+            best_normal, best_error = normal, error
             continue
-        better = grid.error < best.error
-        best = MaterialGrid(error=torch.where(better, grid.error, best.error),
-                            albedo=torch.where(better[..., None], grid.albedo, best.albedo),
-                            roughness=best.roughness, metallic=best.metallic, views=best.views)
-    return best
+        better = error < best_error
+        best_normal = torch.where(better[:, None], normal, best_normal)
+        best_error = torch.where(better, error, best_error)
+    return best_normal
+
+
+def fit_grid_normal_search(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
+                           roughness=ROUGHNESS_GRID, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
+                           gain: float = 1.0) -> MaterialGrid:
+    """``fit_grid`` at each point's normal refined by :func:`refine_normals`."""
+    normal = refine_normals(obs, pre, rings_deg=rings_deg, per_ring=per_ring, metallic=metallic,
+                            rotation_deg=rotation_deg, gain=gain)
+    refined = PointViews(point=obs.point, colour=obs.colour, view_dir=obs.view_dir, normal=normal, xyz=obs.xyz)
+    return fit_grid(refined, pre, roughness=roughness, metallic=metallic, rotation_deg=rotation_deg, gain=gain)
 
 
 @dataclass(frozen=True)
