@@ -125,9 +125,9 @@ STAGE1_LABELS = {"no_decomposition": "no decomposition (Top-RGB, training consta
                  "photos_normal_search": "read-out in the photos, each normal searched in a cone (rings 4 and 8 degrees)"}
 
 
-def stage1_rows(path: Path, stage0: str, base_row: bool) -> list[str]:
-    """The table rows of one stage1_read.py file: each read-out (its no decomposition first when
-    ``base_row``), roughness paired against that file's own no decomposition."""
+def stage1_rows(path: Path, stage0: str, shown: set) -> list[str]:
+    """The table rows of one stage1_read.py file: each read-out not yet ``shown`` for this Stage 0
+    ((stage0, read-out) pairs, updated), roughness paired against that file's own no decomposition."""
     scenes = json.loads(path.read_text())["scenes"]
     if len(scenes) < 2:  # a run just begun: nothing to pair yet
         return []
@@ -137,8 +137,9 @@ def stage1_rows(path: Path, stage0: str, base_row: bool) -> list[str]:
     count = "" if len(scenes) == 32 else f" ({len(scenes)} scenes)"
     lines = []
     for m in methods:
-        if m == "no_decomposition" and not base_row:
+        if (stage0, m) in shown:  # the same read of the same cloud, in another file
             continue
+        shown.add((stage0, m))
         mean = {c: float(np.mean([v[c] for v in psnr[m].values()])) for c in ("albedo", "roughness", "metallic", "avg")}
         rough = {n: v["roughness"] for n, v in psnr[m].items()}
         base = {n: v["roughness"] for n, v in psnr["no_decomposition"].items()}
@@ -165,10 +166,9 @@ def stage1_table() -> str | None:
              "results/stage1_read*.json (`stage1_read.py`).", "",
              "| Stage 0 | read-out | albedo | roughness | metallic | avg | roughness - no decomposition [95% CI] | "
              "metal class IoU | multi-material IoU | light right |", "|---|---|---|---|---|---|---|---|---|---|"]
-    seen_stage0 = set()
+    shown: set = set()
     for path, stage0 in files:
-        lines += stage1_rows(path, stage0, base_row=stage0 not in seen_stage0)
-        seen_stage0.add(stage0)
+        lines += stage1_rows(path, stage0, shown)
     return "\n".join(lines) + "\n"
 
 
