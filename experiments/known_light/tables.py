@@ -118,6 +118,7 @@ STAGE1_READS = {
     "stage1_read.json": "`recon=fast`",
     "stage1_read_normal_search.json": "`recon=fast`",
     "stage1_read_normal_early.json": "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)",
+    "stage1_read_normal_early_search.json": "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)",
 }
 STAGE1_LABELS = {"no_decomposition": "no decomposition (Top-RGB, training constants)",
                  "photos": "read-out in the photos (the asset for geometry)",
