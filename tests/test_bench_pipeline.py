@@ -1,0 +1,25 @@
+"""benchmarks/bench_pipeline.py's settings: the demo's, read from conf/experiment/demo.yaml (its one
+definition), and at ``--preset tiny`` the same with the asset made by recon=tiny (no shipped asset)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from benchmarks.bench_pipeline import DEMO, preset_overrides
+
+DEMO_YAML = Path(__file__).resolve().parents[1] / "conf" / "experiment" / "demo.yaml"
+
+
+def test_the_demo_settings_are_demo_yaml():
+    demo = yaml.safe_load(DEMO_YAML.read_text())
+    assert f"stage3.iterations={demo['stage3']['iterations']}" in DEMO
+    assert f"stage2.inference.num_steps={demo['stage2']['inference']['num_steps']}" in DEMO
+    assert f"assets={demo['assets']}" in DEMO and "recon=fast" in DEMO
+    assert preset_overrides("small") == DEMO
+
+
+def test_tiny_reconstructs_its_asset_and_keeps_the_rest():
+    tiny = preset_overrides("tiny")
+    assert "recon=tiny" in tiny and not any(o.startswith(("assets=", "recon=fast")) for o in tiny)
+    assert [o for o in tiny if o != "recon=tiny"] == [o for o in DEMO if not o.startswith(("assets=", "recon="))]
