@@ -90,8 +90,6 @@ export_system_main = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS)
 import_main = hydra_cli(_run_import_and_print, "gspi_import", path_keys=PATH_KEYS)
 
 
-
-
 if __name__ == "__main__":  # python -m baselines.cli {export|import} system=... ...
     command = sys.argv.pop(1) if len(sys.argv) > 1 else ""
     if command not in ("export", "import"):

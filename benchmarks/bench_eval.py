@@ -23,8 +23,6 @@ from eval.metrics import masked_lpips, masked_psnr, masked_ssim
 from eval.relight import clear_prefilter_cache, prefilter_environment, split_sum
 
 
-
-
 def time_commands(gt: Path | None, pred: Path | None, runs: Path | None, repeats: int) -> None:
     commands = []
     if gt is not None and pred is not None:

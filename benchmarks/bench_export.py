@@ -40,7 +40,6 @@ from eval.layout import MATERIAL_CHANNELS, read_scene, read_view_file
 from eval.metrics import masked_psnr
 
 
-
 def export_config(overrides: list[str]):
     from gspi.export.config import ExportConfig
 

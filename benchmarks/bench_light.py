@@ -59,20 +59,15 @@ def main() -> None:
     def estimate() -> None:
         found["light"] = estimate_light(obs, candidates, max_points=IDENTIFY_POINTS)
 
-    def readout() -> None:
+    def readout(fit, **search) -> None:  # fit_grid, or fit_grid_normal_search (light_fit's default)
         est = found["light"]
-        grid = fit_grid(obs, candidates[est.env], rotation_deg=est.rotation_deg, gain=est.gain)
-        read_posterior(grid, pool_neighbours(grid, obs.xyz))
-
-    def readout_searched() -> None:  # method=light_fit's default: each normal searched in a cone
-        est = found["light"]
-        grid = fit_grid_normal_search(obs, candidates[est.env], rings_deg=SEARCH_RINGS, rotation_deg=est.rotation_deg,
-                                      gain=est.gain)
+        grid = fit(obs, candidates[est.env], rotation_deg=est.rotation_deg, gain=est.gain, **search)
         read_posterior(grid, pool_neighbours(grid, obs.xyz))
 
     t_est = median_seconds(estimate, repeats=args.repeats, warmup=0)
-    t_read = median_seconds(readout, repeats=args.repeats, warmup=0)
-    t_search = median_seconds(readout_searched, repeats=args.repeats, warmup=0)
+    t_read = median_seconds(lambda: readout(fit_grid), repeats=args.repeats, warmup=0)
+    t_search = median_seconds(lambda: readout(fit_grid_normal_search, rings_deg=SEARCH_RINGS), repeats=args.repeats,
+                              warmup=0)
     est = found["light"]
     print(f"machine: {machine()}; one torch thread")
     print(f"candidates: {len(candidates)} procedural capture environments at {ENV_HEIGHT} rows, prefiltered "

@@ -30,7 +30,6 @@ from pathlib import Path
 from benchmarks.common import REPO, command_seconds, machine
 
 
-
 def demo_overrides() -> list[str]:
     """The demo's settings as gspi-run overrides, read from conf/experiment/demo.yaml (its one definition)."""
     import yaml
@@ -56,7 +55,7 @@ def preset_overrides(preset: str) -> list[str]:
 def method_meta(data: Path, scene: str, method: str, out: Path, preset: str = "small") -> dict:
     """Runs one method on one scene (the demo's settings); returns its prediction's meta.json."""
     command_seconds("gspi-run", [f"data={data}", f"out={out}", f"method={method}", f"scenes=[{scene}]",
-                                 "threads=1", "logger=none", *preset_overrides(preset)])
+                                 "threads=1", "logger=none", *preset_overrides(preset)], cwd=REPO)  # assets= is relative
     return json.loads((out / "predictions" / scene / "meta.json").read_text())
 
 

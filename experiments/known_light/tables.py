@@ -114,12 +114,9 @@ def identify_table() -> str | None:
 
 
 # results/<file> of stage1_read.py: the Stage 0 it read behind (each file's no decomposition is on its own cloud)
-STAGE1_READS = {
-    "stage1_read.json": "`recon=fast`",
-    "stage1_read_normal_search.json": "`recon=fast`",
-    "stage1_read_normal_early.json": "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)",
-    "stage1_read_normal_early_search.json": "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)",
-}
+FAST, FAST_NORMAL_EARLY = "`recon=fast`", "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)"
+STAGE1_READS = {"stage1_read.json": FAST, "stage1_read_normal_search.json": FAST,
+                "stage1_read_normal_early.json": FAST_NORMAL_EARLY, "stage1_read_normal_early_search.json": FAST_NORMAL_EARLY}
 STAGE1_LABELS = {"no_decomposition": "no decomposition (Top-RGB, training constants)",
                  "photos": "read-out in the photos (the asset for geometry)",
                  "renders": "read-out in the asset's renders",

@@ -11,7 +11,7 @@ it needs. It is also a method of its own (``method=light_fit``) and Stage II's c
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -85,21 +85,13 @@ def refine_normals(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4
                    gain: float = 1.0) -> Tensor:
     """[n, 3] each point's normal among ``cone_normals`` around its given one: the candidate whose
     best cell of a coarse grid fits the views with the smallest error, as photometric stereo
-    refines a normal. For normals a few degrees off (a reconstructed asset's cloud), whose mirror
-    directions miss a sharp light's highlights; a point no view sees keeps its normal."""
-    best_normal, best_error = obs.normal, None
-    for normal in cone_normals(obs.normal, rings_deg, per_ring):
-        grid = fit_grid(PointViews(point=obs.point, colour=obs.colour, view_dir=obs.view_dir, normal=normal,
-                                   xyz=obs.xyz), pre, roughness=roughness, metallic=metallic,
-                        rotation_deg=rotation_deg, gain=gain)
-        error = grid.best_error()
-        if best_error is None:
-            best_normal, best_error = normal, error
-            continue
-        better = error < best_error
-        best_normal = torch.where(better[:, None], normal, best_normal)
-        best_error = torch.where(better, error, best_error)
-    return best_normal
+    refines a normal (on a tie the earlier candidate, so a point no view sees keeps its normal).
+    For normals a few degrees off (a reconstructed asset's cloud), whose mirror directions miss a
+    sharp light's highlights."""
+    candidates = cone_normals(obs.normal, rings_deg, per_ring)  # [C, n, 3]
+    errors = torch.stack([fit_grid(replace(obs, normal=normal), pre, roughness=roughness, metallic=metallic,
+                                   rotation_deg=rotation_deg, gain=gain).best_error() for normal in candidates])
+    return candidates[errors.argmin(dim=0), torch.arange(obs.num_points)]
 
 
 def fit_grid_normal_search(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
@@ -108,8 +100,8 @@ def fit_grid_normal_search(obs: PointViews, pre: PrefilteredEnvironment, *, ring
     """``fit_grid`` at each point's normal refined by :func:`refine_normals`."""
     normal = refine_normals(obs, pre, rings_deg=rings_deg, per_ring=per_ring, metallic=metallic,
                             rotation_deg=rotation_deg, gain=gain)
-    refined = PointViews(point=obs.point, colour=obs.colour, view_dir=obs.view_dir, normal=normal, xyz=obs.xyz)
-    return fit_grid(refined, pre, roughness=roughness, metallic=metallic, rotation_deg=rotation_deg, gain=gain)
+    return fit_grid(replace(obs, normal=normal), pre, roughness=roughness, metallic=metallic,
+                    rotation_deg=rotation_deg, gain=gain)
 
 
 @dataclass(frozen=True)
