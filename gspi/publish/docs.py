@@ -112,12 +112,13 @@ def sweep_table_file(folder: Path, table: str, source: str) -> str:
 
 def table1_file() -> str:
     """gspi-table's full Table 1 (PSNR, SSIM, LPIPS, runtime) of the committed demo records."""
-    return sweep_table_file(DEMO, "table1", "results/table1/cpu/ (the demo's gspi-run records)")
+    return sweep_table_file(DEMO, "table1", f"{DEMO.relative_to(ROOT)}/ (the demo's gspi-run records)")
 
 
 def table3_file() -> str:
     """gspi-table's Table 3 (Stage III ablations) of the committed Table 3 sweep records."""
-    return sweep_table_file(TABLE3, "table3", "results/table3/cpu/ (gspi-reproduce table=3 scale=cpu's gspi-run records)")
+    return sweep_table_file(TABLE3, "table3",
+                            f"{TABLE3.relative_to(ROOT)}/ (gspi-reproduce table=3 scale=cpu's gspi-run records)")
 
 
 def table2_file() -> str:
@@ -132,7 +133,7 @@ def table2_file() -> str:
     paths = sorted(TABLE2_SCORES.glob("*/scores.json"))
     sweep = points_sweep({p: read_json(p) for p in paths}, seed_key="train_seed")
     table = build_sweep_table(sweep, sweep.specs["table2"])
-    source = "results/table2/cpu/ (" + ", ".join(p.parent.name for p in paths) + ")"
+    source = f"{TABLE2_SCORES.relative_to(ROOT)}/ (" + ", ".join(p.parent.name for p in paths) + ")"
     plan = yaml.safe_load(TABLE2_PLAN.read_text())
     runs = runs_line([p.parent.name for p in paths], plan["variants"], plan["seeds"],
                      f"{TABLE2_PLAN.relative_to(ROOT)}", "gspi-reproduce table=2 scale=cpu",
@@ -195,7 +196,7 @@ def heldout_file() -> str:
         name = f"`{model}.pt`" + (" (**default**)" if model == DEFAULT_MODEL else "")
         cells = [f"{mean_and_sem(units[c])[0]:.2f}" for c in (*CHANNELS[:3], "avg", "baseline")]
         lines.append(f"| {name} | {', '.join(map(str, sorted(seeds)))} | " + " | ".join(cells) + " |")
-    return (HEADER.format(source="results/heldout/cpu/*/scores.json") + "### Shipped Stage II models on the 32 held-out pool "
+    return (HEADER.format(source=f"{HELDOUT.relative_to(ROOT)}/*/scores.json") + "### Shipped Stage II models on the 32 held-out pool "
             "scenes (Table 2's measure, PSNR dB)\n\n" + "\n".join(lines)
             + "\n\n- Cells: mean over (scene, seed) units of the committed score files; avg = mean of albedo, "
             "roughness, metallic per unit. Models whose held-out scores were never committed are not rows "
