@@ -3,6 +3,7 @@ the neighbourhood pooling and posterior, the light's identification, and the rec
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -190,3 +191,29 @@ def test_normal_search_recovers_materials_under_tilted_normals(pre):
     assert (m == metal).float().mean() >= 0.99
     exact = lambda r_: (r_ - rough)[metal == 1].abs().lt(1e-6).float().mean()  # noqa: E731
     assert exact(r) > 0.85 > 0.4 > exact(read_best(plain)[1])
+
+
+def test_normal_profile_takes_each_cells_best_normal(pre):
+    """``profile`` k: every cell is the best of the k ranked normals' fits, so no cell's error
+    exceeds the single refined normal's, and each cell's albedo is the fit of the normal whose
+    error it took (checked against fits made here one normal at a time)."""
+    from gspi.light.readout import fit_grid_normal_search, min_over_normals, rank_normals
+
+    p_env = pre["studio_rgb"]
+    obs, albedo, rough, metal = toy_scene(p_env, num_points=120)
+    given = unit(obs.normal + 0.3 * unit(torch.randn(120, 3, generator=torch.Generator().manual_seed(7))))
+    tilted = PointViews(point=obs.point, colour=obs.colour, view_dir=obs.view_dir, normal=given, xyz=obs.xyz)
+    single = fit_grid_normal_search(tilted, p_env, rings_deg=(6.0,))
+    profiled = fit_grid_normal_search(tilted, p_env, rings_deg=(6.0,), profile=3)
+    assert (profiled.error <= single.error + 1e-7).all() and (profiled.error < single.error - 1e-4).any()
+    candidates, order = rank_normals(tilted, p_env, rings_deg=(6.0,))
+    assert order.shape == (7, 120) and sorted(order[:, 0].tolist()) == list(range(7))
+    rows = torch.arange(120)
+    fits = [fit_grid(replace(tilted, normal=candidates[order[j], rows]), p_env) for j in range(3)]
+    torch.testing.assert_close(profiled.error, torch.stack([f.error for f in fits]).min(dim=0).values)
+    which = torch.stack([f.error for f in fits]).argmin(dim=0)
+    for j, f in enumerate(fits):
+        torch.testing.assert_close(profiled.albedo[which == j], f.albedo[which == j])
+    torch.testing.assert_close(min_over_normals([single]).error, single.error)
+    with pytest.raises(ValueError, match="profile=0"):
+        fit_grid_normal_search(tilted, p_env, rings_deg=(6.0,), profile=0)

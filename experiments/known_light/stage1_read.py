@@ -48,6 +48,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--renders", action="store_true", help="also read in the asset's renders")
     ap.add_argument("--normal-search", type=float, nargs="*", default=None,
                     help="also read in the photos with a normal search (rings in degrees, e.g. 4 8)")
+    ap.add_argument("--normal-profile", type=int, default=None,
+                    help="with --normal-search, read instead with each cell the best of this many searched normals")
+    ap.add_argument("--no-plain", action="store_true", help="skip the plain read in the photos (read elsewhere)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
@@ -84,14 +87,16 @@ def main(argv: list[str] | None = None) -> None:
         photos, views = lattice_photos(scene_dir, renders)
         nodec = np.c_[srgb_top_rgb(points.rgb), np.full((len(points), 2), [rough, metal], dtype=np.float32)]
         preds = {"no_decomposition": (nodec, None)}
-        preds["photos"] = predict_light_fit(points, renders, cfg, candidates, photos)
+        if not args.no_plain:
+            preds["photos"] = predict_light_fit(points, renders, cfg, candidates, photos)
         if args.renders:
             preds["renders"] = predict_light_fit(points, renders, cfg, candidates, None)
         if args.normal_search:
             from dataclasses import replace
 
-            searched = replace(cfg, normal_search_deg=tuple(args.normal_search))
-            preds["photos_normal_search"] = predict_light_fit(points, renders, searched, candidates, photos)
+            searched = replace(cfg, normal_search_deg=tuple(args.normal_search), normal_profile=args.normal_profile or 1)
+            key = "photos_normal_profile" if args.normal_profile else "photos_normal_search"
+            preds[key] = predict_light_fit(points, renders, searched, candidates, photos)
         gt, mask = read_gt_view_maps(scene_dir)  # read once for every prediction's metal IoU
         row = {"views": views, "capture_env": read_scene(scene_dir).capture_env,
                "seconds": round(time.perf_counter() - t0, 1)}

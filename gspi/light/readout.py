@@ -80,6 +80,18 @@ def cone_normals(normal: Tensor, rings_deg=(), per_ring: int = 6) -> Tensor:
 SEARCH_ROUGHNESS = (0.0, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)  # refine_normals' coarse grid
 
 
+def rank_normals(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
+                 roughness=SEARCH_ROUGHNESS, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
+                 gain: float = 1.0) -> tuple[Tensor, Tensor]:
+    """The ``cone_normals`` around each point's given normal [C, n, 3] and, per point, the
+    candidates' order [C, n] by the error of their best cell of a coarse grid (best first; on a
+    tie the earlier candidate, so a point no view sees keeps its normal first)."""
+    candidates = cone_normals(obs.normal, rings_deg, per_ring)  # [C, n, 3]
+    errors = torch.stack([fit_grid(replace(obs, normal=normal), pre, roughness=roughness, metallic=metallic,
+                                   rotation_deg=rotation_deg, gain=gain).best_error() for normal in candidates])
+    return candidates, torch.sort(errors, dim=0, stable=True).indices
+
+
 def refine_normals(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
                    roughness=SEARCH_ROUGHNESS, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
                    gain: float = 1.0) -> Tensor:
@@ -88,20 +100,37 @@ def refine_normals(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4
     refines a normal (on a tie the earlier candidate, so a point no view sees keeps its normal).
     For normals a few degrees off (a reconstructed asset's cloud), whose mirror directions miss a
     sharp light's highlights."""
-    candidates = cone_normals(obs.normal, rings_deg, per_ring)  # [C, n, 3]
-    errors = torch.stack([fit_grid(replace(obs, normal=normal), pre, roughness=roughness, metallic=metallic,
-                                   rotation_deg=rotation_deg, gain=gain).best_error() for normal in candidates])
-    return candidates[errors.argmin(dim=0), torch.arange(obs.num_points)]
+    candidates, order = rank_normals(obs, pre, rings_deg=rings_deg, per_ring=per_ring, roughness=roughness,
+                                     metallic=metallic, rotation_deg=rotation_deg, gain=gain)
+    return candidates[order[0], torch.arange(obs.num_points)]
+
+
+def min_over_normals(grids: list[MaterialGrid]) -> MaterialGrid:
+    """The grid whose every cell is the best of ``grids`` (the same points read at different
+    normals): a profile over the normal, each cell's error its smallest and its albedo that fit's."""
+    error = torch.stack([g.error for g in grids])  # [k, n, R, K]
+    best = error.argmin(dim=0)
+    albedo = torch.stack([g.albedo for g in grids]).gather(0, best[None, ..., None].expand(1, *grids[0].albedo.shape))[0]
+    return replace(grids[0], error=error.gather(0, best[None])[0], albedo=albedo)
 
 
 def fit_grid_normal_search(obs: PointViews, pre: PrefilteredEnvironment, *, rings_deg=(4.0, 8.0), per_ring: int = 6,
-                           roughness=ROUGHNESS_GRID, metallic=METALLIC_GRID, rotation_deg: float = 0.0,
-                           gain: float = 1.0) -> MaterialGrid:
-    """``fit_grid`` at each point's normal refined by :func:`refine_normals`."""
-    normal = refine_normals(obs, pre, rings_deg=rings_deg, per_ring=per_ring, metallic=metallic,
-                            rotation_deg=rotation_deg, gain=gain)
-    return fit_grid(replace(obs, normal=normal), pre, roughness=roughness, metallic=metallic,
-                    rotation_deg=rotation_deg, gain=gain)
+                           profile: int = 1, roughness=ROUGHNESS_GRID, metallic=METALLIC_GRID,
+                           rotation_deg: float = 0.0, gain: float = 1.0) -> MaterialGrid:
+    """``fit_grid`` at each point's normal refined by :func:`refine_normals`; with ``profile`` k > 1
+    the grid fitted at each of the k candidates a coarse grid ranks best, every cell taking the
+    best of them (:func:`min_over_normals`): a cell (a glossy metal, say) then need not share the
+    normal that suits another (a rough dielectric). k = 1 is the single refined normal; each more
+    costs one full grid fit."""
+    if profile < 1:
+        raise ValueError(f"profile={profile}: the number of normals profiled must be >= 1")
+    candidates, order = rank_normals(obs, pre, rings_deg=rings_deg, per_ring=per_ring, metallic=metallic,
+                                     rotation_deg=rotation_deg, gain=gain)
+    points = torch.arange(obs.num_points)
+    grids = [fit_grid(replace(obs, normal=candidates[order[j], points]), pre, roughness=roughness,
+                      metallic=metallic, rotation_deg=rotation_deg, gain=gain)
+             for j in range(min(profile, len(candidates)))]
+    return grids[0] if len(grids) == 1 else min_over_normals(grids)
 
 
 @dataclass(frozen=True)

@@ -78,13 +78,16 @@ def apply_filters(points: PointCloud, renders: LatticeRenders, cfg: Stage1Config
                   reference: Optional[np.ndarray] = None) -> tuple[PointCloud, list[dict]]:
     """Cascades the enabled filters; per step what it removed and, with ``reference`` [R, 3]
     (GT surface samples), the distances of the kept and removed points (``gspi.stage1.report``)."""
-    tree = None if reference is None else cKDTree(reference)
-    footprint = lambda p: source_footprint(p.xyz.astype(np.float64), p.view, renders.K, renders.w2c)  # noqa: E731
-    report = [{"step": "unprojected", **step_stats(points.xyz, footprint(points), tree)}]
+    # the filters remove points and never move them: each point's distance to the reference and its
+    # footprint are computed once and follow it through the steps
+    dist = None if reference is None else cKDTree(reference).query(points.xyz, k=1)[0]
+    footprint = source_footprint(points.xyz.astype(np.float64), points.view, renders.K, renders.w2c)
+    report = [{"step": "unprojected", **step_stats(dist, footprint)}]
     for name, keep_fn in filter_steps(renders, cfg):
         keep = keep_fn(points)
-        report.append({"step": name, **step_stats(points.xyz, footprint(points), tree, removed=~keep)})
-        points = points.subset(keep)
+        report.append({"step": name, **step_stats(dist, footprint, removed=~keep)})
+        points, footprint = points.subset(keep), footprint[keep]
+        dist = None if dist is None else dist[keep]
     return points, report
 
 

@@ -38,23 +38,21 @@ def distance_summary(dist: np.ndarray, footprint: np.ndarray, prefix: str = "") 
             f"{prefix}p95_px": float(np.percentile(px, 95))}
 
 
-def step_stats(xyz: np.ndarray, footprint: np.ndarray, reference: Optional[cKDTree], *,
-               removed: Optional[np.ndarray] = None) -> dict:
-    """Count (and removed count) of one step; with a reference, distances of the kept points
-    (``mean_dist`` ...) and of the points this step removed (``removed_mean_dist`` ...).
+def step_stats(dist: Optional[np.ndarray], footprint: np.ndarray, *, removed: Optional[np.ndarray] = None) -> dict:
+    """Count (and removed count) of one step; with distances to a reference, those of the kept
+    points (``mean_dist`` ...) and of the points this step removed (``removed_mean_dist`` ...).
 
     Args:
-        xyz: [P, 3] points entering the step; footprint: [P] their pixel footprints;
-        reference: cKDTree of the reference surface sample, or None;
+        dist: [P] each point's distance to the reference surface sample (entering the step), or None;
+        footprint: [P] their pixel footprints;
         removed: [P] bool, the points this step removed (None: the step removes nothing).
     """
-    keep = np.ones(len(xyz), bool) if removed is None else ~removed
+    keep = np.ones(len(footprint), bool) if removed is None else ~removed
     stats = {"count": int(keep.sum())}
     if removed is not None:
         stats["removed"] = int(removed.sum())
-    if reference is None or len(xyz) == 0:
+    if dist is None or len(dist) == 0:
         return stats
-    dist, _ = reference.query(xyz, k=1)
     stats.update(distance_summary(dist[keep], footprint[keep]))
     if removed is not None:
         stats.update(distance_summary(dist[removed], footprint[removed], prefix="removed_"))

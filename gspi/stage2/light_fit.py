@@ -42,6 +42,7 @@ class LightFitConfig:
     tol_pixels: float = 2.0          # the views' depth test (as Stage II's conditions)
     views: str = "photos"            # read the scene's photos at the lattice cameras (else the renders) | renders
     normal_search_deg: tuple = ()    # rings (degrees) of candidate normals around each cloud normal; () = none
+    normal_profile: int = 1          # the searched normals each grid cell takes the best of (1: the single best)
     seed: int = 0
 
     @classmethod
@@ -78,7 +79,7 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
     t_light = time.perf_counter()
     if cfg.normal_search_deg:
         grid = fit_grid_normal_search(obs, candidates[light.env], rings_deg=cfg.normal_search_deg,
-                                      rotation_deg=light.rotation_deg, gain=light.gain)
+                                      profile=cfg.normal_profile, rotation_deg=light.rotation_deg, gain=light.gain)
     else:
         grid = fit_grid(obs, candidates[light.env], rotation_deg=light.rotation_deg, gain=light.gain)
     albedo, rough, metal = read_posterior(grid, pool_neighbours(grid, obs.xyz, k=cfg.neighbours), cfg.temperature)
