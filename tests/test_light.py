@@ -150,6 +150,22 @@ def test_identifies_env_turn_and_gain(pre):
     assert [h.env for h in est.ranking][0] == "sunset" and len(est.ranking) == 3
 
 
+def test_coarse_search_on_fewer_points_finds_the_same_light(pre):
+    """``coarse_points``: the coarse search reads a subset, the refinement all points; on the toy
+    it lands on the same environment, turn and gain, and its scores are the refinement's on all
+    points (the best hypothesis scored again on all of them gives the same number)."""
+    from gspi.light.estimate import score
+
+    obs, *_ = toy_scene(pre["sunset"], num_points=400, views=10, seed=3, gain=1.7, rotation_deg=65.0)
+    full = estimate_light(obs, pre, max_points=300)
+    fast = estimate_light(obs, pre, max_points=300, coarse_points=80)
+    assert (fast.env, fast.rotation_deg, fast.gain) == (full.env, full.rotation_deg, full.gain)
+    seen = np.sort(np.random.default_rng(0).choice(np.flatnonzero(obs.views_per_point().numpy() > 0), 300,
+                                                   replace=False))
+    again = score(obs.subset(seen), pre[fast.env], fast.rotation_deg, [fast.gain])[0]
+    assert again == pytest.approx(fast.best.score, rel=1e-6)
+
+
 def test_point_views_checks():
     ok = dict(point=torch.tensor([0, 1]), colour=torch.ones(2, 3), view_dir=unit(torch.ones(2, 3)),
               normal=unit(torch.ones(2, 3)), xyz=torch.zeros(2, 3))

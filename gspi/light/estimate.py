@@ -93,10 +93,12 @@ def _refined(obs: PointViews, pre: PrefilteredEnvironment, starts: list[Hypothes
 
 
 def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironment], *,
-                   max_points: int = MAX_POINTS, seed: int = 0, rotations=COARSE_ROTATIONS,
-                   gains=COARSE_GAINS) -> LightEstimate:
+                   max_points: int = MAX_POINTS, coarse_points: int | None = None, seed: int = 0,
+                   rotations=COARSE_ROTATIONS, gains=COARSE_GAINS) -> LightEstimate:
     """The light among ``candidates`` (name -> prefiltered map), turned and scaled, that explains
-    ``obs`` best (on a seeded subset of ``max_points`` points that some view sees)."""
+    ``obs`` best (on a seeded subset of ``max_points`` points that some view sees). With
+    ``coarse_points`` the coarse search (every candidate and turn, two thirds of the cost) reads a
+    seeded subset of that many of them and the refinement all ``max_points``."""
     if not candidates:
         raise ValueError("estimate_light needs at least one candidate environment")
     seen = np.flatnonzero(obs.views_per_point().numpy() > 0)
@@ -105,7 +107,11 @@ def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironm
     if len(seen) > max_points:
         seen = np.sort(np.random.default_rng(seed).choice(seen, max_points, replace=False))
     sub = obs.subset(seen)
-    turns = {name: _ranked(sub, name, pre, rotations, gains, COARSE_ROUGHNESS) for name, pre in candidates.items()}
+    coarse_sub = sub
+    if coarse_points is not None and coarse_points < len(seen):
+        coarse_sub = sub.subset(np.sort(np.random.default_rng(seed + 1).choice(len(seen), coarse_points, replace=False)))
+    turns = {name: _ranked(coarse_sub, name, pre, rotations, gains, COARSE_ROUGHNESS)
+             for name, pre in candidates.items()}
     coarse = sorted((ranked[0] for ranked in turns.values()), key=lambda h: h.score)
     refined = [_refined(sub, candidates[h.env], turns[h.env][:REFINE_TURNS]) for h in coarse[:REFINE_TOP]]
     ranking = tuple(sorted(refined, key=lambda h: h.score)) + tuple(coarse[REFINE_TOP:])

@@ -37,6 +37,7 @@ class LightFitConfig:
     env_height: int = 64             # rows of each candidate's lat-long map
     max_points: int | None = 20000   # points read (seeded subset, 1-NN fill); None: all
     identify_points: int = 2000      # points the light is identified on
+    identify_coarse_points: int | None = None  # of them, read by the coarse search over every candidate and turn
     neighbours: int = NEIGHBOURS
     temperature: float = POSTERIOR_TEMPERATURE
     tol_pixels: float = 2.0          # the views' depth test (as Stage II's conditions)
@@ -61,21 +62,30 @@ class LightFitConfig:
         return cls(**values)
 
 
-def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
-                      candidates: dict[str, PrefilteredEnvironment], photos: LatticePhotos | None = None
-                      ) -> tuple[np.ndarray, dict]:
-    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found),
-    read in ``photos`` at the lattice cameras when given, else in the renders."""
-    t0 = time.perf_counter()
+def observe_cloud(points: PointCloud, renders, cfg: LightFitConfig, photos: LatticePhotos | None = None):
+    """The views' observations (``PointViews``) of the read points of ``points`` (a seeded subset
+    of ``cfg.max_points``, its indices returned, None for all) with the cloud's normals, in
+    ``photos`` at the lattice cameras when given, else in the renders."""
     images, depth = views_to_read(renders, photos)
     cams = LatticeCameras.from_renders(renders)
     sub = subsample_indices(len(points), cfg.max_points, cfg.seed)
     pts = points if sub is None else points.subset(sub)
     xyz = pts.xyz.astype(np.float64)
     normal = cloud_normals(points.xyz.astype(np.float64), xyz, cams.centers[pts.view])
-    obs = observe_points(images, depth, cams, xyz, normal, tol_pixels=cfg.tol_pixels)
+    return observe_points(images, depth, cams, xyz, normal, tol_pixels=cfg.tol_pixels), sub
+
+
+def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
+                      candidates: dict[str, PrefilteredEnvironment], photos: LatticePhotos | None = None
+                      ) -> tuple[np.ndarray, dict]:
+    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found),
+    read in ``photos`` at the lattice cameras when given, else in the renders."""
+    t0 = time.perf_counter()
+    obs, sub = observe_cloud(points, renders, cfg, photos)
+    pts = points if sub is None else points.subset(sub)
     t_obs = time.perf_counter()
-    light = estimate_light(obs, candidates, max_points=cfg.identify_points, seed=cfg.seed)
+    light = estimate_light(obs, candidates, max_points=cfg.identify_points, coarse_points=cfg.identify_coarse_points,
+                           seed=cfg.seed)
     t_light = time.perf_counter()
     if cfg.normal_search_deg:
         grid = fit_grid_normal_search(obs, candidates[light.env], rings_deg=cfg.normal_search_deg,
