@@ -182,3 +182,48 @@ def test_the_light_is_read_in_the_photos_where_they_were_taken_at_the_lattice(li
     moved.w2c[3, 0, 3] += 0.01
     assert lattice_photos(root, moved) == (None, "renders (the photos were not taken at the lattice cameras)")
     assert lattice_photos(root.parent / "nowhere", renders)[0] is None
+
+
+def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
+    """``stage2.data.light_geometry=asset`` (a reconstructed pool scene): the read-out on Stage I's
+    cloud of the scene's Stage 0 asset, in the source scene's photos, each GT point taking its
+    nearest row; with the light estimated (the measure), the rows equal those a run builds from
+    the same asset (``inference_light_table``, ``method=light_fit``'s path), and a scene without
+    an asset is told so in one line."""
+    import dataclasses
+
+    from eval.layout import read_scene
+    from gspi.gaussians.ply import read_ply
+    from gspi.recon.reconstructed_pool import reconstruct_pool
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage1.extract import extract_point_cloud
+    from gspi.stage2.light_condition import asset_views, photo_source, readout_lookup
+    from gspi.stage2.light_fit import inference_light_table
+    from gspi.stage2.light_views import lattice_photos
+
+    _, root = lit
+    (tmp_path / "src").mkdir()
+    src = tmp_path / "src" / root.name
+    src.symlink_to(root, target_is_directory=True)
+    (tmp_path / "src" / "splits.json").write_text('{"train": ["lit_sphere"], "val": [], "test": []}')
+    reconstruct_pool(tmp_path / "src", tmp_path / "rpool", recon="tiny",
+                     overrides=("recon.iterations=60", "recon.init.num_points=400", "recon.densify.refine_stop_iter=0"))
+    pooled = tmp_path / "rpool" / "lit_sphere"
+    assert photo_source(pooled).resolve() == root.resolve() and photo_source(root) == root
+    cfg = dataclasses.replace(LIGHT, light_geometry="asset", light_normal_search_deg=(4.0,))
+    seen = asset_views(pooled, read_scene(pooled).width)
+    assert seen.views == "photos"
+    scene = load_scene_points(pooled, None)
+    scene.light_source = "estimated"
+    rows = scene.light_features(np.arange(scene.num_points), cfg)
+    assert rows.shape == (scene.num_points, LIGHT_READOUT_WIDTH) and scene.light_info["env"] == ENV
+    points, renders, _ = extract_point_cloud(read_ply(pooled / "asset" / "point_cloud.ply"),
+                                             Stage1Config(image_size=read_scene(pooled).width))
+    photos, _ = lattice_photos(root, renders)
+    table, light = inference_light_table(points, renders, cfg, photos)
+    assert light["env"] == ENV
+    np.testing.assert_allclose(readout_lookup(table, scene.xyz), rows, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match=r"asset/point_cloud.ply: no Stage 0 asset"):
+        load_scene_points(root, None).light_features(np.arange(3), cfg)
+    with pytest.raises(ValueError, match="light_geometry must be one of cloud, asset"):
+        PointDataConfig.from_mapping({"light_geometry": "mesh"})

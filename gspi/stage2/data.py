@@ -65,7 +65,7 @@ from torch import Tensor
 from gspi.stage2.inputs import Stage2Inputs
 from gspi.stage2.lattice_cameras import LatticeCameras, pixel_footprint, project_to_views  # noqa: F401 (re-exported)
 from gspi.data.lattice import NUM_LATTICE_VIEWS
-from gspi.stage2.light_condition import LIGHT_READOUT_WIDTH
+from gspi.stage2.light_condition import LIGHT_GEOMETRY, LIGHT_READOUT_WIDTH
 from gspi.stage2.view_statistics import FIELDS as RADIANCE_FIELDS, NEIGHBOURHOOD_WIDTH, neighbourhood_lookup, \
     neighbourhood_table, radiance_condition
 from gspi.stage2.normalize import SphereFrame, fit_unit_sphere, pbr_to_model, to_unit_sphere, view_onehot
@@ -182,21 +182,27 @@ class ScenePoints:
         from gspi.stage2 import light_condition as lc
 
         if self._light is None:
-            rgb, depth = self.lattice_linear(), self.lattice_views()[1]
-            normals = lc.cloud_normals_of(self.xyz, self.view, self.cameras)
-            light = self._told_light(cfg, rgb, depth, normals)
-            self._light = lc.readout_table(rgb, depth, self.cameras, self.xyz, normals, light,
-                                           tol_pixels=cfg.visibility_tol_pixels)
+            if cfg.light_geometry == "asset":  # as a run reads it: Stage I's cloud of the asset, the photos
+                seen = lc.asset_views(self.root, self.cameras.width)
+                rgb, depth, cams, xyz = seen.images, seen.depth, seen.cams, seen.xyz
+                normals = lc.cloud_normals_of(seen.xyz, seen.view, seen.cams)
+            else:
+                rgb, depth, cams, xyz = self.lattice_linear(), self.lattice_views()[1], self.cameras, self.xyz
+                normals = lc.cloud_normals_of(self.xyz, self.view, self.cameras)
+            light = self._told_light(cfg, rgb, depth, cams, xyz, normals)
+            self._light = lc.readout_table(rgb, depth, cams, xyz, normals, light, tol_pixels=cfg.visibility_tol_pixels,
+                                           normal_search_deg=cfg.light_normal_search_deg)
         return lc.readout_lookup(self._light, self.xyz[idx])
 
-    def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, normals):
+    def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, cams: LatticeCameras,
+                    xyz: np.ndarray, normals):
         from eval.layout import read_scene
         from gspi.stage2 import light_condition as lc
         from gspi.stage2.light_condition import candidate_lights, capture_light
 
         if self.light_source == "estimated":
             candidates = candidate_lights(cfg.light_candidates, cfg.light_env_height)
-            light, est = lc.estimate_scene_light(rgb, depth, self.cameras, self.xyz, normals, candidates,
+            light, est = lc.estimate_scene_light(rgb, depth, cams, xyz, normals, candidates,
                                                  tol_pixels=cfg.visibility_tol_pixels)
             self.light_info = {"env": est.env, "rotation_deg": est.rotation_deg, "gain": est.gain,
                                "margin": est.margin}
@@ -407,6 +413,9 @@ class PointDataConfig:
     light_wrong_share: float = 0.0  # training scenes told a wrong light (light_readout)
     light_candidates: Any = "procedural"  # lights estimated among at inference (gspi.data.env_sets)
     light_env_height: int = 64  # rows of the lights' lat-long maps
+    light_geometry: str = "cloud"  # the read-out on the scene's cloud and lattice views | asset: on Stage I's cloud
+                                   # of its Stage 0 asset, in its photos (as a run reads it; a reconstructed pool)
+    light_normal_search_deg: Any = None  # the read-out's normal search, degrees (as method=light_fit's); None = none
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
@@ -416,6 +425,11 @@ class PointDataConfig:
             raise ValueError(f"stage2.data.light_wrong_share must lie in [0, 1], got {out.light_wrong_share}")
         if isinstance(out.light_candidates, list):
             out = replace(out, light_candidates=tuple(out.light_candidates))
+        if out.light_normal_search_deg is not None:
+            out = replace(out, light_normal_search_deg=tuple(float(d) for d in out.light_normal_search_deg))
+        if out.light_geometry not in LIGHT_GEOMETRY:
+            raise ValueError(f"stage2.data.light_geometry must be one of {', '.join(LIGHT_GEOMETRY)}, "
+                             f"got {out.light_geometry!r}")
         if out.subset not in SUBSETS:
             raise ValueError(f"stage2.data.subset must be one of {sorted(SUBSETS)}, got {out.subset!r}")
         return out

@@ -34,9 +34,9 @@ from eval.imageio import read_exr
 from eval.relight import PrefilteredEnvironment, prefilter_environment
 from gspi.data.env_sets import make_named_environment, resolve_env_set
 from gspi.light.estimate import LightEstimate, estimate_light
-from gspi.light.readout import fit_grid, pool_neighbours, read_posterior
+from gspi.light.readout import fit_grid, fit_grid_normal_search, pool_neighbours, read_posterior
 from gspi.stage2.lattice_cameras import LatticeCameras
-from gspi.stage2.light_views import observe_points
+from gspi.stage2.light_views import lattice_photos, observe_points, views_to_read
 from gspi.stage2.view_statistics import neighbourhood_mean
 from scipy.spatial import cKDTree
 
@@ -75,9 +75,14 @@ def readout_subset(num_points: int) -> np.ndarray:
     return np.sort(np.random.default_rng(READOUT_SEED).choice(num_points, READOUT_POINTS, replace=False))
 
 
-def readout_rows(obs, light: ToldLight) -> np.ndarray:
-    """[n, LIGHT_READOUT_WIDTH] the condition's rows of the observed points ``obs``."""
-    grid = fit_grid(obs, light.pre, rotation_deg=light.rotation_deg, gain=light.gain)
+def readout_rows(obs, light: ToldLight, normal_search_deg=()) -> np.ndarray:
+    """[n, LIGHT_READOUT_WIDTH] the condition's rows of the observed points ``obs`` (each normal
+    searched in a cone at ``normal_search_deg``, as ``method=light_fit`` reads: () = the given normals)."""
+    if normal_search_deg:  # None or () = the given normals
+        grid = fit_grid_normal_search(obs, light.pre, rings_deg=tuple(normal_search_deg),
+                                      rotation_deg=light.rotation_deg, gain=light.gain)
+    else:
+        grid = fit_grid(obs, light.pre, rotation_deg=light.rotation_deg, gain=light.gain)
     pooled = pool_neighbours(grid, obs.xyz)
     albedo, rough, metal = read_posterior(grid, pooled)
     point_err = pooled.flatten(1).min(dim=1).values
@@ -90,15 +95,15 @@ def readout_rows(obs, light: ToldLight) -> np.ndarray:
 
 
 def readout_table(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
-                  normals: Callable[[np.ndarray], np.ndarray], light: ToldLight, *, tol_pixels: float = 2.0
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  normals: Callable[[np.ndarray], np.ndarray], light: ToldLight, *, tol_pixels: float = 2.0,
+                  normal_search_deg=()) -> tuple[np.ndarray, np.ndarray]:
     """(subset xyz [m, 3], its rows [m, LIGHT_READOUT_WIDTH]) of the cloud xyz [n, 3], read in
     linear renders [V, H, W, 3] with depths [V, H, W]; ``normals(indices)`` gives the unit normals
     of those points (only the subset's are computed: ``cloud_normals`` over a 280k-point cloud
     costs a minute)."""
     sub = readout_subset(len(xyz))
     obs = observe_points(images, depth, cams, xyz[sub], normals(sub), tol_pixels=tol_pixels)
-    return xyz[sub], readout_rows(obs, light)
+    return xyz[sub], readout_rows(obs, light, normal_search_deg)
 
 
 def readout_lookup(table: tuple[np.ndarray, np.ndarray], xyz: np.ndarray) -> np.ndarray:
@@ -170,6 +175,56 @@ def candidate_lights(spec, height: int) -> dict[str, PrefilteredEnvironment]:
     """{name: prefiltered map} of the candidate set (``gspi.data.env_sets`` names its options)."""
     spec = list(spec) if isinstance(spec, tuple) else spec
     return {name: _candidate(name, source, int(height)) for name, source in resolve_env_set(spec, "capture").items()}
+
+
+LIGHT_GEOMETRY = ("cloud", "asset")  # stage2.data.light_geometry
+
+
+def photo_source(scene_dir: Path) -> Path:
+    """The folder whose train views are the scene's photos. A reconstructed pool scene
+    (``gspi.recon.reconstructed_pool``) holds the asset's renders as its own ``rgb.exr``: its
+    source is the one its ``asset/recon.json`` names (where that folder is at hand), else the one
+    its ``scene.json`` links to; any other scene is its own source."""
+    import json
+
+    record = Path(scene_dir) / "asset" / "recon.json"
+    source = json.loads(record.read_text()).get("source") if record.is_file() else None
+    if source and (Path(source) / "scene.json").is_file():
+        return Path(source)
+    return (Path(scene_dir) / "scene.json").resolve().parent
+
+
+@dataclass(frozen=True)
+class AssetViews:
+    """What a run reads the light in (``method=light_fit``, a light-aware Stage II at inference):
+    Stage I's cloud of the scene's Stage 0 asset and the views it is observed in (the scene's
+    photos where they were taken at the lattice cameras, the asset's depth placing each point)."""
+
+    xyz: np.ndarray      # [P, 3] Stage I's cloud
+    view: np.ndarray     # [P] its points' source views
+    cams: LatticeCameras
+    images: np.ndarray   # [V, H, W, 3] linear
+    depth: np.ndarray    # [V, H, W] the asset's
+    views: str           # "photos" or why the renders
+
+
+def asset_views(scene_dir: Path, width: int) -> AssetViews:
+    """``AssetViews`` of a reconstructed pool scene (``<scene>/asset/point_cloud.ply``), as a run
+    builds them: Stage I at the scene's image ``width`` (``gspi.stage1``'s defaults), the photos
+    of its source (``photo_source``)."""
+    from gspi.gaussians.ply import read_ply
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage1.extract import extract_point_cloud
+
+    asset = Path(scene_dir) / "asset" / "point_cloud.ply"
+    if not asset.is_file():
+        raise ValueError(f"{asset}: no Stage 0 asset; stage2.data.light_geometry=asset reads the light on Stage I's "
+                         "cloud of the scene's asset (a reconstructed pool: python -m gspi.recon.reconstructed_pool)")
+    points, renders, _ = extract_point_cloud(read_ply(asset), Stage1Config(image_size=int(width)))
+    photos, how = lattice_photos(photo_source(scene_dir), renders)
+    images, depth = views_to_read(renders, photos)
+    return AssetViews(xyz=points.xyz.astype(np.float64), view=points.view, cams=LatticeCameras.from_renders(renders),
+                      images=images, depth=depth, views=how)
 
 
 def cloud_normals_of(xyz: np.ndarray, view: np.ndarray, cams: LatticeCameras) -> Callable[[np.ndarray], np.ndarray]:
