@@ -5,7 +5,7 @@ normals, a seeded 5000-point subset and each point's nearest row), scored by Tab
 as if it were the prediction. A learned prior given this condition should score at least this.
 
     python -m experiments.known_light.condition CHECKPOINT HELDOUT_TEST OUT --baseline SCORES.json \
-        [--results experiments/known_light/results/<name> --label NAME]
+        [--results experiments/known_light/results/<name> --label NAME] [--asset]
 
 CHECKPOINT: a light-aware model's (only its config is read: ``stage2.data``'s light keys).
 """
@@ -37,6 +37,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--baseline", type=Path, required=True, help="a scores.json whose baseline constants to reuse")
     ap.add_argument("--results", type=Path, default=None, help="also write the scores here with portable paths")
     ap.add_argument("--label", default=None)
+    ap.add_argument("--asset", action="store_true",
+                    help="read as a run reads it: stage2.data.light_geometry=asset, normals searched at 4 and 8 degrees")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
@@ -45,6 +47,10 @@ def main(argv: list[str] | None = None) -> None:
 
     _, cfg = load_stage2_checkpoint(args.checkpoint)
     data_cfg: PointDataConfig = cfg["stage2"].data
+    if args.asset:
+        from dataclasses import replace
+
+        data_cfg = replace(data_cfg, light_geometry="asset", light_normal_search_deg=(4.0, 8.0))
     lights: dict[str, dict] = {}
 
     def predict(scene, index):
@@ -53,7 +59,9 @@ def main(argv: list[str] | None = None) -> None:
         return pred
 
     record = {"ablation": "light_readout_condition", "checkpoint": None, "num_steps": None, "max_points": None,
-              "seed": 0, "light_condition": {"source": "estimated", "of_checkpoint": args.checkpoint.name}}
+              "seed": 0, "light_condition": {"source": "estimated", "of_checkpoint": args.checkpoint.name,
+                                             "geometry": data_cfg.light_geometry,
+                                             "normal_search_deg": data_cfg.light_normal_search_deg}}
     result = score_split(predict, cfg, args.data, "test", args.out, baseline_train=args.baseline, record=record)
     (args.out / "lights.json").write_text(json.dumps(lights, indent=1, default=float))
     print(json.dumps({c: round(v["psnr"], 2) for c, v in result["mean"]["stage2"].items()}))
