@@ -36,6 +36,15 @@ LEARNED = {
 # results/condition_readout: the condition's own read-out columns scored as the prediction (condition.py)
 CONDITION = ("the condition's read-out itself (estimated light, cloud normals, 5 000-point subset, 1-NN: what "
              "the learned rows are given)")
+# results/<folder>: rows measured behind the held-out scenes' recon=fast assets (run.sh), under fast_true's caption
+FAST_ROWS = {
+    "condition_readout_fast": "the condition's read-out on the GT cloud in the assets' renders (`light_geometry=cloud`; "
+                              "estimated light)",
+    "condition_readout_fast_asset": "the condition's read-out as a run reads it (`light_geometry=asset`: Stage I's cloud "
+                                    "of the asset, the photos, normals searched at 4 and 8 degrees; estimated light)",
+    "light_residual_s0_step5000_fast": "Stage II `light_residual` trained on exact renders (step 5000), its condition on "
+                                       "the GT cloud in the assets' renders",
+}
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
     "exact_rotated90": "exact renders, the capture light turned 90 degrees (a wrong light)",
@@ -86,6 +95,12 @@ def read_table() -> str:
             given = RESULTS / "condition_readout" / "scores.json"
             if given.is_file():
                 lines.append(row(CONDITION, json.loads(given.read_text()), "stage2"))
+        if folder == "fast_true":
+            fast = {label: RESULTS / name / "scores.json" for name, label in FAST_ROWS.items()}
+            fast.update({f"Stage II `light_residual` trained behind the training scenes' assets, read as a run reads it, "
+                         f"step {p.parent.name.split('step')[1].split('_')[0]}": p
+                         for p in sorted(RESULTS.glob("light_residual_asset_s0_step*_fast/scores.json"))})
+            lines += [row(label, json.loads(p.read_text()), "stage2") for label, p in fast.items() if p.is_file()]
         lines += [row(f"per-point fit, `{r}`", s, "stage2") for r, s in scores.items()] + [""]
     return "\n".join(lines)
 
@@ -115,12 +130,15 @@ def identify_table() -> str | None:
 
 # results/<file> of stage1_read.py: the Stage 0 it read behind (each file's no decomposition is on its own cloud)
 FAST, FAST_NORMAL_EARLY = "`recon=fast`", "`recon=fast`, normal consistency from iteration 150 at weight 0.2 (not 360, 0.05)"
-STAGE1_READS = {"stage1_read.json": FAST, "stage1_read_normal_search.json": FAST,
-                "stage1_read_normal_early.json": FAST_NORMAL_EARLY, "stage1_read_normal_early_search.json": FAST_NORMAL_EARLY}
+STAGE1_READS = {"stage1_read.json": FAST, "stage1_read_normal_search.json": FAST, "stage1_read_normal_profile.json": FAST,
+                "stage1_read_normal_early.json": FAST_NORMAL_EARLY, "stage1_read_normal_early_search.json": FAST_NORMAL_EARLY,
+                "stage1_read_normal_early_profile.json": FAST_NORMAL_EARLY}
 STAGE1_LABELS = {"no_decomposition": "no decomposition (Top-RGB, training constants)",
                  "photos": "read-out in the photos (the asset for geometry)",
                  "renders": "read-out in the asset's renders",
-                 "photos_normal_search": "read-out in the photos, each normal searched in a cone (rings 4 and 8 degrees)"}
+                 "photos_normal_search": "read-out in the photos, each normal searched in a cone (rings 4 and 8 degrees)",
+                 "photos_normal_profile": "the same, each grid cell the best of the 3 best-ranked searched normals "
+                                          "(`normal_profile=3`)"}
 
 
 def stage1_rows(path: Path, stage0: str, shown: set) -> list[str]:
