@@ -1,9 +1,11 @@
-"""Stage II training throughput (points/s, steps/s) at the shipped CPU model size, per setting.
+"""Stage II training throughput (points/s, steps/s) of the shipped CPU model, per setting.
 
 One AdamW step = ``gspi.stage2.train.train_step`` (loss, backward, clipping, step, EMA) on a
 fixed synthetic batch shaped like ``sample_batch``'s (N = stage2.data.num_points points per item,
-the 35-dim local condition, 16 of 32 prior views x 25 tokens x 256 AlexNet dims), so the figure
-is the model's compute; ``--data`` also times ``sample_batch`` on a dataset's training scenes.
+the recipe's local condition (35 dims, + 256 with ``stage2.data.pixel_features``), 16 of 32 prior
+views x 25 tokens x 256 AlexNet dims), so the figure is the model's compute. The model timed is
+gspi-run's default recipe (conf/gspi_run.yaml's ``stage2``) unless ``--stage2`` names another;
+``--data`` also times ``sample_batch`` on a dataset's training scenes.
 
     python -m benchmarks.bench_stage2_train                       # threads {1, 2} x batch {8, 32}
     python -m benchmarks.bench_stage2_train --settings 1x8 2x32 --compile
@@ -38,7 +40,17 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 PRIOR_DIM, VIEWS_KEPT, CELLS = 256, 16, 25
 
 
-STAGE2 = {"config": "cpu_small"}  # --stage2: the model size timed (conf/stage2/<name>.yaml)
+
+
+def run_default_recipe() -> str:
+    """The stage2 option gspi-run uses (conf/gspi_run.yaml): the shipped model's recipe."""
+    import yaml
+
+    defaults = yaml.safe_load((CONF / "gspi_run.yaml").read_text())["defaults"]
+    return next(d["stage2"] for d in defaults if isinstance(d, dict) and "stage2" in d)
+
+
+STAGE2 = {"config": run_default_recipe()}  # --stage2: the model timed (conf/stage2/<name>.yaml)
 
 
 def train_config(overrides: list[str]) -> dict:
@@ -149,7 +161,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--compile", action="store_true", help="also time torch.compile (inductor)")
     parser.add_argument("--data", default=None, help="dataset folder: also time sample_batch")
-    parser.add_argument("--stage2", default="cpu_small", help="conf/stage2 config of the model timed")
+    parser.add_argument("--stage2", default=STAGE2["config"], help="conf/stage2 config of the model timed "
+                        "(default: gspi-run's)")
     args = parser.parse_args()
     STAGE2["config"] = args.stage2
     print(f"machine: {machine()}; model: stage2={args.stage2}")

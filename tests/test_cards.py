@@ -50,6 +50,26 @@ def test_the_rule_names_what_fails(tmp_path):
     assert rule_failures(read_card(_card(tmp_path, body))) == ["s004", "roughness"]
 
 
+@pytest.mark.parametrize("layout", sorted(LAYOUTS))
+def test_a_rule_record_reads_back_to_its_card(tmp_path, layout):
+    """A retired card leaves with its file (issue 67); its rule record (results/shipping/cpu/) reads
+    back to the same scores, under the model's name rather than the file's."""
+    from eval.tables.cards import rule_record
+
+    card = read_card(_card(tmp_path, LAYOUTS[layout]))
+    (tmp_path / "stage2_x").mkdir()
+    record = tmp_path / "stage2_x" / "scores.json"
+    record.write_text(json.dumps(rule_record(card)))
+    assert read_card(record) == card and rule_record(read_card(record)) == rule_record(card)
+
+
+def test_the_committed_rule_records_are_rule_candidates():
+    root = Path(__file__).resolve().parents[1]
+    records = sorted((root / "results" / "shipping" / "cpu").glob("*/scores.json"))
+    assert records and all(read_card(p).model == p.parent.name for p in records)
+    assert not {p.parent.name for p in records} & {c.stem for c in (root / "checkpoints").glob("stage2_*.json")}
+
+
 def test_a_card_without_end_to_end_runs_is_no_candidate(tmp_path):
     assert read_card(_card(tmp_path, {})) is None
 

@@ -87,11 +87,11 @@ def test_the_export_makes_the_config_portable_and_keeps_the_weights(tmp_path):
     elsewhere = "/" + "/".join(("work", "pool", "rpool224"))  # built: this file itself names no machine path
     ckpt = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "step": 5, "rcw_config": {},
             "config": {"data_dir": elsewhere, "out": str(ROOT / "runs" / "x_s0"), "seed": 0,
-                       "stage2": {"train": {"init_from": "checkpoints/stage2_small.pt"}}},
+                       "stage2": {"train": {"init_from": "checkpoints/stage2_pool224_pixel_5k.pt"}}},
             "ema": {"w": torch.arange(4.0)}, "model": {}, "optimizer": {}}
     shipped = ema_only(ckpt)
     assert shipped["config"] == {"data_dir": "<elsewhere>/pool/rpool224", "out": "runs/x_s0", "seed": 0,
-                                 "stage2": {"train": {"init_from": "checkpoints/stage2_small.pt"}}}
+                                 "stage2": {"train": {"init_from": "checkpoints/stage2_pool224_pixel_5k.pt"}}}
     assert torch.equal(shipped["ema"]["w"], torch.arange(4.0)) and "optimizer" not in shipped
     path = save_atomic(ckpt, tmp_path / "c.pt")
     assert make_portable(path) and not make_portable(path)  # the second call finds nothing to rewrite

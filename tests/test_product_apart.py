@@ -9,7 +9,9 @@ The rule, checked here:
 - A study that stands apart (its folder holds a README.md: its findings and commands) is named
   nowhere in the product: not its folder (``experiments/<study>``, ``experiments.<study>``), not its
   name, not a config it defines (the file names under its ``conf/``, the ``scale`` of its reproduce
-  files). Only the convention is named (``experiments/<study>/conf``, ``study=<name>``).
+  files), not the product's former path of a checkpoint it keeps (``checkpoints/<file>`` of a file in
+  its ``checkpoints/``: a retired model, issue 67; a table may still report the model's scores by
+  name, and a score file under results/ keeps the path its model had when it was measured). Only the convention is named (``experiments/<study>/conf``, ``study=<name>``).
 - The studies not yet moved apart are named only where ``NOT_YET_APART`` says (issue 67's rest):
   the list may shrink, never grow.
 - Every product reproduce file is a table or a shipped model at a size (``table<N>_<smoke|cpu>``,
@@ -52,8 +54,8 @@ def apart(study: Path) -> bool:
 
 def study_keys(study: Path) -> set[str]:
     """What names the study: its name, its config file names, its reproduce scales (``scale=`` for
-    a one-word scale, which may be an ordinary word)."""
-    keys = {study.name}
+    a one-word scale, which may be an ordinary word), the product path its checkpoints had."""
+    keys = {study.name} | {f"checkpoints/{p.name}" for p in (study / "checkpoints").glob("*") if p.is_file()}
     for path in (study / "conf").rglob("*.yaml"):
         keys.add(path.stem)
         if path.parent.name == "reproduce":
@@ -88,8 +90,21 @@ def test_the_product_names_no_study_that_stands_apart(texts):
     for study in filter(apart, studies()):
         pattern = re.compile("|".join(rf"(?<![\w-]){re.escape(k)}(?![\w])" for k in sorted(study_keys(study))))
         found += [f"{name}: {m.group(0)!r} ({study.name})" for name, text in texts.items()
-                  for m in pattern.finditer(text)]
+                  for m in pattern.finditer(text) if not (name.startswith("results/") and m.group(0).startswith("checkpoints/"))]
+        # (a committed score file records the path its model had when it was measured)
     assert not found, "the product names a study (principle 10): " + "; ".join(found[:20])
+
+
+def test_a_studys_checkpoints_are_among_its_keys(tmp_path):
+    """A study's retired models (issue 67): their former product paths name the study, as its
+    configs do (a made-up study: the check holds with experiments/ deleted)."""
+    study = tmp_path / "some_study"
+    (study / "conf" / "stage2").mkdir(parents=True)
+    (study / "checkpoints").mkdir()
+    (study / "conf" / "stage2" / "cpu_old.yaml").write_text("checkpoint: some_study/checkpoints/stage2_old.pt\n")
+    for name in ("stage2_old.pt", "stage2_old.json"):
+        (study / "checkpoints" / name).write_text("x")
+    assert study_keys(study) == {"some_study", "cpu_old", "checkpoints/stage2_old.pt", "checkpoints/stage2_old.json"}
 
 
 def test_the_studies_not_yet_apart_are_named_only_where_listed(texts):

@@ -13,6 +13,7 @@ from gspi.stage2.config import DERIVED_MODEL_KEYS, MODEL_KEYS, Stage2Config, com
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ROOT = Path(__file__).resolve().parents[1]
+SHIPPED_DEFAULT = "checkpoints/stage2_pool224_pixel_5k.pt"  # gspi-run's model (conf/stage2/cpu_pool224_pixel_5k.yaml)
 
 
 def composed(*overrides, name="gspi_train"):
@@ -86,7 +87,7 @@ def test_an_older_checkpoint_config_is_completed_on_load(tmp_path):
     loads with that key's default, so no reader needs a .get(key, default)."""
     from gspi.stage2.checkpoint import load_stage2_checkpoint
 
-    ckpt = torch.load(ROOT / "checkpoints" / "stage2_small.pt", weights_only=False)
+    ckpt = torch.load(ROOT / SHIPPED_DEFAULT, weights_only=False)
     stage2 = ckpt["config"]["stage2"]
     del stage2["train"]["min_lr_ratio"], stage2["train"]["log_every"], stage2["eval"]
     torch.save(ckpt, tmp_path / "old.pt")
@@ -102,7 +103,7 @@ def test_an_older_checkpoint_config_is_completed_on_load(tmp_path):
 def test_a_checkpoint_with_an_invalid_stored_config_names_the_file(tmp_path):
     from gspi.stage2.checkpoint import CheckpointError, load_stage2_checkpoint
 
-    ckpt = torch.load(ROOT / "checkpoints" / "stage2_small.pt", weights_only=False)
+    ckpt = torch.load(ROOT / SHIPPED_DEFAULT, weights_only=False)
     ckpt["config"]["stage2"]["train"]["no_such_key"] = 1
     torch.save(ckpt, tmp_path / "bad.pt")
     with pytest.raises(CheckpointError, match=r"bad\.pt.*stage2\.train\.no_such_key"):
@@ -120,7 +121,7 @@ def test_gspi_run_refuses_a_time_budget_for_the_model_it_trains(key):
     with pytest.raises(ValueError, match=rf"stage2\.train\.{key}=15: gspi-run trains Stage II to "
                                          r"stage2\.train\.steps"):
         check_run_config(cfg)
-    check_run_config({**cfg, "stage2": {**cfg["stage2"], "checkpoint": "checkpoints/stage2_small.pt"}})
+    check_run_config({**cfg, "stage2": {**cfg["stage2"], "checkpoint": SHIPPED_DEFAULT}})
     check_run_config({**cfg, "stage2": {"checkpoint": None, "train": {key: None}}})
 
 
@@ -129,12 +130,7 @@ PIXEL_PARAMETERS = XS_PARAMETERS + 256 * 48  # + 256 pixel-feature inputs x the 
 
 
 @pytest.mark.parametrize("name, preset, steps, parameters", [
-    ("stage2_pool_trunc_snr", "cpu_pool_trunc_snr", 2500, XS_PARAMETERS),
-    ("stage2_pool_recon", "cpu_pool_recon", 2500, XS_PARAMETERS),
-    ("stage2_pool224", "cpu_pool224", 2500, XS_PARAMETERS),
-    ("stage2_pool224_5k", "cpu_pool224_5k", 5000, XS_PARAMETERS),
-    ("stage2_pool224_pixel", "cpu_pool224_pixel", 2500, PIXEL_PARAMETERS),
-    ("stage2_pool224_pixel_5k", "cpu_pool224_pixel_5k", 5000, PIXEL_PARAMETERS)])
+    ("stage2_pool224_pixel_5k", "cpu_pool224_pixel_5k", 5000, PIXEL_PARAMETERS)])  # the retired ones are tested in their study
 def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps, parameters):
     """checkpoints/<name>.pt loads, is under 20 MB, is what conf/stage2/<preset>.yaml trains (the
     truncated-SNR weight, the recipe's steps and sizes) and is the file its json card hashes."""

@@ -14,9 +14,9 @@ from tests.recipe_fixtures import composed_stage2
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 GOLDEN = json.loads((ROOT / "tests" / "golden" / "stage2_recipes.json").read_text())
-FLAT = ["cpu_pool224_pixel_5k", "cpu_pool224_pixel", "cpu_pool224_5k", "cpu_pool224", "cpu_mix_pool",  # shipped recipes
-        "cpu_matte_pool", "cpu_parts_pool", "cpu_pool_recon", "cpu_pool_trunc_snr", "cpu_pool_xs", "cpu_small",
-        "table2_cpu"]  # (checkpoints/README.md) and Table 2's CPU recipe, rewritten flat by issue 53
+FLAT = ["cpu_pool224_pixel_5k",  # the shipped default's recipe (checkpoints/README.md), rewritten flat by issue 53
+        "table2_cpu",            # Table 2's CPU recipe, flat since issue 53
+        "cpu_capacity"]          # the capacity curve's, flat since issue 67 retired the recipe it inherited
 
 
 def run_default_recipe() -> str:

@@ -53,7 +53,7 @@ def test_ablation_configs_change_one_thing(ablation):
 def test_stage2_presets_compose():
     import yaml
 
-    for preset in ("default", "tiny", "cpu_small"):
+    for preset in ("default", "tiny", "cpu_pool224_pixel_5k"):  # the paper, the smoke size, gspi-run's
         cfg = compose_cfg(["data_dir=d", "out=o", f"stage2={preset}"])
         own = yaml.safe_load((Path(CONF_DIR) / "stage2" / f"{preset}.yaml").read_text())
         # the preset's own values win over what it inherits (content, not just presence)

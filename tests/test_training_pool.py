@@ -299,7 +299,7 @@ def test_parts_config_names_the_bad_key(bad, match):
         PartsConfig.from_mapping(bad)
 
 
-# session 14's multi-part pool (conf/stage2/cpu_parts_pool.yaml's chain), recorded before look_swap existed
+# session 14's multi-part pool (the first multi-part recipe's chain, retired with its model), recorded before look_swap existed
 # (re-recorded at 10 decimals in session 22, as above)
 PARTS_POOL_SHA256 = "ece99fc1db6c69129317d526753dbd07b81efc62ad70d853590b05b5be2cea59"
 PARTS_POOL = dict(share=0.6, metal_f0="wide", roughness_spread=0.15, texture=0.3)

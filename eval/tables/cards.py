@@ -14,6 +14,11 @@ part of gspi.publish' targets), so it never disagrees with them:
 - ``table``: one a product table measures (a ``checkpoints_from`` entry of conf/reproduce/*.yaml);
 - ``retired``: every other card; its file stays (tables of earlier sessions were measured with it).
 
+A retired card moves to its study with its file (issue 67); what the shipping rule measured of a
+retired candidate stays in the product as a *rule record* (``results/shipping/cpu/<model>/scores.json``,
+:func:`rule_record`: the held-out average, s004 and the real objects per seed, in the nested layout),
+which :func:`read_card` reads like a card.
+
 A shipped card (``default`` or ``table``) also names the product command that rebuilds its model
 from nothing (``rebuild``, :func:`configured_rebuilds`: ``gspi-reproduce model=<name> scale=<s>`` of
 a conf/reproduce/model_<name>_<s>.yaml); ``make results`` writes it beside the status.
@@ -70,16 +75,33 @@ def _real(real: dict) -> list[dict]:
 
 
 def read_card(path: Path) -> Optional[CardScores]:
-    """The card's scores, or None when it records no end-to-end run (not a rule candidate)."""
+    """The card's (or rule record's) scores, or None when it records no end-to-end run (not a rule
+    candidate). The model is the record's ``model``, else the card's file stem."""
     card = json.loads(Path(path).read_text())
     demo, real = card.get("demo_end_to_end"), card.get("real_objects_19_small")
     if not demo or not real:
         return None
     avg, seeds = _heldout(card)
     iou, metallic = _demo(demo)
-    return CardScores(model=Path(path).stem, heldout_avg=avg, heldout_seeds=seeds, s004_iou=iou,
+    return CardScores(model=card.get("model") or Path(path).stem, heldout_avg=avg, heldout_seeds=seeds, s004_iou=iou,
                       s004_metallic=metallic, real=_real(real),
                       real_baseline=real.get("no_decomposition_same_data"))
+
+
+def rule_record(scores: CardScores) -> dict:
+    """What the shipping rule reads of a candidate, in the nested layout (:func:`read_card` reads it
+    back to ``scores``): the product's record of a retired candidate whose card left with its file."""
+    held = {} if scores.heldout_avg is None else {
+        "psnr_mean_of_2_seeds" if scores.heldout_seeds == 2 else "psnr_seed0": {"avg": scores.heldout_avg}}
+    if scores.heldout_seeds not in (0, 1, 2):
+        raise ValueError(f"{scores.model}: {scores.heldout_seeds} held-out seeds, the layouts know 1 or 2")
+    demo = {f"seed{i}": {"s004": {"metal_iou": iou, "metallic_psnr": m}}
+            for i, (iou, m) in enumerate(zip(scores.s004_iou, scores.s004_metallic))}
+    real = {f"seed{i}": {"mean_psnr": dict(means)} for i, means in enumerate(scores.real)}
+    if scores.real_baseline is not None:
+        real["no_decomposition_same_data"] = dict(scores.real_baseline)
+    return {"model": scores.model, "heldout_pool_scenes_reconstructed_conditions": held,
+            "demo_end_to_end": demo, "real_objects_19_small": real}
 
 
 def rule_failures(scores: CardScores) -> list[str]:

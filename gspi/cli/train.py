@@ -1,11 +1,11 @@
 """gspi-train: train the Stage II denoiser, then score it on the test point clouds.
 
 Examples:
-    gspi-train data=data/small out=runs/s2_small stage2=cpu_small        # stage2_small.pt's recipe
-    gspi-train data=data/small out=runs/a2 stage2=cpu_small ablation=a2_no_view_onehot
+    gspi-train data=RPOOL224 out=runs/s2 stage2=cpu_pool224_pixel_5k      # the shipped default's recipe
+    gspi-train data=RPOOL64 out=runs/a2 stage2=table2_cpu ablation=a2_no_view_onehot   # one Table 2 row
     gspi-train data=data/tiny out=/tmp/s2 stage2=tiny                      # seconds (smoke run)
     gspi-train data=data/paper out=runs/s2 stage2.prior.encoder=dinov2 stage2.prior.dinov2.path=models/dinov2-base
-    gspi-train data=data/small out=runs/s2_small stage2=cpu_small stage2.train.steps=8000   # resumes
+    gspi-train data=RPOOL224 out=runs/s2 stage2=cpu_pool224_pixel_5k stage2.train.steps=8000   # resumes
 
 Several GPUs (docs/REPRODUCE.md): `torchrun --nproc_per_node=4 -m gspi.cli.train ... device=cuda`
 (data-parallel, the same global batch; gspi/stage2/distributed.py).

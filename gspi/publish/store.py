@@ -5,6 +5,7 @@
     results/table2/cpu/<variant>_s<seed>/scores.json   gspi-points-eval of one Stage II training
     results/table3/cpu/<job>/           gspi-reproduce table=3's gspi-run jobs
     results/heldout/cpu/<model>/scores.json             a shipped model on the held-out pool scenes
+    results/shipping/cpu/<model>/scores.json            a retired shipping-rule candidate's record (eval.tables.cards)
 
 A table's reproduce file (conf/reproduce/<table>_<scale>.yaml) names its folder as ``scores_dir``;
 ``make results`` (gspi.publish.docs) reads them here. Studies keep theirs in experiments/<study>/.
