@@ -330,6 +330,23 @@ def test_a1_drops_the_pixel_features_it_cannot_use(tmp_path, monkeypatch):
     assert not any("num_latents" in a for a in train["train: full_s5"])
 
 
+def test_the_light_rows_read_stage1_of_the_pools_assets_planned_before_they_train(tmp_path, monkeypatch):
+    """The light-aware rows read their condition as a run reads it (``light_geometry=asset``): the
+    plan writes Stage I of both pools' assets before any training; a plan without them does not."""
+    monkeypatch.setattr(cli, "REPO", ROOT)
+    steps, _, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", "seeds=[0]", "variants=[light_residual]"])
+    names = [s.name for s in steps]
+    first_train = next(k for k, n in enumerate(names) if n.startswith("train: "))
+    assert names.index("stage 1: training pool's assets") < first_train
+    assert names.index("stage 1: held-out assets") < first_train
+    stage1 = next(s for s in steps if s.name == "stage 1: training pool's assets")
+    assert list(map(str, stage1.command))[-2:] == ["gspi.stage1.pool_clouds", str(tmp_path / "reproduce" / "table2_cpu" / "rtrain_fast")]
+    train = next(s for s in steps if s.name == "train: light_residual_s0")
+    assert "stage2.data.light_geometry=asset" in list(map(str, train.command))
+    plain, _, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", "seeds=[5]", "variants=[full]"])
+    assert not any(s.name.startswith("stage 1:") for s in plain)
+
+
 @pytest.mark.parametrize("argv, message", [
     (["table=9", "scale=cpu"], "no conf/reproduce/table9_cpu.yaml; known: model=default scale=cpu, table=1 scale=cpu"),
     (["model=best", "scale=cpu"], "model=best scale=cpu: no conf/reproduce/model_best_cpu.yaml"),

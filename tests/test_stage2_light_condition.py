@@ -186,7 +186,8 @@ def test_the_light_is_read_in_the_photos_where_they_were_taken_at_the_lattice(li
 
 def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
     """``stage2.data.light_geometry=asset`` (a reconstructed pool scene): the read-out on Stage I's
-    cloud of the scene's Stage 0 asset, in the source scene's photos, each GT point taking its
+    cloud of the scene's Stage 0 asset (written beside it by ``gspi.stage1.pool_clouds``, which
+    resumes), in the source scene's photos, each GT point taking its
     nearest row; with the light estimated (the measure), the rows equal those a run builds from
     the same asset (``inference_light_table``, ``method=light_fit``'s path), and a scene without
     an asset is told so in one line."""
@@ -196,6 +197,7 @@ def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
     from gspi.gaussians.ply import read_ply
     from gspi.recon.reconstructed_pool import reconstruct_pool
     from gspi.stage1.config import Stage1Config
+    from gspi.stage1.pool_clouds import write_pool_stage1
     from gspi.stage1.extract import extract_point_cloud
     from gspi.stage2.light_condition import asset_views, photo_source, readout_lookup
     from gspi.stage2.light_fit import inference_light_table
@@ -211,7 +213,10 @@ def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
     pooled = tmp_path / "rpool" / "lit_sphere"
     assert photo_source(pooled).resolve() == root.resolve() and photo_source(root) == root
     cfg = dataclasses.replace(LIGHT, light_geometry="asset", light_normal_search_deg=(4.0,))
-    seen = asset_views(pooled, read_scene(pooled).width)
+    with pytest.raises(ValueError, match=r"asset/stage1/renders.npz: no Stage I .* gspi.stage1.pool_clouds"):
+        asset_views(pooled)
+    assert write_pool_stage1(tmp_path / "rpool") == 1 and write_pool_stage1(tmp_path / "rpool") == 0  # resumes
+    seen = asset_views(pooled)
     assert seen.views == "photos"
     scene = load_scene_points(pooled, None)
     scene.light_source = "estimated"
@@ -223,7 +228,7 @@ def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
     table, light = inference_light_table(points, renders, cfg, photos)
     assert light["env"] == ENV
     np.testing.assert_allclose(readout_lookup(table, scene.xyz), rows, rtol=1e-5, atol=1e-5)
-    with pytest.raises(ValueError, match=r"asset/point_cloud.ply: no Stage 0 asset"):
+    with pytest.raises(ValueError, match=r"renders.npz: no Stage I of the scene's asset"):
         load_scene_points(root, None).light_features(np.arange(3), cfg)
     with pytest.raises(ValueError, match="light_geometry must be one of cloud, asset"):
         PointDataConfig.from_mapping({"light_geometry": "mesh"})

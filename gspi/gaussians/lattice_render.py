@@ -14,6 +14,7 @@ that made them*, so no later stage rebuilds a camera from a default.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -59,6 +60,26 @@ class LatticeRenders:
     def image_size(self) -> tuple[int, int]:
         """(height, width)."""
         return self.alpha.shape[1], self.alpha.shape[2]
+
+    FIELDS = ("rgb", "alpha", "depth", "K", "w2c")
+
+    def save(self, path: str | Path) -> Path:
+        """Writes ``path`` (.npz, compressed): the five arrays."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(path, **{name: getattr(self, name) for name in self.FIELDS})
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "LatticeRenders":
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: lattice renders file not found")
+        with np.load(path) as data:
+            missing = [name for name in cls.FIELDS if name not in data]
+            if missing:
+                raise ValueError(f"{path}: not lattice renders (missing {missing})")
+            return cls(**{name: data[name] for name in cls.FIELDS})
 
 
 def lattice_camera_tensors(image_size: int | tuple[int, int], *, lattice: Optional[dict] = None,

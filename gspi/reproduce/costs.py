@@ -39,6 +39,8 @@ RATES: dict[str, dict[str, Rate]] = {
                                                "(docs/REPRODUCE.md 'CPU scale')"),
         "stage 0": Rate(25.0, "scene", "session 31, 2-core AMD EPYC VM: recon=fast of the 224 + 32 pool "
                                        "scenes, 49 + 4.4 min on 2 workers (docs/REPRODUCE.md)"),
+        "stage 1": Rate(3.0, "scene", "issue 66, 2-core VM beside 3 jobs: gspi.stage1.pool_clouds of the 32 "
+                                      "held-out recon=fast assets, 1-4 s each"),
         "measure": Rate(9.4, "scene", "session 24, 2-core VM: Table 2's measure ~5 min for 32 held-out "
                                       "scenes (docs/REPRODUCE.md)"),
         "restore": Rate(1.0, "call", SMALL_STEP),
@@ -52,6 +54,7 @@ RATES: dict[str, dict[str, Rate]] = {
         "data: view": Rate(2.0, "call", SMOKE_RUN),
         "data: benchmark": Rate(3.0, "scene", SMOKE_RUN),
         "stage 0": Rate(3.5, "scene", SMOKE_RUN),
+        "stage 1": Rate(1.0, "scene", "not measured at this scale: Stage I of a 32-px asset, about a second"),
         "training": Rate(7.0, "training", SMOKE_RUN),
         "measure": Rate(4.0, "scene", SMOKE_RUN),
         "sweep: table1": Rate(115.0, "call", SMOKE_RUN),

@@ -87,7 +87,21 @@ def pool_steps(cfg: Mapping[str, Any], work: Path) -> list[Step]:
         Step(f"stage 0: held-out scenes (recon={recon})", done / f"recon_heldout_{recon}",
              reconstruct(work / "heldout_test", work / f"rheldout_{recon}"), cpu_s_left=estimate("stage 0", n_test)),
     ]
+    if reads_asset_stage1(cfg):  # the light read as a run reads it: Stage I of every asset, kept beside it
+        stage1 = lambda pool: [*python_module("gspi.stage1.pool_clouds"), str(pool)]  # noqa: E731
+        steps += [Step("stage 1: training pool's assets", done / f"stage1_train_{recon}",
+                       stage1(work / f"rtrain_{recon}"), cpu_s_left=estimate("stage 1", n_train)),
+                  Step("stage 1: held-out assets", done / f"stage1_heldout_{recon}",
+                       stage1(work / f"rheldout_{recon}"), cpu_s_left=estimate("stage 1", n_test))]
     return steps
+
+
+def reads_asset_stage1(cfg: Mapping[str, Any]) -> bool:
+    """Whether a planned variant reads Stage II's light condition on Stage I of the pool's assets
+    (``stage2.data.light_geometry=asset`` among its ``variant_overrides``)."""
+    return any(str(o).replace(" ", "") == "stage2.data.light_geometry=asset"
+               for variant, overrides in (cfg.get("variant_overrides") or {}).items()
+               if variant in cfg["variants"] for o in overrides)
 
 
 def saved_step(run_dir: Path) -> tuple[int, int] | str | None:

@@ -183,7 +183,7 @@ class ScenePoints:
 
         if self._light is None:
             if cfg.light_geometry == "asset":  # as a run reads it: Stage I's cloud of the asset, the photos
-                seen = lc.asset_views(self.root, self.cameras.width)
+                seen = lc.asset_views(self.root)
                 rgb, depth, cams, xyz = seen.images, seen.depth, seen.cams, seen.xyz
                 normals = lc.cloud_normals_of(seen.xyz, seen.view, seen.cams)
             else:

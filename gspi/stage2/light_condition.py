@@ -208,19 +208,21 @@ class AssetViews:
     views: str           # "photos" or why the renders
 
 
-def asset_views(scene_dir: Path, width: int) -> AssetViews:
-    """``AssetViews`` of a reconstructed pool scene (``<scene>/asset/point_cloud.ply``), as a run
-    builds them: Stage I at the scene's image ``width`` (``gspi.stage1``'s defaults), the photos
-    of its source (``photo_source``)."""
-    from gspi.gaussians.ply import read_ply
-    from gspi.stage1.config import Stage1Config
-    from gspi.stage1.extract import extract_point_cloud
+def asset_views(scene_dir: Path) -> AssetViews:
+    """``AssetViews`` of a reconstructed pool scene as a run builds them: Stage I's cloud and
+    lattice renders of its asset (written beside it by ``python -m gspi.stage1.pool_clouds``), the
+    photos of its source (``photo_source``)."""
+    from gspi.data.pool.asset_conditions import ASSET_STAGE1_POINTS, ASSET_STAGE1_RENDERS
+    from gspi.gaussians.lattice_render import LatticeRenders
+    from gspi.point_cloud import PointCloud
 
-    asset = Path(scene_dir) / "asset" / "point_cloud.ply"
-    if not asset.is_file():
-        raise ValueError(f"{asset}: no Stage 0 asset; stage2.data.light_geometry=asset reads the light on Stage I's "
-                         "cloud of the scene's asset (a reconstructed pool: python -m gspi.recon.reconstructed_pool)")
-    points, renders, _ = extract_point_cloud(read_ply(asset), Stage1Config(image_size=int(width)))
+    scene_dir = Path(scene_dir)
+    if not (scene_dir / ASSET_STAGE1_RENDERS).is_file():
+        raise ValueError(f"{scene_dir / ASSET_STAGE1_RENDERS}: no Stage I of the scene's asset; "
+                         "stage2.data.light_geometry=asset reads the light on it (a reconstructed pool: "
+                         f"python -m gspi.stage1.pool_clouds {scene_dir.parent})")
+    points = PointCloud.load(scene_dir / ASSET_STAGE1_POINTS)
+    renders = LatticeRenders.load(scene_dir / ASSET_STAGE1_RENDERS)
     photos, how = lattice_photos(photo_source(scene_dir), renders)
     images, depth = views_to_read(renders, photos)
     return AssetViews(xyz=points.xyz.astype(np.float64), view=points.view, cams=LatticeCameras.from_renders(renders),

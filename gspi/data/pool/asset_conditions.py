@@ -23,6 +23,9 @@ import numpy as np
 
 LATTICE_SPLIT = "train"  # a generated scene's train views are the canonical lattice (view k = camera k)
 CONDITIONS = ("top_rgb", "prior")
+# Stage I of a pool scene's asset, kept beside it (gspi.stage1.pool_clouds writes, the light condition reads)
+ASSET_STAGE1_POINTS = Path("asset") / "stage1" / "points.npz"    # gspi.point_cloud.PointCloud
+ASSET_STAGE1_RENDERS = Path("asset") / "stage1" / "renders.npz"  # gspi.gaussians.lattice_render.LatticeRenders
 
 
 def link_tree(src: Path, dst: Path, replace: set[str]) -> None:
