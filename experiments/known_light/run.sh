@@ -69,6 +69,7 @@ if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoi
 # Behind the held-out scenes' recon=fast assets (Table 2's measure on the reconstructed pool): the
 # exact-render light_residual and the read-out it is given, read on the GT cloud in the assets' renders
 # (the condition's default geometry) and as a run reads it (--asset: Stage I's cloud, the photos).
+$PY -m gspi.stage1.pool_clouds "$WORK/rheldout_fast"   # Stage I of each asset, beside it (light_geometry=asset)
 for G in "" _asset; do
   [ -f "$RES/condition_readout_fast$G/scores.json" ] || $PY -m experiments.known_light.condition "$RUN/checkpoint.pt" \
     "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast$G" --baseline "$BASE" \
@@ -82,6 +83,7 @@ M="light_residual_s0_step${STEP}_fast"
 # training scenes' recon=fast assets, its read-out read as a run reads it (light_geometry=asset,
 # normals searched), in 40-minute chunks (rerun to resume), measured behind the held-out assets.
 $PY -m gspi.recon.reconstructed_pool "$WORK/train_view" "$WORK/rtrain_fast" --recon fast --workers 1
+$PY -m gspi.stage1.pool_clouds "$WORK/rtrain_fast"
 RUN="$WORK/runs/train_light_residual_asset_s0"
 KEPT=experiments/known_light/resume/light_residual_asset_s0/checkpoint.pt
 if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
