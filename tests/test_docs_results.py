@@ -86,3 +86,21 @@ def test_table2_names_what_a_variant_changes_at_this_scale():
                     "a4: stage2.model.num_latents=48; a1: x=1, y=2.")
     assert docs_results.departures_line({}, "p.yaml") == ""
     assert "a4_npts_1024_nlat_384: stage2.model.num_latents=48" in docs_results.table2_file()
+
+
+def test_each_reproduce_file_commits_where_the_publisher_reads():
+    """A committed ``scores_dir`` of conf/reproduce/<table>_<scale>.yaml is the store's folder of that
+    table and scale (gspi.publish.store.table_folder): the two names of one place cannot drift."""
+    import yaml
+
+    from gspi.publish.store import table_folder
+    from gspi.repo import REPO
+
+    committed = {}
+    for path in sorted((REPO / "conf" / "reproduce").glob("*.yaml")):
+        scores_dir = str(yaml.safe_load(path.read_text()).get("scores_dir", ""))
+        if scores_dir.startswith("results/"):
+            table, scale = path.stem.rsplit("_", 1)
+            committed[path.name] = (scores_dir, str(table_folder(table, scale).relative_to(REPO)))
+    assert {"table1_cpu.yaml", "table2_cpu.yaml"} <= set(committed)
+    assert {name: a for name, (a, b) in committed.items() if a != b} == {}
