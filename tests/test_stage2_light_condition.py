@@ -212,7 +212,7 @@ def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
                      overrides=("recon.iterations=60", "recon.init.num_points=400", "recon.densify.refine_stop_iter=0"))
     pooled = tmp_path / "rpool" / "lit_sphere"
     assert photo_source(pooled).resolve() == root.resolve() and photo_source(root) == root
-    cfg = dataclasses.replace(LIGHT, light_geometry="asset", light_normal_search_deg=(4.0,))
+    cfg = dataclasses.replace(LIGHT, light_geometry="asset", light_normal_search_deg=(4.0,), light_normal_profile=2)
     with pytest.raises(ValueError, match=r"asset/stage1/renders.npz: no Stage I .* gspi.stage1.pool_clouds"):
         asset_views(pooled)
     assert write_pool_stage1(tmp_path / "rpool") == 1 and write_pool_stage1(tmp_path / "rpool") == 0  # resumes

@@ -89,7 +89,7 @@ KEPT=experiments/known_light/resume/light_residual_asset_s0/checkpoint.pt
 if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
 .venv/bin/gspi-train data="$WORK/rtrain_fast" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=0 \
   stage2.train.stop_after_minutes=40 stage2.train.run_log=null stage2.data.light_geometry=asset \
-  'stage2.data.light_normal_search_deg=[4,8]'
+  'stage2.data.light_normal_search_deg=[4,8]' stage2.data.light_normal_profile=3
 STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
 M="light_residual_asset_s0_step${STEP}_fast"
 [ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \

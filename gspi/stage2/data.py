@@ -191,7 +191,8 @@ class ScenePoints:
                 normals = lc.cloud_normals_of(self.xyz, self.view, self.cameras)
             light = self._told_light(cfg, rgb, depth, cams, xyz, normals)
             self._light = lc.readout_table(rgb, depth, cams, xyz, normals, light, tol_pixels=cfg.visibility_tol_pixels,
-                                           normal_search_deg=cfg.light_normal_search_deg)
+                                           normal_search_deg=cfg.light_normal_search_deg,
+                                           normal_profile=cfg.light_normal_profile)
         return lc.readout_lookup(self._light, self.xyz[idx])
 
     def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, cams: LatticeCameras,
@@ -416,6 +417,7 @@ class PointDataConfig:
     light_geometry: str = "cloud"  # the read-out on the scene's cloud and lattice views | asset: on Stage I's cloud
                                    # of its Stage 0 asset, in its photos (as a run reads it; a reconstructed pool)
     light_normal_search_deg: Any = None  # the read-out's normal search, degrees (as method=light_fit's); None = none
+    light_normal_profile: int = 1  # each grid cell the best of this many searched normals (method.normal_profile)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":

@@ -75,11 +75,12 @@ def readout_subset(num_points: int) -> np.ndarray:
     return np.sort(np.random.default_rng(READOUT_SEED).choice(num_points, READOUT_POINTS, replace=False))
 
 
-def readout_rows(obs, light: ToldLight, normal_search_deg=()) -> np.ndarray:
+def readout_rows(obs, light: ToldLight, normal_search_deg=(), normal_profile: int = 1) -> np.ndarray:
     """[n, LIGHT_READOUT_WIDTH] the condition's rows of the observed points ``obs`` (each normal
-    searched in a cone at ``normal_search_deg``, as ``method=light_fit`` reads: () = the given normals)."""
+    searched in a cone at ``normal_search_deg``, each cell the best of ``normal_profile`` of the
+    searched normals, as ``method=light_fit`` reads: () = the given normals)."""
     if normal_search_deg:  # None or () = the given normals
-        grid = fit_grid_normal_search(obs, light.pre, rings_deg=tuple(normal_search_deg),
+        grid = fit_grid_normal_search(obs, light.pre, rings_deg=tuple(normal_search_deg), profile=normal_profile,
                                       rotation_deg=light.rotation_deg, gain=light.gain)
     else:
         grid = fit_grid(obs, light.pre, rotation_deg=light.rotation_deg, gain=light.gain)
@@ -96,14 +97,14 @@ def readout_rows(obs, light: ToldLight, normal_search_deg=()) -> np.ndarray:
 
 def readout_table(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
                   normals: Callable[[np.ndarray], np.ndarray], light: ToldLight, *, tol_pixels: float = 2.0,
-                  normal_search_deg=()) -> tuple[np.ndarray, np.ndarray]:
+                  normal_search_deg=(), normal_profile: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(subset xyz [m, 3], its rows [m, LIGHT_READOUT_WIDTH]) of the cloud xyz [n, 3], read in
     linear renders [V, H, W, 3] with depths [V, H, W]; ``normals(indices)`` gives the unit normals
     of those points (only the subset's are computed: ``cloud_normals`` over a 280k-point cloud
     costs a minute)."""
     sub = readout_subset(len(xyz))
     obs = observe_points(images, depth, cams, xyz[sub], normals(sub), tol_pixels=tol_pixels)
-    return xyz[sub], readout_rows(obs, light, normal_search_deg)
+    return xyz[sub], readout_rows(obs, light, normal_search_deg, normal_profile)
 
 
 def readout_lookup(table: tuple[np.ndarray, np.ndarray], xyz: np.ndarray) -> np.ndarray:

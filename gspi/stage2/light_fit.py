@@ -124,6 +124,7 @@ def inference_light_table(points: PointCloud, renders, data_cfg, photos: Lattice
     images, depth = views_to_read(renders, photos)
     light, est = estimate_scene_light(images, depth, cams, xyz, normals, candidates, tol_pixels=tol)
     table = readout_table(images, depth, cams, xyz, normals, light, tol_pixels=tol,
-                          normal_search_deg=data_cfg.light_normal_search_deg)
+                          normal_search_deg=data_cfg.light_normal_search_deg,
+                          normal_profile=data_cfg.light_normal_profile)
     return table, {"env": est.env, "rotation_deg": round(est.rotation_deg, 2), "gain": round(est.gain, 4),
                    "margin": round(est.margin, 3)}
