@@ -106,7 +106,7 @@ def read_table() -> str:
 
 
 def identify_table() -> str | None:
-    files = sorted(RESULTS.glob("identify_*.json"))
+    files = sorted(p for p in RESULTS.glob("identify_*.json") if p.name != BUDGET.name)
     if not files:
         return None
     lines = ["# Is the light told by the views?", "",
@@ -125,7 +125,31 @@ def identify_table() -> str | None:
         lines.append(f"| {path.stem.removeprefix('identify_')} | {s['scenes']} | {s['env_identified']} | "
                      f"{cell('env_and_rotation_within_15deg')} | {cell('median_rotation_error_deg', '{:.1f}')} | "
                      f"{cell('median_abs_log2_gain_error', '{:.3f}')} | {cell('median_seconds', '{:.1f}')} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + budget_lines()) + "\n"
+
+
+BUDGET = RESULTS / "identify_budget.json"  # identify_budget.py: the coarse search on fewer points
+
+
+def budget_lines() -> list[str]:
+    """The coarse search on ``coarse_points`` of the identify points against the default estimate's
+    lights on the same points (results/identify_budget.json)."""
+    if not BUDGET.is_file():
+        return []
+    run = json.loads(BUDGET.read_text())
+    rows = run["scenes"].values()
+    same = sum(r["light"]["env"] == r["reference"]["env"] and r["light"]["rotation_deg"] == r["reference"]["rotation_deg"]
+               for r in rows)
+    right = sum(r["light"]["env"] == r["capture_env"] for r in rows)
+    right_ref = sum(r["reference"]["env"] == r["capture_env"] for r in rows)
+    timed = [r for r in rows if "full" in r]
+    secs = (f"; on the {len(timed)} scenes timed both ways, median {np.median([r['seconds'] for r in timed]):.1f} s "
+            f"against {np.median([r['full']['seconds'] for r in timed]):.1f} s") if timed else ""
+    return ["", f"## The coarse search on {run['coarse_points']} of the {run['identify_points']} identify points", "",
+            f"`method=light_fit`'s path behind each held-out scene's `recon=fast` asset (Stage I's cloud, the photos; "
+            f"`identify_budget.py`), against the default estimate's light on the same points "
+            f"({run['reference']}): the same environment and turn in {same} of {len(rows)} scenes; the environment "
+            f"right in {right} (default: {right_ref}){secs} (one thread, beside 2-3 jobs)."]
 
 
 # results/<file> of stage1_read.py: the Stage 0 it read behind (each file's no decomposition is on its own cloud)
