@@ -91,6 +91,9 @@ if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "
   stage2.train.stop_after_minutes=40 stage2.train.run_log=null stage2.data.light_geometry=asset \
   'stage2.data.light_normal_search_deg=[4,8]' stage2.data.light_normal_profile=3
 STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+[ -f "$RES/condition_readout_fast_asset_profile/scores.json" ] || $PY -m experiments.known_light.condition \
+  "$RUN/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast_asset_profile" --baseline "$BASE" \
+  --results "$RES/condition_readout_fast_asset_profile" --label "parts_pool[224:256]/recon=fast"   # what it is given
 M="light_residual_asset_s0_step${STEP}_fast"
 [ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
   data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \

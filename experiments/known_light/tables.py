@@ -42,6 +42,8 @@ FAST_ROWS = {
                               "estimated light)",
     "condition_readout_fast_asset": "the condition's read-out as a run reads it (`light_geometry=asset`: Stage I's cloud "
                                     "of the asset, the photos, normals searched at 4 and 8 degrees; estimated light)",
+    "condition_readout_fast_asset_profile": "the same, each cell the best of 3 searched normals (`light_normal_profile=3`: "
+                                            "what the asset-trained rows below are given)",
     "light_residual_s0_step5000_fast": "Stage II `light_residual` trained on exact renders (step 5000), its condition on "
                                        "the GT cloud in the assets' renders",
 }
