@@ -202,7 +202,8 @@ def heldout_file() -> str:
             "scenes (Table 2's measure, PSNR dB)\n\n" + "\n".join(lines)
             + "\n\n- Cells: mean over (scene, seed) units of the committed score files; avg = mean of albedo, "
             "roughness, metallic per unit. Models whose held-out scores were never committed are not rows "
-            "(their session numbers: checkpoints/*.json cards, docs/log/diary.md).\n")
+            "(their numbers: the default's card, the retired candidates' rule records under results/shipping/, "
+            "docs/log/diary.md).\n")
 
 
 def _cards():
