@@ -35,13 +35,10 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
     from eval.layout import read_scene
-    from gspi.gaussians.ply import read_ply
     from gspi.light.estimate import estimate_light
-    from gspi.stage1.config import Stage1Config
-    from gspi.stage1.extract import extract_point_cloud
     from gspi.stage2.light_condition import candidate_lights
     from gspi.stage2.light_fit import LightFitConfig, observe_cloud
-    from gspi.stage2.light_views import lattice_photos
+    from experiments.known_light.stage1_read import asset_stage1
 
     cfg = LightFitConfig()
     candidates = candidate_lights(cfg.candidates, cfg.env_height)
@@ -52,9 +49,7 @@ def main(argv: list[str] | None = None) -> None:
         if name in done["scenes"]:
             continue
         scene_dir = args.data / name
-        points, renders, _ = extract_point_cloud(read_ply(args.assets / name / "asset" / "point_cloud.ply"),
-                                                 Stage1Config(image_size=read_scene(scene_dir).width))
-        photos, _ = lattice_photos(scene_dir, renders)
+        points, renders, photos, _ = asset_stage1(scene_dir, args.assets / name / "asset" / "point_cloud.ply")
         obs, _ = observe_cloud(points, renders, cfg, photos)
         t0 = time.perf_counter()
         est = estimate_light(obs, candidates, max_points=cfg.identify_points, coarse_points=args.coarse, seed=cfg.seed)

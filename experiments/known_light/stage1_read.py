@@ -39,6 +39,21 @@ def metal_iou(points, metallic: np.ndarray, gt: np.ndarray, mask: np.ndarray) ->
     return None if union == 0 else float(np.count_nonzero(p & t)) / union
 
 
+def asset_stage1(scene_dir: Path, asset_ply: Path):
+    """(Stage I's cloud, its lattice renders, the scene's photos at them or None, which views) of
+    a scene's Stage 0 asset, as gspi-run builds them (the pool's scenes are 64 or 128 px)."""
+    from eval.layout import read_scene
+    from gspi.gaussians.ply import read_ply
+    from gspi.stage1.config import Stage1Config
+    from gspi.stage1.extract import extract_point_cloud
+    from gspi.stage2.light_views import lattice_photos
+
+    points, renders, _ = extract_point_cloud(read_ply(asset_ply),
+                                             Stage1Config(image_size=read_scene(scene_dir).width))
+    photos, views = lattice_photos(scene_dir, renders)
+    return points, renders, photos, views
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", type=Path)
@@ -57,14 +72,10 @@ def main(argv: list[str] | None = None) -> None:
     from eval.layout import read_scene
     from eval.lpips.net import load_lpips
     from gspi.data.gt_maps import read_gt_view_maps
-    from gspi.gaussians.ply import read_ply
-    from gspi.stage1.config import Stage1Config
-    from gspi.stage1.extract import extract_point_cloud
     from gspi.stage2.data import srgb_top_rgb
     from gspi.stage2.evaluate_points import recorded_constants
     from gspi.stage2.light_condition import candidate_lights
     from gspi.stage2.light_fit import LightFitConfig, predict_light_fit
-    from gspi.stage2.light_views import lattice_photos
     from gspi.stage2.score_generated import score_generated_points
 
     rough, metal = recorded_constants(args.baseline)
@@ -81,10 +92,7 @@ def main(argv: list[str] | None = None) -> None:
             continue
         t0 = time.perf_counter()
         scene_dir = args.data / name
-        size = read_scene(scene_dir).width  # the pool's scenes are 64 or 128 px
-        points, renders, _ = extract_point_cloud(read_ply(args.assets / name / "asset" / "point_cloud.ply"),
-                                                 Stage1Config(image_size=size))
-        photos, views = lattice_photos(scene_dir, renders)
+        points, renders, photos, views = asset_stage1(scene_dir, args.assets / name / "asset" / "point_cloud.ply")
         nodec = np.c_[srgb_top_rgb(points.rgb), np.full((len(points), 2), [rough, metal], dtype=np.float32)]
         preds = {"no_decomposition": (nodec, None)}
         if not args.no_plain:
