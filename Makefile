@@ -49,18 +49,19 @@ demo: install
 	$(VENV)/bin/gspi-data preset=small out=$(DEMO)/data seed=0 'data.only_splits=[test]'
 	$(VENV)/bin/gspi-run -m data=$(DEMO)/data out=$(DEMO)/runs +experiment=demo
 	$(VENV)/bin/gspi-table $(DEMO)/runs out=$(DEMO)/tables
-	# Relight each GS-PI asset (gspi-relight: turntable under the held-out "meadow"), then the
-	# static report (gspi-report, docs/REPORT.md) that embeds them.
-	for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
+	# Relight each GS-PI asset (gspi-relight: turntable under the held-out "meadow") on one core
+	# while the other writes each one's relightable GLB and its still (gspi-export asset=,
+	# docs/EXPORT.md; skip with DEMO_GLB=0), then the static report (gspi-report, docs/REPORT.md)
+	# that embeds and links them.
+	( for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
 	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
 	  $(VENV)/bin/gspi-relight "asset='$$a'" env=meadow "out='$(DEMO)/runs/method=gspi/relight/$$s'" \
-	    frames=12 size=160 || exit 1; done
-	# The relightable GLB of each GS-PI asset and its still (gspi-export asset=, docs/EXPORT.md;
-	# ~10 s per scene on the VM), linked from the report. Skip with DEMO_GLB=0.
+	    frames=12 size=160 || exit 1; done ) & relight=$$!; \
 	if [ "$(DEMO_GLB)" != 0 ]; then for a in $(DEMO)/runs/method=gspi/work/*/pbr_gs.ply; do \
 	  [ -f "$$a" ] || continue; s=$$(basename $$(dirname $$a)); \
 	  $(VENV)/bin/gspi-export "asset='$$a'" "out='$(DEMO)/runs/method=gspi/export/$$s/pbr_gs.glb'" \
-	    || exit 1; done; fi
+	    || { wait $$relight; exit 1; }; done; fi; \
+	wait $$relight
 	$(VENV)/bin/gspi-report $(DEMO)/runs out=$(DEMO)/report
 	@echo "report: open $(abspath $(DEMO))/report/index.html"
 
@@ -77,15 +78,16 @@ chromium:
 report-check: install
 	GSPI_REPORT=$(DEMO)/report $(PY) -m pytest -q tests/test_report_browser.py -k existing
 
-# Every benchmark at its CPU defaults, one torch thread each (~7 min on the 2-core VM; bench_pipeline
-# generates the demo's data and runs GS-PI and joint IR on one scene, ~3 min, then the same on a
-# `tiny` scene); each prints the machine it ran on. Paper sizes: see each module's docstring
+# Every benchmark at its CPU defaults, one torch thread each (~12 min on the 2-core VM; bench_pipeline
+# generates the demo's data and runs GS-PI and joint IR on its 4 scenes, ~5 min, then the same on
+# the 2 `tiny` test scenes); each prints the machine it ran on. Paper sizes: see each module's docstring
 # (--paper, --sizes 512).
-BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage2_train bench_stage3 bench_flatten3dgs bench_light \
-  bench_pipeline
+# bench_pipeline records its figures in results/speed/cpu/ (README's speed block: `make results`).
+BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage2_train bench_stage3 bench_flatten3dgs bench_light
 bench: install
 	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done
-	@echo "== benchmarks/bench_pipeline.py --preset tiny"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.bench_pipeline --preset tiny
+	@for p in small tiny; do echo "== benchmarks/bench_pipeline.py --preset $$p"; \
+	  OMP_NUM_THREADS=1 $(PY) -m benchmarks.bench_pipeline --preset $$p --record results/speed/cpu/pipeline_$$p.json || exit 1; done
 
 # The one-shot GPU check (docs/REPRODUCE.md "GPU check"): wheels + weights for the device call,
 # then the call to paste; its CPU smoke run (tiny sizes, ~35 s).

@@ -12,7 +12,7 @@ Data: ``--data`` (a ``small`` test set, e.g. ``demo_out/data`` after ``make demo
 the demo's data are generated into a temp folder first (``gspi-data preset=small seed=0
 'data.only_splits=[test]'``, ~1 min).
 
-    python -m benchmarks.bench_pipeline [--data demo_out/data] [--scenes s004_superquadric_metal ...]
+    python -m benchmarks.bench_pipeline [--data demo_out/data] [--scenes s004_superquadric_metal ...] [--record F]
     python -m benchmarks.bench_pipeline --preset tiny   # the two `tiny` test scenes (64 px), assets made by recon=tiny
 
 ``--preset tiny``: the issue's other scale (``gspi-data preset=tiny seed=0``, its two test scenes);
@@ -66,10 +66,14 @@ def main() -> None:
     parser.add_argument("--preset", choices=("small", "tiny"), default="small", help="the data's preset")
     parser.add_argument("--data", type=Path, default=None, help="a test set of that preset (default: generate it)")
     parser.add_argument("--scenes", nargs="+", default=None,
-                        help="default: s004_superquadric_metal (small), the two test scenes (tiny)")
+                        help="default: the test scenes (the demo's 4 at small, 2 at tiny)")
+    parser.add_argument("--record", type=Path, default=None,
+                        help="also write the figures as JSON here (results/bench/pipeline_<preset>.json: README's "
+                             "speed block, `make results`)")
     args = parser.parse_args()
     print(machine())
-    print(f"load average at start: {os.getloadavg()[0]:.2f}")
+    load_start = os.getloadavg()[0]
+    print(f"load average at start: {load_start:.2f}")
     with tempfile.TemporaryDirectory(prefix="bench_pipeline_") as tmp:
         tmp = Path(tmp)
         data = args.data
@@ -77,8 +81,7 @@ def main() -> None:
             data = tmp / "data"
             command_seconds("gspi-data", [f"preset={args.preset}", f"out={data}", "seed=0", "data.only_splits=[test]",
                                           "data.workers=1"])
-        scenes = args.scenes or (["s004_superquadric_metal"] if args.preset == "small"
-                                 else json.loads((data / "splits.json").read_text())["test"])
+        scenes = args.scenes or json.loads((data / "splits.json").read_text())["test"]
         gspi = method_metas(data.resolve(), scenes, "gspi", tmp / "gspi", args.preset)
         joint = method_metas(data.resolve(), scenes, "joint_ir", tmp / "joint_ir", args.preset)
         works = [tmp / "gspi" / "work" / scene for scene in scenes]
@@ -99,6 +102,21 @@ def main() -> None:
     print(f"  all {len(scenes)} scene(s): GS-PI {g_all:.1f} s, joint IR {j_all:.1f} s, GS-PI / joint IR material "
           f"time: {g_all / j_all:.2f}")
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
+    if args.record:
+        record = {"what": "GS-PI vs joint IR material time (benchmarks/bench_pipeline.py)", "preset": args.preset,
+                  "settings": preset_overrides(args.preset), "machine": machine(),
+                  "load_average": [round(load_start, 2), round(os.getloadavg()[0], 2)],
+                  "command": f"python -m benchmarks.bench_pipeline --preset {args.preset} --record {args.record}",
+                  "scenes": {scene: {"gspi_material_s": gspi[k]["runtime_s"]["material"],
+                                     "joint_ir_material_s": joint[k]["runtime_s"]["material"],
+                                     "gspi_stages_s": {s: gspi[k]["stages"][s]["seconds"] for s in GSPI_STAGES
+                                                       if s in gspi[k]["stages"]}}
+                             for k, scene in enumerate(scenes)},
+                  "gspi_material_s": round(g_all, 2), "joint_ir_material_s": round(j_all, 2),
+                  "ratio": round(g_all / j_all, 3)}
+        args.record.parent.mkdir(parents=True, exist_ok=True)
+        args.record.write_text(json.dumps(record, indent=1) + "\n")
+        print(f"wrote {args.record}")
 
 
 if __name__ == "__main__":

@@ -53,9 +53,10 @@ class Stage2Context:
         """Whether the model's light read-out reads the scene's photos (``stage2.inference.light_views``)."""
         return bool(self.model_cfg["stage2"].data.light_readout) and self.run_cfg.inference.light_views == "photos"
 
-    def predict(self, points, renders, device, photos=None) -> tuple[np.ndarray, dict]:
+    def predict(self, points, renders, device, photos=None, num_gaussians=None) -> tuple[np.ndarray, dict]:
         """[P, 5] PBR of a Stage I cloud (albedo sRGB, roughness, metallic) and stats; ``photos``:
-        the scene's photos at the lattice cameras for the light read-out (``reads_photos``)."""
+        the scene's photos at the lattice cameras for the light read-out (``reads_photos``);
+        ``num_gaussians``: the asset's (``stage2.inference.points_per_gaussian``)."""
         from gspi.stage2.infer import predict_generated_points
 
         data_cfg = self.model_cfg["stage2"].data
@@ -65,7 +66,8 @@ class Stage2Context:
 
             light_table, light = inference_light_table(points, renders, data_cfg, photos)
         pbr, stats = predict_generated_points(self.model, points, renders, data=data_cfg, encoder=self.encoder,
-                                              cfg=self.run_cfg.inference, light_table=light_table, device=device)
+                                              cfg=self.run_cfg.inference.for_asset(num_gaussians),
+                                              light_table=light_table, device=device)
         return pbr, (stats if light is None else {**stats, "light": light})
 
 
@@ -81,7 +83,7 @@ class LightFitContext:
     def reads_photos(self) -> bool:
         return self.cfg.views == "photos"
 
-    def predict(self, points, renders, device, photos=None) -> tuple[np.ndarray, dict]:
+    def predict(self, points, renders, device, photos=None, num_gaussians=None) -> tuple[np.ndarray, dict]:
         from gspi.stage2.light_fit import predict_light_fit
 
         return predict_light_fit(points, renders, self.cfg, self.candidates, photos)
@@ -132,7 +134,7 @@ def run_gspi_scene(scene: Scene, asset: Gaussians2D, out_scene_dir: Path, cfg: M
             from gspi.stage2.light_views import lattice_photos
 
             photos, views = lattice_photos(scene.root, renders)
-        pbr, s2 = stage2.predict(points, renders, device, photos)
+        pbr, s2 = stage2.predict(points, renders, device, photos, num_gaussians=asset.num_gaussians)
         if views is not None:
             s2 = {**s2, "light": {**s2.get("light", {}), "views": views}}
         np.savez_compressed(work_dir / "points_pbr.npz", pbr=pbr)

@@ -17,7 +17,8 @@ ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighb
              ("data", "light_geometry"): "cloud", ("data", "light_normal_search_deg"): None,
              ("data", "light_normal_profile"): 1,
              ("data", "subset"): "local", ("inference", "patch_points"): None, ("inference", "patch_coverage"): 2.0,
-             ("inference", "light_views"): "photos"}  # light_views: read only by a light_readout model
+             ("inference", "light_views"): "photos",  # light_views: read only by a light_readout model
+             ("inference", "points_per_gaussian"): None}
 
 
 def composed_stage2(*overrides: str, study_conf: Path | None = None) -> dict:

@@ -13,8 +13,8 @@ from eval.relight import prefilter_environment, split_sum
 from gspi.data.environments import make_environment
 from gspi.light.estimate import estimate_light
 from gspi.light.observations import PointViews
-from gspi.light.readout import (ROUGHNESS_GRID, fit_grid, pool_neighbours, posterior, read_best,
-                                read_posterior)
+from gspi.light.readout import (ROUGHNESS_GRID, MaterialGrid, fit_grid, metal_evidence, pool_neighbours, posterior,
+                                read_best, read_posterior, without_metal)
 from gspi.light.shading import affine_coefficients, rotate_latlong, view_terms
 
 H = 32  # small maps keep the prefilter fast
@@ -125,6 +125,29 @@ def test_pooling_and_posterior(pre):
     a, r, m = read_posterior(grid, grid.error, temperature=1e-4)  # a sharp posterior is the best cell
     a0, r0, m0 = read_best(grid)
     assert torch.equal(m.round(), m0) and (r - r0).abs().max() < 1e-3
+
+
+def test_metal_evidence_and_the_dielectric_read():
+    """Two points, two roughness values, metallic (0, 1): point 0 fits metal best (0.1 against its
+    best dielectric 0.2), point 1 dielectric (0.3): evidence = mean(0.2, 0.3) / mean(0.1, 0.3) = 1.25;
+    over point 0 alone 2.0. Ruled out, the metal cells get no posterior weight."""
+    pooled = torch.tensor([[[0.2, 0.1], [0.4, 0.5]], [[0.3, 0.6], [0.3, 0.9]]])
+    metallic = torch.tensor([0.0, 1.0])
+    assert metal_evidence(pooled, metallic, torch.tensor([True, True])) == pytest.approx(1.25)
+    assert metal_evidence(pooled, metallic, torch.tensor([True, False])) == pytest.approx(2.0)
+    assert math.isnan(metal_evidence(pooled, metallic, torch.tensor([False, False])))
+    assert metal_evidence(pooled[:, :, :1].expand(2, 2, 2), metallic, torch.tensor([True, True])) == 1.0
+    grid = MaterialGrid(error=pooled, albedo=torch.rand(2, 2, 2, 3), roughness=torch.tensor([0.2, 0.8]),
+                        metallic=metallic, views=torch.tensor([3, 3]))
+    ruled = without_metal(pooled, metallic)
+    assert torch.equal(ruled[..., 0], pooled[..., 0]) and torch.isinf(ruled[..., 1]).all()
+    albedo, rough, metal = read_posterior(grid, ruled)
+    assert torch.equal(metal, torch.zeros(2))
+    # the dielectric column's own posterior: point 0 weights exp(0), exp(-(0.4/0.2 - 1)/0.1)
+    w0 = torch.softmax(torch.tensor([0.0, -10.0]), 0)
+    torch.testing.assert_close(rough[0], (w0 * grid.roughness).sum())
+    torch.testing.assert_close(rough[1], torch.tensor(0.5))  # two equal cells
+    assert torch.equal(pooled, torch.tensor([[[0.2, 0.1], [0.4, 0.5]], [[0.3, 0.6], [0.3, 0.9]]]))  # input untouched
 
 
 def test_unseen_points_take_their_neighbours():

@@ -26,3 +26,23 @@ def test_light_fit_runs_end_to_end_and_names_the_light(micro_dataset, tmp_path):
     assert ranking[0][0] == light["env"] and [s for _, s in ranking] == sorted(s for _, s in ranking)
     summary = json.loads((out / "eval" / "summary.json").read_text())
     assert set(summary) == {"albedo", "roughness", "metallic", "relight"}
+    metal = meta["stats"]["stage2"]["metal"]
+    assert metal["evidence"] >= 1.0 and metal["gated"] is False  # recorded; the test is off by default
+
+
+def test_scene_level_metal_test_rules_out_metal_everywhere(micro_dataset, tmp_path):
+    """method.metal_min_evidence above any evidence: every point is read dielectric (metallic exactly
+    0 in the points Stage II hands Stage III), and the record says so."""
+    import numpy as np
+
+    from gspi.run.runner import run_job
+
+    out = tmp_path / "run"
+    result = run_job(run_config(micro_dataset, out, ["method=light_fit", "method.identify_points=500",
+                                                     "method.metal_min_evidence=1e9"]))
+    assert result["status"] == "complete", result
+    test_scene = json.loads((micro_dataset / "splits.json").read_text())["test"][0]
+    meta = json.loads((out / "predictions" / test_scene / "meta.json").read_text())
+    assert meta["stats"]["stage2"]["metal"]["gated"] is True
+    pbr = np.load(out / "work" / test_scene / "points_pbr.npz")["pbr"]
+    assert pbr.shape[1] == 5 and np.all(pbr[:, 4] == 0.0)

@@ -20,7 +20,7 @@ from gspi.gaussians.sh import rgb_to_sh
 from gspi.gaussians.lattice_render import LatticeRenders, lattice_camera_tensors
 from gspi.point_cloud import PointCloud
 from gspi.stage3.config import Stage3Config
-from gspi.stage3.distill import distill, harmonized_albedo_targets
+from gspi.stage3.distill import distill, epoch_length, harmonized_albedo_targets, plateaued
 from gspi.stage3.export import render_material_maps, write_scene_predictions
 from gspi.stage3.init import initialize_pbr, sh_gain
 from gspi.stage3.loss import dssim_per_property, masked_material_loss
@@ -490,6 +490,37 @@ class TestDistill:
             assert torch.equal(getattr(a, name), getattr(b, name)), name
         losses = [loss for _, loss in stats["losses"]]
         assert losses[-1] < losses[0]
+
+    def test_plateau_stops_at_an_epochs_end_and_matches_the_full_run_up_to_there(self, sphere):
+        """plateau_tol=1 stops at the end of the second epoch (any fall below 100 % of the loss is a
+        plateau); the iterations run are the full schedule's first ones, bit for bit."""
+        targets = lattice_targets(noise_maps)  # 6 views, 2 a step: an epoch is 3 iterations
+        stopped, stats = distill(sphere, targets, config(iterations=12, views_per_iteration=2, plateau_tol=1.0))
+        assert stats["iterations"] == 6 and stats["stopped_on_plateau"] and len(stats["epoch_losses"]) == 2
+        assert stats["losses"][-1][0] == 6
+        # the same six steps under the same lr schedule (that of 12 iterations) with no stop
+        full, full_stats = distill(sphere, targets, config(iterations=12, views_per_iteration=2))
+        assert full_stats["iterations"] == 12 and not full_stats["stopped_on_plateau"]
+        assert [loss for _, loss in full_stats["losses"][:6]] == [loss for _, loss in stats["losses"]]
+        assert not torch.equal(stopped.albedo_logits, full.albedo_logits)
+
+    def test_plateau_never_fires_when_each_epoch_falls_enough(self, sphere):
+        targets = lattice_targets(noise_maps)
+        _, stats = distill(sphere, targets, config(iterations=6, views_per_iteration=2, plateau_tol=0.0))
+        assert stats["iterations"] == 6 and not stats["stopped_on_plateau"]
+
+    @pytest.mark.parametrize("losses, tol, expected", [([1.0], 0.5, False), ([1.0, 0.99], 0.02, True),
+                                                      ([1.0, 0.97], 0.02, False), ([1.0, 1.1], 0.0, True),
+                                                      ([2.0, 1.0, 0.995], 0.01, True)])
+    def test_plateaued(self, losses, tol, expected):
+        assert plateaued(losses, tol) is expected
+
+    def test_epoch_length_rounds_up(self):
+        assert epoch_length(32, 1) == 32 and epoch_length(6, 4) == 2 and epoch_length(8, 4) == 2
+
+    def test_plateau_tol_range(self):
+        with pytest.raises(ValueError, match="plateau_tol"):
+            Stage3Config.from_dict({"plateau_tol": -0.1})
 
     def test_removed_size_keys_are_rejected(self):
         """stage3.image_size / num_views are gone: the targets carry Stage I's size and views."""

@@ -205,6 +205,27 @@ def pool_neighbours(grid: MaterialGrid, xyz: Tensor | np.ndarray, k: int = NEIGH
     return grid.error[torch.from_numpy(nn)].mean(dim=1)
 
 
+def metal_evidence(pooled_error: Tensor, metallic: Tensor, seen: Tensor) -> float:
+    """How much better the object is explained with metal allowed than without: over the points
+    some view sees, the mean of each point's best pooled error among the dielectric cells (m = 0)
+    over the mean of its best among all cells (>= 1; 1 when no metal cell is any point's best).
+    A scene-level test, since a dielectric point often fits a metal cell nearly as well (a
+    posterior that leaks a little metal everywhere); nan when no point is seen."""
+    if not bool(seen.any()):
+        return float("nan")
+    pooled = pooled_error[seen]
+    dielectric = pooled[..., metallic == 0].flatten(1).min(dim=1).values
+    best = pooled.flatten(1).min(dim=1).values
+    return float(dielectric.mean() / best.mean().clamp_min(_EPS))
+
+
+def without_metal(pooled_error: Tensor, metallic: Tensor) -> Tensor:
+    """The pooled grid with every metal cell (m > 0) ruled out: its posterior puts no weight there."""
+    out = pooled_error.clone()
+    out[..., metallic > 0] = float("inf")
+    return out
+
+
 def read_best(grid: MaterialGrid) -> tuple[Tensor, Tensor, Tensor]:
     """(linear albedo [n, 3], roughness [n], metallic [n]) of each point's best cell."""
     n, r, k = grid.error.shape

@@ -18,12 +18,13 @@ visibility). The conditions are built exactly as in training (docs/STAGE2.md "Co
 * global prior: the frozen encoder on the asset's lattice renders (sRGB of clamped linear).
 
 ``max_points`` (CPU-scale knob, default None = the paper's whole cloud) samples a seeded
-uniform subset, and the other points take their nearest sampled neighbour's prediction.
+uniform subset, and the other points take their nearest sampled neighbour's prediction;
+``points_per_gaussian`` caps it at that many points per Gaussian of the asset (``for_asset``).
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar, Optional
 
 import numpy as np
@@ -53,6 +54,7 @@ class InferenceConfig:
     guidance_scale: float = 1.0  # classifier-free guidance (1 = off, the paper)
     num_samples: int = 1  # DDIM samples averaged per point (1 = the paper)
     max_points: Optional[int] = None  # None = whole cloud (paper); else seeded subset + 1-NN fill
+    points_per_gaussian: Optional[float] = None  # caps max_points at this many x the asset's Gaussians
     patch_points: Optional[int] = None  # None = whole cloud at once (paper); else k-NN patches (gspi.stage2.patches)
     patch_coverage: float = 2.0  # patches per point on average (patch_points only)
     write_chunk: Optional[int] = 32768  # points per Write chunk (memory bound)
@@ -68,7 +70,20 @@ class InferenceConfig:
         unknown = sorted(set(cfg) - known)
         if unknown:
             raise ValueError(f"stage2.inference: unknown keys {unknown} (known: {sorted(known)})")
-        return cls(**dict(cfg))
+        config = cls(**dict(cfg))
+        if config.points_per_gaussian is not None and config.points_per_gaussian <= 0:
+            raise ValueError(f"stage2.inference.points_per_gaussian must be positive or null, "
+                             f"got {config.points_per_gaussian}")
+        return config
+
+    def for_asset(self, num_gaussians: Optional[int]) -> "InferenceConfig":
+        """This config with ``max_points`` capped at ``points_per_gaussian`` x ``num_gaussians``:
+        Stage III gives each Gaussian the mean of the points that land on it, so a few points per
+        Gaussian carry what the whole cloud does (the demo: docs/log/speed/asset_budget.json)."""
+        if self.points_per_gaussian is None or num_gaussians is None:
+            return self
+        cap = max(1, int(round(self.points_per_gaussian * num_gaussians)))
+        return replace(self, max_points=cap if self.max_points is None else min(cap, self.max_points))
 
 
 def lattice_srgb(rgb_linear: Tensor | np.ndarray) -> Tensor:

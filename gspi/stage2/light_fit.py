@@ -19,8 +19,8 @@ import torch
 from eval.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
 from gspi.light.estimate import estimate_light
-from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, pool_neighbours,
-                                read_posterior)
+from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,
+                                pool_neighbours, read_posterior, without_metal)
 from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.infer import subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
@@ -44,6 +44,8 @@ class LightFitConfig:
     views: str = "photos"            # read the scene's photos at the lattice cameras (else the renders) | renders
     normal_search_deg: tuple = ()    # rings (degrees) of candidate normals around each cloud normal; () = none
     normal_profile: int = 1          # the searched normals each grid cell takes the best of (1: the single best)
+    metal_min_evidence: float | None = None  # no metal anywhere unless allowing it explains the object this many
+    #                                          times better (gspi.light.readout.metal_evidence); None: per point only
     seed: int = 0
 
     @classmethod
@@ -75,14 +77,39 @@ def observe_cloud(points: PointCloud, renders, cfg: LightFitConfig, photos: Latt
     return observe_points(images, depth, cams, xyz, normal, tol_pixels=cfg.tol_pixels), sub
 
 
-def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
-                      candidates: dict[str, PrefilteredEnvironment], photos: LatticePhotos | None = None
-                      ) -> tuple[np.ndarray, dict]:
-    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found),
-    read in ``photos`` at the lattice cameras when given, else in the renders."""
+@dataclass
+class LightRead:
+    """What the read-out knows of one cloud: the read points' observations (``sub`` their indices,
+    None for all), the light found, each point's error grid and that grid pooled over neighbours."""
+
+    obs: Any
+    sub: np.ndarray | None
+    light: Any  # gspi.light.estimate.LightEstimate
+    grid: Any   # gspi.light.readout.MaterialGrid
+    pooled: torch.Tensor
+    seconds: dict
+
+    @property
+    def metal_evidence(self) -> float:
+        return metal_evidence(self.pooled, self.grid.metallic, self.grid.views > 0)
+
+    def pbr(self, points: PointCloud, temperature: float, *, metal: bool = True) -> np.ndarray:
+        """[P, 5] every point's posterior PBR (albedo sRGB, roughness, metallic), 1-NN filled from
+        the read points; ``metal=False``: with every metal cell ruled out (metallic exactly 0)."""
+        pooled = self.pooled if metal else without_metal(self.pooled, self.grid.metallic)
+        albedo, rough, metallic = read_posterior(self.grid, pooled, temperature)
+        pbr = torch.cat([linear_to_srgb(albedo), rough[:, None], metallic[:, None]], dim=1).numpy().astype(np.float32)
+        if self.sub is None:
+            return pbr
+        return nearest_fill(points.subset(self.sub).xyz, pbr, points.xyz).astype(np.float32)
+
+
+def read_light(points: PointCloud, renders, cfg: LightFitConfig, candidates: dict[str, PrefilteredEnvironment],
+               photos: LatticePhotos | None = None) -> LightRead:
+    """The light estimated among ``candidates`` and every read point's grid against it, in
+    ``photos`` at the lattice cameras when given, else in the renders."""
     t0 = time.perf_counter()
     obs, sub = observe_cloud(points, renders, cfg, photos)
-    pts = points if sub is None else points.subset(sub)
     t_obs = time.perf_counter()
     light = estimate_light(obs, candidates, max_points=cfg.identify_points, coarse_points=cfg.identify_coarse_points,
                            seed=cfg.seed)
@@ -92,39 +119,29 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
                                       profile=cfg.normal_profile, rotation_deg=light.rotation_deg, gain=light.gain)
     else:
         grid = fit_grid(obs, candidates[light.env], rotation_deg=light.rotation_deg, gain=light.gain)
-    albedo, rough, metal = read_posterior(grid, pool_neighbours(grid, obs.xyz, k=cfg.neighbours), cfg.temperature)
-    pbr = torch.cat([linear_to_srgb(albedo), rough[:, None], metal[:, None]], dim=1).numpy().astype(np.float32)
-    if sub is not None:
-        pbr = nearest_fill(pts.xyz, pbr, points.xyz).astype(np.float32)
-    t_end = time.perf_counter()
+    pooled = pool_neighbours(grid, obs.xyz, k=cfg.neighbours)
+    return LightRead(obs, sub, light, grid, pooled, {"observe": round(t_obs - t0, 2), "light": round(t_light - t_obs, 2),
+                                                     "grid": round(time.perf_counter() - t_light, 2)})
+
+
+def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
+                      candidates: dict[str, PrefilteredEnvironment], photos: LatticePhotos | None = None
+                      ) -> tuple[np.ndarray, dict]:
+    """[P, 5] PBR of every point (albedo sRGB, roughness, metallic) and stats (the light found),
+    read in ``photos`` at the lattice cameras when given, else in the renders."""
+    read = read_light(points, renders, cfg, candidates, photos)
+    t0 = time.perf_counter()
+    evidence = read.metal_evidence
+    gated = cfg.metal_min_evidence is not None and not evidence >= cfg.metal_min_evidence
+    pbr = read.pbr(points, cfg.temperature, metal=not gated)
+    light = read.light
     stats = {"light": {"env": light.env, "rotation_deg": round(light.rotation_deg, 2), "gain": round(light.gain, 4),
                        "score": light.best.score, "margin": round(light.margin, 3),
                        "ranking": [[h.env, round(h.score, 6)] for h in light.ranking]},
-             "points": len(points), "points_read": len(pts),
-             "median_views_per_point": float(np.median(obs.views_per_point().numpy())),
-             "seconds": {"observe": round(t_obs - t0, 2), "light": round(t_light - t_obs, 2),
-                         "readout": round(t_end - t_light, 2)},
+             "metal": {"evidence": round(evidence, 4), "gated": gated},
+             "points": len(points), "points_read": len(points) if read.sub is None else len(read.sub),
+             "median_views_per_point": float(np.median(read.obs.views_per_point().numpy())),
+             "seconds": {"observe": read.seconds["observe"], "light": read.seconds["light"],
+                         "readout": round(read.seconds["grid"] + time.perf_counter() - t0, 2)},
              "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()}}
     return pbr, stats
-
-
-def inference_light_table(points: PointCloud, renders, data_cfg, photos: LatticePhotos | None = None
-                          ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
-    """Stage II's ``light_readout`` condition at inference: the light estimated among the model's
-    ``stage2.data.light_candidates`` from the views (``photos`` at the lattice cameras when given,
-    else the renders) and the cloud's normals, and the read-out's table of the cloud under it
-    (``gspi.stage2.light_condition``); plus what was found."""
-    from gspi.stage2.light_condition import cloud_normals_of, estimate_scene_light, readout_table
-
-    cams = LatticeCameras.from_renders(renders)
-    xyz = points.xyz.astype(np.float64)
-    normals = cloud_normals_of(xyz, points.view, cams)
-    candidates = candidate_lights(data_cfg.light_candidates, data_cfg.light_env_height)
-    tol = float(data_cfg.visibility_tol_pixels)
-    images, depth = views_to_read(renders, photos)
-    light, est = estimate_scene_light(images, depth, cams, xyz, normals, candidates, tol_pixels=tol)
-    table = readout_table(images, depth, cams, xyz, normals, light, tol_pixels=tol,
-                          normal_search_deg=data_cfg.light_normal_search_deg,
-                          normal_profile=data_cfg.light_normal_profile)
-    return table, {"env": est.env, "rotation_deg": round(est.rotation_deg, 2), "gain": round(est.gain, 4),
-                   "margin": round(est.margin, 3)}

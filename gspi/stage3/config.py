@@ -8,7 +8,7 @@ Table 3 ablations are switches: A6 ``distill: false``, A7 ``freeze_opacity: true
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import ClassVar
+from typing import ClassVar, Optional
 
 from gspi.strict_config import dataclass_from_dict
 
@@ -58,6 +58,8 @@ class Stage3Config:
     views_per_iteration: int = 1      # lattice views rendered per step (a fresh permutation per epoch)
     seed: int = 0
     log_every: int = 25               # record the loss every this many iterations
+    plateau_tol: Optional[float] = None  # stop at an epoch's end once its mean loss fell by less than this
+    #                                       fraction of the previous epoch's (None: run every iteration)
     backend: str = "auto"             # rasterizer backend: auto | torch | numba | gsplat
     init: InitConfig = field(default_factory=InitConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -65,7 +67,8 @@ class Stage3Config:
 
     # Allowed values, checked by gspi.strict_config at start-up (inclusive; None = open).
     RANGES: ClassVar[dict] = {"iterations": (0, None),
-                              "views_per_iteration": (1, None), "seed": (0, None), "log_every": (1, None)}
+                              "views_per_iteration": (1, None), "seed": (0, None), "log_every": (1, None),
+                              "plateau_tol": (0.0, 1.0)}
     CHOICES: ClassVar[dict] = {"backend": ("auto", "torch", "numba", "gsplat")}
 
     def __post_init__(self) -> None:

@@ -10,7 +10,9 @@ opacity logits (``lr.opacities``) unless ``freeze_opacity`` (A7/A9), log scales 
 unless ``freeze_scales`` (A8/A9); every lr decays exponentially to ``lr.final_factor`` of its
 start. Means, rotations and SH are never handed to the optimiser ("adaptive geometric
 relaxation" with frozen mu, q) and are checked unchanged at the end. ``distill: false`` (A6)
-returns the initialisation. Deterministic on CPU under ``seed``.
+returns the initialisation. ``plateau_tol`` (not in the paper; a CPU budget) ends the schedule
+at the first epoch whose mean loss fell by less than that fraction of the previous epoch's; the
+lr schedule stays the one of ``iterations``. Deterministic on CPU under ``seed``.
 """
 from __future__ import annotations
 
@@ -53,6 +55,19 @@ def view_schedule(num_views: int, iterations: int, per_iteration: int, seed: int
     return [order[i * per_iteration:(i + 1) * per_iteration] for i in range(iterations)]
 
 
+def epoch_length(num_views: int, per_iteration: int) -> int:
+    """Iterations in one epoch of ``view_schedule`` (every view once)."""
+    return -(-num_views // per_iteration)
+
+
+def plateaued(epoch_losses: list[float], tol: float) -> bool:
+    """Whether the last epoch's mean loss fell by less than ``tol`` of the one before (a rise counts)."""
+    if len(epoch_losses) < 2:
+        return False
+    before, last = epoch_losses[-2], epoch_losses[-1]
+    return before - last < tol * abs(before)
+
+
 def harmonized_albedo_targets(asset: Gaussians2D, albedo_srgb: torch.Tensor, w2c, K, width: int, height: int,
                               gain, cfg: Stage3Config) -> torch.Tensor:
     """Staged albedo targets with the same SH-DC harmonisation as the initialisation.
@@ -80,7 +95,9 @@ def distill(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config, *,
     Returns:
         (the PBR asset, stats: "init" (initialize_pbr stats), "losses" [[iteration, loss], ...]
         every ``log_every`` and at the end, "final_terms" (last loss terms), "seconds_init",
-        "seconds_distill", "seconds_per_iteration", "iterations", "mask_pixels",
+        "seconds_distill", "seconds_per_iteration", "iterations" (run: fewer than ``cfg.iterations``
+        when ``cfg.plateau_tol`` stopped it, "stopped_on_plateau"), "epoch_losses" (each finished
+        epoch's mean loss; with ``plateau_tol`` only), "mask_pixels",
         "trainable" (group names), "num_gaussians").
 
     Raises:
@@ -116,26 +133,41 @@ def distill(asset: Gaussians2D, targets: StagedTargets, cfg: Stage3Config, *,
         from tqdm import tqdm
         steps = tqdm(steps, desc="stage3", unit="it")
     t1 = time.perf_counter()
+    epoch = epoch_length(targets.num_views, cfg.views_per_iteration)
+    epoch_losses: list[float] = []  # mean loss of each finished epoch (plateau_tol)
+    running, done = [], 0
     for it in steps:
         views = [v for v in schedule[it] if mask[v].any()]
-        if not views:
-            continue
-        idx = torch.tensor(views, device=asset.device)
-        pred = render_materials(out, w2c[idx], K[idx], targets.width, targets.height, backend=cfg.backend)
-        loss, terms = masked_material_loss(pred, {p: m[idx] for p, m in target_maps.items()}, mask[idx],
-                                           weights=cfg.weights, ssim_lambda=cfg.loss.ssim_lambda)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        scheduler.step()
-        if (it + 1) % cfg.log_every == 0 or it + 1 == cfg.iterations:
-            stats["losses"].append([it + 1, float(loss.detach())])
-            log.info("stage3 it %d loss %.5f", it + 1, float(loss.detach()))
-        stats["final_terms"] = terms
+        if views:
+            idx = torch.tensor(views, device=asset.device)
+            pred = render_materials(out, w2c[idx], K[idx], targets.width, targets.height, backend=cfg.backend)
+            loss, terms = masked_material_loss(pred, {p: m[idx] for p, m in target_maps.items()}, mask[idx],
+                                               weights=cfg.weights, ssim_lambda=cfg.loss.ssim_lambda)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            scheduler.step()
+            running.append(float(loss.detach()))
+            if (it + 1) % cfg.log_every == 0 or it + 1 == cfg.iterations:
+                stats["losses"].append([it + 1, float(loss.detach())])
+                log.info("stage3 it %d loss %.5f", it + 1, float(loss.detach()))
+            stats["final_terms"] = terms
+        done = it + 1
+        if cfg.plateau_tol is not None and done % epoch == 0 and running:
+            epoch_losses.append(sum(running) / len(running))
+            running = []
+            if plateaued(epoch_losses, cfg.plateau_tol):
+                log.info("stage3 stopped at it %d: the epoch's mean loss %.5f fell by less than %g of %.5f",
+                         done, epoch_losses[-1], cfg.plateau_tol, epoch_losses[-2])
+                if stats["losses"] and stats["losses"][-1][0] != done:
+                    stats["losses"].append([done, float(loss.detach())])
+                break
     out = out.detach()
     if not (torch.equal(out.means, means0) and torch.equal(out.quats, quats0)):
         raise RuntimeError("Stage III changed frozen means or rotations")
-    stats["iterations"] = cfg.iterations
+    stats["iterations"] = done
+    stats["epoch_losses"] = epoch_losses
+    stats["stopped_on_plateau"] = done < cfg.iterations
     stats["seconds_distill"] = time.perf_counter() - t1
-    stats["seconds_per_iteration"] = stats["seconds_distill"] / cfg.iterations
+    stats["seconds_per_iteration"] = stats["seconds_distill"] / max(done, 1)
     return out, stats
