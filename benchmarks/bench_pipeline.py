@@ -31,13 +31,18 @@ from benchmarks.common import REPO, command_seconds, machine
 
 
 def demo_overrides() -> list[str]:
-    """The demo's settings as gspi-run overrides, read from conf/experiment/demo.yaml (its one definition)."""
+    """The demo's settings as gspi-run overrides, read from conf/experiment/demo.yaml (its one definition):
+    its asset folder, Stage 0 preset and every stage2 / stage3 key it sets."""
     import yaml
 
     demo = yaml.safe_load((REPO / "conf" / "experiment" / "demo.yaml").read_text())
     recon = next(d["override /recon"] for d in demo["defaults"] if isinstance(d, dict) and "override /recon" in d)
-    return [f"assets={demo['assets']}", f"recon={recon}", f"stage3.iterations={demo['stage3']['iterations']}",
-            f"stage2.inference.num_steps={demo['stage2']['inference']['num_steps']}"]
+
+    def flat(prefix: str, node) -> list[str]:
+        if isinstance(node, dict):
+            return [o for k, v in node.items() for o in flat(f"{prefix}.{k}", v)]
+        return [f"{prefix}={node}"]
+    return [f"assets={demo['assets']}", f"recon={recon}", *flat("stage3", demo["stage3"]), *flat("stage2", demo["stage2"])]
 
 
 DEMO = demo_overrides()

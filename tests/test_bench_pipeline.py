@@ -15,6 +15,9 @@ def test_the_demo_settings_are_demo_yaml():
     demo = yaml.safe_load(DEMO_YAML.read_text())
     assert f"stage3.iterations={demo['stage3']['iterations']}" in DEMO
     assert f"stage2.inference.num_steps={demo['stage2']['inference']['num_steps']}" in DEMO
+    assert f"stage2.inference.points_per_gaussian={demo['stage2']['inference']['points_per_gaussian']}" in DEMO
+    assert len([o for o in DEMO if o.startswith(("stage2.", "stage3."))]) == (
+        len(demo["stage2"]["inference"]) + len(demo["stage3"]))  # every key it sets, none more
     assert f"assets={demo['assets']}" in DEMO and "recon=fast" in DEMO
     assert preset_overrides("small") == DEMO
 
