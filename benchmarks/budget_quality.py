@@ -56,12 +56,20 @@ def material_seconds(run: Path, scenes: list[str]) -> dict[str, float]:
             for s in scenes}
 
 
+def material_cpu_seconds(run: Path, scenes: list[str]) -> dict[str, float]:
+    """Each scene's CPU seconds over its material stages (gspi.stage_clock; robust to other jobs)."""
+    stages = ("stage1", "stage2", "stage3", "render", "material")
+    return {s: round(sum(v.get("cpu_seconds", 0.0) for k, v in json.loads(
+        (run / "predictions" / s / "meta.json").read_text())["stages"].items() if k in stages), 3) for s in scenes}
+
+
 def run_method(data: Path, out: Path, method: str, source: list[str], overrides: list[str]) -> dict:
     seconds = command_seconds("gspi-run", [f"data={data}", f"out={out}", f"method={method}", "threads=1",
                                            "logger=none", "progress=false", "figures=false", *source, *overrides],
                               cwd=REPO)
     scenes = json.loads((out / "result.json").read_text())["scenes"]
-    return {"wall_s": round(seconds, 1), "material_s": material_seconds(out, scenes), "psnr": scene_psnr(out)}
+    return {"wall_s": round(seconds, 1), "material_s": material_seconds(out, scenes),
+            "material_cpu_s": material_cpu_seconds(out, scenes), "psnr": scene_psnr(out)}
 
 
 def compare(budget: dict, reference: dict) -> dict[str, list[float]]:
@@ -95,13 +103,16 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name}: {' '.join(overrides)}", flush=True)
             runs[name] = run_method(args.data.resolve(), tmp / name, "gspi", source, overrides)
     joint_total = sum(joint["material_s"].values())
+    joint_cpu = sum(joint["material_cpu_s"].values())
     reference = next(iter(runs))
     summary = {}
     for name, run in runs.items():
         total = sum(run["material_s"].values())
+        cpu = sum(run["material_cpu_s"].values())
         summary[name] = {"material_s": round(total, 1), "ratio_to_joint_ir": round(total / joint_total, 3),
+                         "material_cpu_s": round(cpu, 1), "cpu_ratio_to_joint_ir": round(cpu / joint_cpu, 3),
                          "minus_reference": compare(run, runs[reference]) if name != reference else {}}
-        print(f"{name:30s} material {total:6.1f} s  / joint IR {total / joint_total:.2f}  "
+        print(f"{name:30s} material {total:6.1f} s  / joint IR {total / joint_total:.2f} (CPU {cpu / joint_cpu:.2f})  "
               + "  ".join(f"{ch} {d[0]:+.2f} [{d[1]:+.2f}, {d[2]:+.2f}]"
                           for ch, d in summary[name]["minus_reference"].items()), flush=True)
     record = {"what": __doc__.splitlines()[0], "machine": machine(), "load_average_at_start": round(load, 2),

@@ -1,4 +1,7 @@
-"""Per-stage wall time and peak memory (the `stages` block of meta.json and the log).
+"""Per-stage wall time, CPU time and peak memory (the `stages` block of meta.json and the log).
+
+CPU time is the process's (``time.process_time``: every thread of it): on a machine shared with
+other jobs it is what the stage cost, where the wall time also counts the others' share of the cores.
 
 Peak memory is the peak resident set size of the process DURING the stage, sampled every
 20 ms from /proc/self/statm by a background thread (``resource.ru_maxrss`` is a lifetime peak
@@ -63,7 +66,7 @@ KILL_ENV = "GSPI_KILL_AT"
 
 
 class StageClock:
-    """Collects ``{stage: {"seconds", "peak_rss_mb"[, "peak_cuda_mb"]}}`` for one scene.
+    """Collects ``{stage: {"seconds", "cpu_seconds", "peak_rss_mb"[, "peak_cuda_mb"]}}`` for one scene.
 
     ``tag`` names the job (its ablation) for the log and the kill hook.
     """
@@ -83,13 +86,13 @@ class StageClock:
         sampler = _PeakSampler() if current_rss_bytes() is not None else None
         if sampler:
             sampler.start()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             yield info
         finally:
-            seconds = time.perf_counter() - t0
+            seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
             peak = sampler.stop() if sampler else lifetime_peak_rss_bytes()
-            info.update(seconds=round(seconds, 3), peak_rss_mb=round(peak / 2**20, 1))
+            info.update(seconds=round(seconds, 3), cpu_seconds=round(cpu, 3), peak_rss_mb=round(peak / 2**20, 1))
             if cuda:
                 info["peak_cuda_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
             self.stages[name] = {**self.stages.get(name, {}), **info}

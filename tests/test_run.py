@@ -47,6 +47,22 @@ def test_stage_clock_records_time_and_memory():
     assert clock.seconds("alloc", "absent") == info["seconds"]
 
 
+def test_stage_clock_cpu_time_counts_work_not_waiting():
+    """A stage that sleeps takes wall time and almost no CPU time; one that computes takes both."""
+    import time
+
+    clock = StageClock("s")
+    with clock.stage("sleep"):
+        time.sleep(0.3)
+    with clock.stage("work"):
+        c0 = time.process_time()
+        while time.process_time() - c0 < 0.2:
+            sum(i * i for i in range(1000))
+    sleep, work = clock.stages["sleep"], clock.stages["work"]
+    assert sleep["seconds"] >= 0.3 and sleep["cpu_seconds"] < 0.1
+    assert work["cpu_seconds"] >= 0.2 and work["cpu_seconds"] <= work["seconds"] + 0.05  # one thread
+
+
 def test_subsample_and_nearest_fill():
     assert subsample_indices(10, None, 0) is None and subsample_indices(10, 20, 0) is None
     idx = subsample_indices(100, 10, seed=3)
