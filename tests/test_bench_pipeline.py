@@ -25,4 +25,6 @@ def test_the_demo_settings_are_demo_yaml():
 def test_tiny_reconstructs_its_asset_and_keeps_the_rest():
     tiny = preset_overrides("tiny")
     assert "recon=tiny" in tiny and not any(o.startswith(("assets=", "recon=fast")) for o in tiny)
-    assert [o for o in tiny if o != "recon=tiny"] == [o for o in DEMO if not o.startswith(("assets=", "recon="))]
+    assert "stage1.image_size=64" in tiny  # the lattice at the tiny scenes' size, as the demo's at small's 128
+    assert [o for o in tiny if o not in ("recon=tiny", "stage1.image_size=64")] == [
+        o for o in DEMO if not o.startswith(("assets=", "recon="))]
