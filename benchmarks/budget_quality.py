@@ -43,6 +43,15 @@ BUDGETS = {
 }
 
 
+def portable(path: Path) -> str:
+    """``path`` as the record names it: relative to the repository when inside it, else its name in
+    capitals (a committed record names no machine path; say in the docs how the data were made)."""
+    try:
+        return str(path.resolve().relative_to(REPO))
+    except ValueError:
+        return path.name.upper()
+
+
 def scene_psnr(run: Path) -> dict[str, dict[str, float]]:
     """{scene: {channel: mean PSNR over its views (relight: views x environments)}} of a scored run."""
     rows = pd.read_csv(run / "eval" / "per_view.csv")
@@ -115,11 +124,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{name:30s} material {total:6.1f} s  / joint IR {total / joint_total:.2f} (CPU {cpu / joint_cpu:.2f})  "
               + "  ".join(f"{ch} {d[0]:+.2f} [{d[1]:+.2f}, {d[2]:+.2f}]"
                           for ch, d in summary[name]["minus_reference"].items()), flush=True)
+    data = portable(args.data)
     record = {"what": __doc__.splitlines()[0], "machine": machine(), "load_average_at_start": round(load, 2),
-              "data": str(args.data), "source": source, "reference": reference,
+              "data": data, "source": source, "reference": reference,
               "budgets": budgets, "summary": summary, "joint_ir": joint, "runs": runs,
               "command": "python -m benchmarks.budget_quality " + " ".join(
-                  f"--{k} {v}" for k, v in (("data", args.data), ("assets", args.assets), ("recon", args.recon)) if v)}
+                  f"--{k} {v}" for k, v in (("data", data), ("assets", args.assets), ("recon", args.recon)) if v)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(record, indent=1) + "\n")
     print(f"joint IR material {joint_total:.1f} s; wrote {args.out}")

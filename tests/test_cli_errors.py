@@ -68,14 +68,17 @@ PLY_CLIS = {
 }
 for cli, argv in PLY_CLIS.items():
     for kind, expected in BAD_PLY.items():
-        REQUIRED[f"{cli} {kind} ply"] = ([a.replace("{ply}", "{tmp}/" + kind + ".ply") for a in argv],
-                                         f"{kind}.ply: " if kind != "missing" else "missing.ply")
+        # each case its own out= (the matrix runs 4 at once: a failed job removes the folder it made,
+        # which raced another job still opening its log file there)
+        own_out = [a.replace("{ply}", "{tmp}/" + kind + ".ply").replace("out={tmp}/", f"out={{tmp}}/{kind}_") for a in argv]
+        REQUIRED[f"{cli} {kind} ply"] = (own_out, f"{kind}.ply: " if kind != "missing" else "missing.ply")
 REQUIRED.update({
-    "gspi-relight plain 3DGS": (["gspi-relight", "asset={tmp}/plain3d.ply", "env=meadow", "out={tmp}/r"],
+    "gspi-relight plain 3DGS": (["gspi-relight", "asset={tmp}/plain3d.ply", "env=meadow", "out={tmp}/r_plain"],
                                 "plain3d.ply: has no PBR attributes"),
     "gspi-export plain 3DGS": (["gspi-export", "asset={tmp}/plain3d.ply", "out={tmp}/a.glb"],
                                "plain3d.ply: has no PBR attributes"),
-    "gspi-relight missing env": (["gspi-relight", "asset={tmp}/plain3d.ply", "env={tmp}/none.exr", "out={tmp}/r"],
+    "gspi-relight missing env": (["gspi-relight", "asset={tmp}/plain3d.ply", "env={tmp}/none.exr",
+                                  "out={tmp}/r_env"],
                                  "none.exr' is neither an environment file"),
 })
 

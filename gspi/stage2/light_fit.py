@@ -145,3 +145,25 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
                          "readout": round(read.seconds["grid"] + time.perf_counter() - t0, 2)},
              "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()}}
     return pbr, stats
+
+
+def inference_light_table(points: PointCloud, renders, data_cfg, photos: LatticePhotos | None = None
+                          ) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
+    """Stage II's ``light_readout`` condition at inference: the light estimated among the model's
+    ``stage2.data.light_candidates`` from the views (``photos`` at the lattice cameras when given,
+    else the renders) and the cloud's normals, and the read-out's table of the cloud under it
+    (``gspi.stage2.light_condition``); plus what was found."""
+    from gspi.stage2.light_condition import cloud_normals_of, estimate_scene_light, readout_table
+
+    cams = LatticeCameras.from_renders(renders)
+    xyz = points.xyz.astype(np.float64)
+    normals = cloud_normals_of(xyz, points.view, cams)
+    candidates = candidate_lights(data_cfg.light_candidates, data_cfg.light_env_height)
+    tol = float(data_cfg.visibility_tol_pixels)
+    images, depth = views_to_read(renders, photos)
+    light, est = estimate_scene_light(images, depth, cams, xyz, normals, candidates, tol_pixels=tol)
+    table = readout_table(images, depth, cams, xyz, normals, light, tol_pixels=tol,
+                          normal_search_deg=data_cfg.light_normal_search_deg,
+                          normal_profile=data_cfg.light_normal_profile)
+    return table, {"env": est.env, "rotation_deg": round(est.rotation_deg, 2), "gain": round(est.gain, 4),
+                   "margin": round(est.margin, 3)}
