@@ -26,8 +26,9 @@ def test_light_fit_runs_end_to_end_and_names_the_light(micro_dataset, tmp_path):
     assert ranking[0][0] == light["env"] and [s for _, s in ranking] == sorted(s for _, s in ranking)
     summary = json.loads((out / "eval" / "summary.json").read_text())
     assert set(summary) == {"albedo", "roughness", "metallic", "relight"}
-    metal = meta["stats"]["stage2"]["metal"]
-    assert metal["evidence"] >= 1.0 and metal["gated"] is False  # recorded; the test is off by default
+    metal, threshold = meta["stats"]["stage2"]["metal"], meta["stats"]["stage2"]["config"]["metal_min_evidence"]
+    assert threshold == 1.1 and metal["evidence"] >= 1.0  # the default's scene-level test, recorded
+    assert metal["gated"] is (metal["evidence"] < threshold)
 
 
 def test_scene_level_metal_test_rules_out_metal_everywhere(micro_dataset, tmp_path):
