@@ -86,7 +86,7 @@ class LightFitContext:
     def predict(self, points, renders, device, photos=None, num_gaussians=None) -> tuple[np.ndarray, dict]:
         from gspi.stage2.light_fit import predict_light_fit
 
-        return predict_light_fit(points, renders, self.cfg, self.candidates, photos)
+        return predict_light_fit(points, renders, self.cfg.for_asset(num_gaussians), self.candidates, photos)
 
 
 def gt_reference(scene: Scene) -> Optional[np.ndarray]:

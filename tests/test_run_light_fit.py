@@ -33,17 +33,21 @@ def test_light_fit_runs_end_to_end_and_names_the_light(micro_dataset, tmp_path):
 
 def test_scene_level_metal_test_rules_out_metal_everywhere(micro_dataset, tmp_path):
     """method.metal_min_evidence above any evidence: every point is read dielectric (metallic exactly
-    0 in the points Stage II hands Stage III), and the record says so."""
+    0 in the points Stage II hands Stage III), and the record says so. With method.points_per_gaussian
+    the points read are sized to the run's asset."""
     import numpy as np
 
     from gspi.run.runner import run_job
 
     out = tmp_path / "run"
     result = run_job(run_config(micro_dataset, out, ["method=light_fit", "method.identify_points=500",
-                                                     "method.metal_min_evidence=1e9"]))
+                                                     "method.metal_min_evidence=1e9",
+                                                     "method.points_per_gaussian=0.5"]))
     assert result["status"] == "complete", result
     test_scene = json.loads((micro_dataset / "splits.json").read_text())["test"][0]
     meta = json.loads((out / "predictions" / test_scene / "meta.json").read_text())
     assert meta["stats"]["stage2"]["metal"]["gated"] is True
+    gaussians = meta["stats"]["stage3"]["num_gaussians"]
+    assert meta["stats"]["stage2"]["points_read"] == min(20000, round(0.5 * gaussians))
     pbr = np.load(out / "work" / test_scene / "points_pbr.npz")["pbr"]
     assert pbr.shape[1] == 5 and np.all(pbr[:, 4] == 0.0)

@@ -1,7 +1,9 @@
-"""stage2.inference.points_per_gaussian: the sampled subset sized to the asset (issue 68)."""
+"""stage2.inference.points_per_gaussian and light_fit's method.points_per_gaussian: the points read
+sized to the asset (issue 68)."""
 import pytest
 
 from gspi.stage2.infer import InferenceConfig, subsample_indices
+from gspi.stage2.light_fit import LightFitConfig
 
 
 @pytest.mark.parametrize("max_points, ppg, gaussians, expected", [
@@ -17,6 +19,10 @@ def test_for_asset_caps_max_points(max_points, ppg, gaussians, expected):
     got = cfg.for_asset(gaussians)
     assert got.max_points == expected
     assert got.points_per_gaussian == ppg and got.num_steps == cfg.num_steps  # nothing else moves
+    light = LightFitConfig(max_points=max_points, points_per_gaussian=ppg)
+    got = light.for_asset(gaussians)
+    assert got.max_points == expected
+    assert got.points_per_gaussian == ppg and got.identify_points == light.identify_points
 
 
 def test_the_budget_samples_that_many_points():
@@ -29,3 +35,9 @@ def test_the_budget_samples_that_many_points():
 def test_non_positive_budget_is_refused_naming_the_key(bad):
     with pytest.raises(ValueError, match="stage2.inference.points_per_gaussian must be positive or null"):
         InferenceConfig.from_mapping({"points_per_gaussian": bad})
+
+
+@pytest.mark.parametrize("bad", [0, -1.0])
+def test_light_fit_refuses_a_non_positive_budget_naming_the_key(bad):
+    with pytest.raises(ValueError, match="method.points_per_gaussian must be positive or null"):
+        LightFitConfig.from_mapping({"points_per_gaussian": bad})

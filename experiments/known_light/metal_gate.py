@@ -36,7 +36,7 @@ def read_scenes(args) -> None:
     import yaml
 
     from eval.lpips.net import load_lpips
-    from experiments.known_light.stage1_read import asset_stage1, metal_iou
+    from experiments.known_light.stage1_read import asset_stage1, metal_iou, pending_scenes
     from gspi.data.gt_maps import read_gt_view_maps
     from gspi.repo import REPO
     from gspi.stage2.evaluate_points import recorded_constants
@@ -50,10 +50,7 @@ def read_scenes(args) -> None:
     rough, metal = recorded_constants(args.baseline)
     done = json.loads(args.out.read_text()) if args.out.is_file() else {"scenes": {}}
     done.update(config=str(cfg), baseline_constants={"roughness": rough, "metallic": metal})
-    names = sorted(p.parent.parent.name for p in args.assets.glob("*/asset/point_cloud.ply"))[::args.every]
-    for name in names:
-        if name in done["scenes"]:
-            continue
+    for name in pending_scenes(args.assets, done, args.every):
         t0 = time.perf_counter()
         scene_dir = args.data / name
         points, renders, photos, _ = asset_stage1(scene_dir, args.assets / name / "asset" / "point_cloud.ply")

@@ -54,6 +54,13 @@ def asset_stage1(scene_dir: Path, asset_ply: Path):
     return points, renders, photos, views
 
 
+def pending_scenes(assets: Path, done: dict, every: int = 1) -> list[str]:
+    """The names of the reconstructed pool ``assets`` (``<scene>/asset/point_cloud.ply``), sorted,
+    every ``every``-th, that ``done["scenes"]`` (a resumable read's record) does not hold yet."""
+    names = sorted(p.parent.parent.name for p in assets.glob("*/asset/point_cloud.ply"))[::every]
+    return [n for n in names if n not in done["scenes"]]
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", type=Path)
@@ -86,10 +93,7 @@ def main(argv: list[str] | None = None) -> None:
     done.update(baseline_constants={"roughness": rough, "metallic": metal}, config=str(cfg))
     for name, row in done["scenes"].items():  # rows of an earlier version lack their truth
         row.setdefault("capture_env", read_scene(args.data / name).capture_env)
-    names = sorted(p.parent.parent.name for p in args.assets.glob("*/asset/point_cloud.ply"))
-    for name in names:
-        if name in done["scenes"]:
-            continue
+    for name in pending_scenes(args.assets, done):
         t0 = time.perf_counter()
         scene_dir = args.data / name
         points, renders, photos, views = asset_stage1(scene_dir, args.assets / name / "asset" / "point_cloud.ply")

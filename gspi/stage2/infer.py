@@ -80,10 +80,17 @@ class InferenceConfig:
         """This config with ``max_points`` capped at ``points_per_gaussian`` x ``num_gaussians``:
         Stage III gives each Gaussian the mean of the points that land on it, so a few points per
         Gaussian carry what the whole cloud does (the demo: docs/log/speed/asset_budget.json)."""
-        if self.points_per_gaussian is None or num_gaussians is None:
-            return self
-        cap = max(1, int(round(self.points_per_gaussian * num_gaussians)))
-        return replace(self, max_points=cap if self.max_points is None else min(cap, self.max_points))
+        return replace(self, max_points=asset_point_budget(self.max_points, self.points_per_gaussian, num_gaussians))
+
+
+def asset_point_budget(max_points: Optional[int], points_per_gaussian: Optional[float],
+                       num_gaussians: Optional[int]) -> Optional[int]:
+    """``max_points`` capped at ``points_per_gaussian`` x ``num_gaussians`` (at least 1); unchanged
+    when either is None. Stage II's sampled subset and the light read-out's read points."""
+    if points_per_gaussian is None or num_gaussians is None:
+        return max_points
+    cap = max(1, int(round(points_per_gaussian * num_gaussians)))
+    return cap if max_points is None else min(cap, max_points)
 
 
 def lattice_srgb(rgb_linear: Tensor | np.ndarray) -> Tensor:

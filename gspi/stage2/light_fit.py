@@ -10,7 +10,7 @@ sRGB, roughness, metallic; stats), so the pipeline's Stage III takes either.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -22,7 +22,7 @@ from gspi.light.estimate import estimate_light
 from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,
                                 pool_neighbours, read_posterior, without_metal)
 from gspi.point_cloud import PointCloud, nearest_fill
-from gspi.stage2.infer import subsample_indices
+from gspi.stage2.infer import asset_point_budget, subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_condition import candidate_lights, cloud_normals
 from gspi.stage2.light_views import LIGHT_VIEWS, LatticePhotos, observe_points, views_to_read
@@ -36,6 +36,7 @@ class LightFitConfig:
     candidates: Any = "procedural"   # the lights it may pick: procedural | polyhaven | [names or EXR paths]
     env_height: int = 64             # rows of each candidate's lat-long map
     max_points: int | None = 20000   # points read (seeded subset, 1-NN fill); None: all
+    points_per_gaussian: float | None = None  # caps max_points at this many x the asset's Gaussians; None: no cap
     identify_points: int = 2000      # points the light is identified on
     identify_coarse_points: int | None = None  # of them, read by the coarse search over every candidate and turn
     neighbours: int = NEIGHBOURS
@@ -59,9 +60,17 @@ class LightFitConfig:
             values["candidates"] = tuple(str(c) for c in values["candidates"])
         if "normal_search_deg" in values:
             values["normal_search_deg"] = tuple(float(d) for d in values["normal_search_deg"] or ())
+        ppg = values.get("points_per_gaussian")
+        if ppg is not None and not ppg > 0:
+            raise ValueError(f"method.points_per_gaussian must be positive or null, got {ppg}")
         if values.get("views", "photos") not in LIGHT_VIEWS:
             raise ValueError(f"method.views={values['views']!r}: must be one of {', '.join(LIGHT_VIEWS)}")
         return cls(**values)
+
+    def for_asset(self, num_gaussians: int | None) -> "LightFitConfig":
+        """This config with ``max_points`` capped at ``points_per_gaussian`` x ``num_gaussians``
+        (Stage III gives each Gaussian the mean of its points, as for Stage II's)."""
+        return replace(self, max_points=asset_point_budget(self.max_points, self.points_per_gaussian, num_gaussians))
 
 
 def observe_cloud(points: PointCloud, renders, cfg: LightFitConfig, photos: LatticePhotos | None = None):
