@@ -82,12 +82,14 @@ report-check: install
 # generates the demo's data and runs GS-PI and joint IR on its 4 scenes, ~5 min, then the same on
 # the 2 `tiny` test scenes); each prints the machine it ran on. Paper sizes: see each module's docstring
 # (--paper, --sizes 512).
-# bench_pipeline records its figures in results/speed/cpu/ (README's speed block: `make results`).
+# bench_pipeline and bench_demo (`make demo` step by step, ~5 min) record their figures in
+# results/speed/cpu/ (README's speed block and demo time: `make results`).
 BENCHES := bench_eval bench_rasterize bench_data bench_recon bench_stage2 bench_stage2_train bench_stage3 bench_flatten3dgs bench_light
 bench: install
 	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done
 	@for p in small tiny; do echo "== benchmarks/bench_pipeline.py --preset $$p"; \
 	  OMP_NUM_THREADS=1 $(PY) -m benchmarks.bench_pipeline --preset $$p --record results/speed/cpu/pipeline_$$p.json || exit 1; done
+	@echo "== benchmarks/bench_demo.py"; $(PY) -m benchmarks.bench_demo --record results/speed/cpu/demo.json
 
 # The one-shot GPU check (docs/REPRODUCE.md "GPU check"): wheels + weights for the device call,
 # then the call to paste; its CPU smoke run (tiny sizes, ~35 s).

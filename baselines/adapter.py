@@ -25,11 +25,11 @@ import numpy as np
 import torch
 
 from baselines.runtime import command_stages, given_runtime, read_runtime, split_seconds
-from eval.atomic import write_json_atomic
-from eval.colorspace import linear_to_srgb
-from eval.config import CONF_DIR
-from eval.imageio import ImageFormatError, read_png
-from eval.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta, write_view_file
+from eval.common.atomic import write_json_atomic
+from eval.common.colorspace import linear_to_srgb
+from eval.common.conf import CONF_DIR
+from eval.common.imageio import ImageFormatError, read_png
+from eval.common.layout import MATERIAL_CHANNELS, Scene, View, read_scene, write_material, write_meta, write_view_file
 
 RUNTIME_FILE = "gspi_runtime.json"  # written into the model dir by `Adapter.run`
 METHOD_CONF_DIR = Path(CONF_DIR) / "method"
@@ -68,7 +68,7 @@ def option(cfg: Mapping, key: str, allowed: tuple | None = None):
 
 
 def srgb_encode(x_linear: np.ndarray) -> np.ndarray:
-    """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1, eval.colorspace), any shape."""
+    """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1, eval.common.colorspace), any shape."""
     return linear_to_srgb(torch.from_numpy(np.asarray(x_linear, np.float64))).numpy()
 
 

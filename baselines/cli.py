@@ -28,7 +28,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from baselines.adapter import as_dict, get_adapter
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 # Absolute, as gspi/cli/*.py: a relative path would resolve as a Python package when the module
@@ -85,7 +85,7 @@ def _run_import_and_print(cfg: DictConfig) -> dict:
     return record
 
 
-PATH_KEYS = ("src", "scene", "out")  # quoted for Hydra's grammar (eval/argv.py)
+PATH_KEYS = ("src", "scene", "out")  # quoted for Hydra's grammar (eval/common/argv.py)
 export_system_main = hydra_cli(run_export, "gspi_export", path_keys=PATH_KEYS)
 import_main = hydra_cli(_run_import_and_print, "gspi_import", path_keys=PATH_KEYS)
 

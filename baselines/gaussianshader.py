@@ -22,7 +22,7 @@ import numpy as np
 
 from baselines.adapter import Adapter, AdapterError, find_iteration_dir, grey_channel, option, \
     read_output_png
-from eval.layout import Scene, View, read_scene
+from eval.common.layout import Scene, View, read_scene
 
 ALBEDO_SOURCES = ("diffuse_color", "diffuse")
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from baselines.adapter import Adapter, find_iteration_dir, grey_channel, option, \
     read_output_png, skip_train_flag, split_panels, srgb_encode
-from eval.layout import Scene, View
+from eval.common.layout import Scene, View
 
 ROUGHNESS_MIN = 0.04  # train.py shades with 0.04 + 0.96 * r
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from baselines.adapter import Adapter, find_iteration_dir, first_existing, grey_channel, option, \
     read_output_png, srgb_encode
-from eval.layout import Scene, View
+from eval.common.layout import Scene, View
 
 ALBEDO_SOURCES = ("base_color_linear", "base_color")
 

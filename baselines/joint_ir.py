@@ -41,8 +41,8 @@ from torch import Tensor
 from baselines.joint_ir_losses import edge_aware_smoothness, white_light_prior
 from baselines.joint_ir_shading import prefilter_learnable, prefilter_operators
 from baselines.joint_ir_weights import ViewWeights, compositing_weights
-from eval.colorspace import linear_to_srgb
-from eval.layout import Scene, write_material
+from eval.common.colorspace import linear_to_srgb
+from eval.common.layout import Scene, write_material
 from eval.relight import split_sum
 from eval.views import view_directions
 from gspi.gaussians.model import Gaussians2D

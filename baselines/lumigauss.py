@@ -25,9 +25,9 @@ from scipy.spatial.transform import Rotation
 
 from baselines.adapter import Adapter, find_iteration_dir, option, read_output_png, \
     skip_train_flag, split_panels, srgb_encode
-from eval.colorspace import linear_to_srgb
-from eval.imageio import write_png
-from eval.layout import Scene, View, read_scene, read_view_file
+from eval.common.colorspace import linear_to_srgb
+from eval.common.imageio import write_png
+from eval.common.layout import Scene, View, read_scene, read_view_file
 
 ALBEDO_SPACES = ("gamma22", "srgb")
 EXPORTED_SPLITS = ("train", "test")

@@ -28,8 +28,8 @@ import numpy as np
 
 from baselines.adapter import Adapter, AdapterError, read_output_png
 from baselines.mesh_render import MeshError, UVMesh, read_obj, render_uv_maps
-from eval.imageio import write_png
-from eval.layout import Scene, View, read_scene
+from eval.common.imageio import write_png
+from eval.common.layout import Scene, View, read_scene
 
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x,y,z)->(x,z,-y)
 MATERIAL_DIR = Path("generate") / "material"

@@ -9,7 +9,7 @@ test photographs are not inputs: only the asset is.
 
 Encodings: the rendered colour is un-premultiplied (composited colour / alpha, so partial
 coverage at the silhouette does not darken it), clamped to [0, 1] and sRGB-encoded
-(``eval.colorspace.linear_to_srgb``), as albedo.png stores it. Inside the rendered
+(``eval.common.colorspace.linear_to_srgb``), as albedo.png stores it. Inside the rendered
 silhouette (``alpha > silhouette_alpha``) the maps hold those values, outside 0.
 """
 
@@ -22,8 +22,8 @@ from typing import Mapping
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb
-from eval.layout import LayoutError, Scene, read_scene, read_splits, read_view_file, write_material
+from eval.common.colorspace import linear_to_srgb
+from eval.common.layout import LayoutError, Scene, read_scene, read_splits, read_view_file, write_material
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.rasterize import render_gaussians
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from baselines.adapter import Adapter, find_iteration_dir, first_existing, grey_channel, \
     read_output_png
-from eval.layout import Scene, View
+from eval.common.layout import Scene, View
 
 
 class R3dgAdapter(Adapter):

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from eval.atomic import write_json_atomic
-from eval.layout import read_scene, read_view_file
+from eval.common.atomic import write_json_atomic
+from eval.common.layout import read_scene, read_view_file
 from gspi.data.controlled_pairs import KIND_MEMBERS, read_manifest
 
 CHANNELS = ("roughness", "metallic")

@@ -36,7 +36,7 @@ import torch
 from omegaconf import OmegaConf
 
 from benchmarks.common import REPO, command_seconds, machine
-from eval.layout import MATERIAL_CHANNELS, read_scene, read_view_file
+from eval.common.layout import MATERIAL_CHANNELS, read_scene, read_view_file
 from eval.metrics import masked_psnr
 
 

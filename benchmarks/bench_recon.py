@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 def generate_scene(out: Path, size: int) -> Path:
     from hydra import compose, initialize_config_dir
 
-    from eval.argv import apply_aliases
+    from eval.common.argv import apply_aliases
     from gspi.cli.data import run
 
     overrides = ["preset=tiny", f"out={out}", "seed=0", "data.num_train_scenes=1", "data.num_val_scenes=0",

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from benchmarks.common import machine
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from gspi.gaussians.ply import read_ply
 from gspi.gaussians.lattice_render import lattice_camera_tensors
 from gspi.stage3.config import Stage3Config

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from benchmarks.bench_pipeline import GSPI_STAGES, material_cpu
 from benchmarks.common import REPO, command_seconds, machine
 from eval.stats import paired_bootstrap_ci
 
@@ -66,10 +67,11 @@ def material_seconds(run: Path, scenes: list[str]) -> dict[str, float]:
 
 
 def material_cpu_seconds(run: Path, scenes: list[str]) -> dict[str, float]:
-    """Each scene's CPU seconds over its material stages (gspi.stage_clock; robust to other jobs)."""
-    stages = ("stage1", "stage2", "stage3", "render", "material")
-    return {s: round(sum(v.get("cpu_seconds", 0.0) for k, v in json.loads(
-        (run / "predictions" / s / "meta.json").read_text())["stages"].items() if k in stages), 3) for s in scenes}
+    """Each scene's CPU seconds over its material stages (GS-PI's, or a baseline's one ``material``
+    stage; bench_pipeline.material_cpu: robust to other jobs)."""
+    stages = (*GSPI_STAGES, "material")
+    return {s: round(material_cpu(json.loads((run / "predictions" / s / "meta.json").read_text()), stages), 3)
+            for s in scenes}
 
 
 def run_method(data: Path, out: Path, method: str, source: list[str], overrides: list[str]) -> dict:

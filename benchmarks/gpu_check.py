@@ -238,7 +238,7 @@ def step_paper_scene(ctx: dict) -> dict:
     not depend on the weights; stage2.train.steps=2 gives the run a checkpoint)."""
     if "data" not in ctx:
         return {"skipped": "no data (e2e_tiny did not run)"}
-    from eval.argv import apply_aliases
+    from eval.common.argv import apply_aliases
     from gspi.cli.data import run as data_run
     from hydra import compose, initialize_config_dir
 
@@ -309,7 +309,7 @@ def step_stage2_train_burst(ctx: dict) -> dict:
 
 def _gspi_data(ctx: dict, name: str, device: str) -> dict:
     """gspi-data (in-process, as the CLI composes it) of the DATA_CHECK dataset on ``device``."""
-    from eval.argv import apply_aliases
+    from eval.common.argv import apply_aliases
     from gspi.cli.data import run as data_run
     from hydra import compose, initialize_config_dir
 
@@ -329,7 +329,7 @@ def _dataset_files(root: Path) -> list[str]:
 def _dataset_difference(a: Path, b: Path) -> dict:
     """Two datasets of the same config: same files? per map file the largest and the mean
     absolute difference over every view; the fraction of mask pixels that agree."""
-    from eval.layout import read_scene, read_splits, read_view_file
+    from eval.common.layout import read_scene, read_splits, read_view_file
 
     diffs = {f: [] for f in MAP_FILES}
     for name in sorted(n for names in read_splits(a).values() for n in names):

@@ -8,7 +8,7 @@
     gspi-eval gt=... pred=... out=... device=auto     # score on CUDA when present (default cpu)
 
 Paths may hold any character: `pred=runs/method=gspi/predictions` (a sweep's job folder),
-spaces, quotes, commas or non-ASCII are quoted for Hydra's grammar (eval/argv.py); in a
+spaces, quotes, commas or non-ASCII are quoted for Hydra's grammar (eval/common/argv.py); in a
 key other than gt/pred/out, quote by hand: 'key="a=b"'. Zero scored images is an error.
 
 Writes <out>/per_view.csv, <out>/summary.json, <out>/eval_meta.json and <out>/.hydra/.
@@ -20,9 +20,9 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 from eval.config import register_configs, validate_protocol
-from eval.device import resolve_device
+from eval.common.device import resolve_device
 from eval.evaluate import evaluate
 from eval.records.eval_folder import SUMMARY_NAME, clear_result, format_summary, write_result
 
@@ -50,7 +50,7 @@ register_configs()
 # (the methods gspi-run can run), so Hydra would read `method=...` as a group override.
 
 
-PATH_KEYS = ("gt", "pred", "out")  # quoted for Hydra when they hold = , ' spaces or non-ASCII (eval/argv.py)
+PATH_KEYS = ("gt", "pred", "out")  # quoted for Hydra when they hold = , ' spaces or non-ASCII (eval/common/argv.py)
 
 
 def main() -> None:

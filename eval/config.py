@@ -5,15 +5,11 @@ Every choice a reviewer may question is a field here; docs/PROTOCOL.md explains 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from hydra.core.config_store import ConfigStore
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 
-# Absolute path of the repository's conf/: console-script entry points make Hydra resolve a
-# relative config_path as a Python package, which conf/ is not.
-CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
 
 @dataclass

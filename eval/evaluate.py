@@ -21,7 +21,7 @@ import torch
 
 from eval.checksums import ALGORITHM as CHECKSUM_ALGORITHM
 from eval.checksums import combined, scene_checksums
-from eval.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_message, read_meta,
+from eval.common.layout import (MATERIAL_CHANNELS, LayoutError, Scene, no_images_message, read_meta,
                          read_scene, read_splits)
 from eval.protocol_id import protocol_dict, protocol_hash, scored_split
 from eval.scored_view import CPU, EnvironmentCache, scene_scored_views
@@ -206,7 +206,7 @@ def evaluate(gt_root: str | Path, pred_root: str | Path, protocol, *, net=None,
     Args:
         net: the LPIPS network (loaded on ``device`` when None; one passed in runs where it is).
         device: where the scoring computes (module docstring); resolved by the caller
-            (eval.device.resolve_device).
+            (eval.common.device.resolve_device).
     """
     device = torch.device(device)
     gt_scenes = find_scenes(Path(gt_root))

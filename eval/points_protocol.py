@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 from eval.protocol_id import protocol_hash
 
 # every knob of the measure and the value a scores.json means when it does not record it

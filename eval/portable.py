@@ -41,7 +41,7 @@ def portable(value: Any, roots: Mapping[str, Path]) -> Any:
 
 def write_portable_scores(src: Path, dst: Path, *, data_label: str, roots: Mapping[str, Path]) -> Path:
     """``dst`` = ``src``'s scores with ``data`` = ``data_label`` and portable paths (atomically)."""
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
 
     scores = json.loads(Path(src).read_text())
     scores = {**portable(scores, roots), "data": data_label}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear, tonemap
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear, tonemap
 
 
 ALIGNMENT_ALIASES = {"per_channel": "lstsq"}  # the spelling of protocol v1 docs, kept

@@ -11,7 +11,7 @@ import hashlib
 import json
 import math
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 
 HASH_CHARS = 12
 

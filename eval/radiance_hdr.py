@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.layout import LayoutError
+from eval.common.layout import LayoutError
 
 MAGIC = (b"#?RADIANCE", b"#?RGBE")
 

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.imageio import read_exr
-from eval.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
+from eval.common.imageio import read_exr
+from eval.common.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
 from eval.metrics import erode_mask
 from eval.protocol import apply_albedo_scale, display_relit, fit_albedo_scale, unclamped_linear_albedo
 from eval.protocol_id import scored_split

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
 from eval.metrics import (grey_psnr, masked_iou, masked_lpips, masked_mae, masked_ssim,
                           psnr_from_mse, squared_error_terms)
 from eval.scored_view import RelitPair, relit_pair

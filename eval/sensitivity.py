@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 
 from eval.evaluate import EXTRA_METRICS, METRICS, evaluate
-from eval.atomic import write_text_atomic
+from eval.common.atomic import write_text_atomic
 
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False, "psnr_h": True, "mae": False,
                     "iou": True, "psnr_metal": True}
@@ -30,7 +30,9 @@ def compose_protocol(overrides: list[str]):
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    from eval.config import CONF_DIR, register_configs, validate_protocol
+    from eval.common.conf import CONF_DIR
+
+    from eval.config import register_configs, validate_protocol
 
     register_configs()
     args = dict(config_name="gspi_eval", overrides=["gt=_", "pred=_", "out=_", *overrides])
@@ -158,7 +160,7 @@ def run(cfg) -> pd.DataFrame:
 
 def main() -> None:
     """`python -m eval.sensitivity gt=... out=... 'methods={...}'`, through the one CLI door."""
-    from eval.cli_entry import hydra_cli
+    from eval.common.cli_entry import hydra_cli
 
     hydra_cli(run, "gspi_sensitivity", path_keys=("gt", "out"))()
 

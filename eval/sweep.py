@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from eval.errors import MissingInputError, StatedError
-from eval.layout import read_json_object
+from eval.common.errors import MissingInputError, StatedError
+from eval.common.layout import read_json_object
 from eval.protocol_id import protocol_hash, recorded_protocol
 from eval.records.eval_folder import META_NAME, SUMMARY_NAME
 from eval.records.run_points import run_points_path

@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
 
 
 def unpremultiply(maps: dict[str, Tensor], alpha: Tensor, mask: Tensor) -> dict[str, Tensor]:

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.colorspace import srgb_to_linear
+from eval.common.colorspace import srgb_to_linear
 
 
 def pixel_rays(K: np.ndarray, w2c: np.ndarray, height: int, width: int, *,

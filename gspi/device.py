@@ -6,11 +6,11 @@ on a machine without a GPU ``auto`` and ``cpu`` are the same code path as before
 numbers do not move). ``cuda`` without CUDA is one clear error naming the key, not a
 traceback from inside a stage.
 
-The resolver itself is ``eval.device`` (gspi-eval must not import gspi, and one copy cannot
+The resolver itself is ``eval.common.device`` (gspi-eval must not import gspi, and one copy cannot
 drift from another): this module is its name on the gspi side.
 """
 from __future__ import annotations
 
-from eval.device import CHOICES, DeviceError, resolve_device
+from eval.common.device import CHOICES, DeviceError, resolve_device
 
 __all__ = ["CHOICES", "DeviceError", "resolve_device"]

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any, Mapping, Optional
 
 import numpy as np
 
-from eval.layout import Scene
-from eval.atomic import write_json_atomic
+from eval.common.layout import Scene
+from eval.common.atomic import write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 
 if TYPE_CHECKING:

@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.colorspace import tonemap
-from eval.errors import StatedError
+from eval.common.colorspace import tonemap
+from eval.common.errors import StatedError
 from eval.relight import PrefilteredEnvironment, prefilter_environment, split_sum
 from eval.views import view_directions
 from gspi.gaussians.cameras import intrinsics_from_fov, look_at
@@ -47,7 +47,7 @@ def load_environment(spec: str | Path, *, height: int = 128) -> Tensor:
         ValueError: ``spec`` is neither an existing file nor a known name (the message lists
             the names).
     """
-    from eval.imageio import read_exr
+    from eval.common.imageio import read_exr
     from gspi.data.environments import env_names, make_environment
 
     path = Path(spec)

@@ -22,7 +22,7 @@ import typing
 from dataclasses import fields, is_dataclass
 from typing import Any, Mapping, Optional, TypeVar
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 
 T = TypeVar("T")
 _NAMES = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}

@@ -3,7 +3,7 @@
 Fixture folders in a system's real output layout are written from the known canonical maps of a
 tiny sphere scene as 8-bit PNGs like torchvision's save_image (round half up, grey maps as 3 equal
 channels); the expected maps are computed with the sRGB formulas written out here on purpose (not
-eval.colorspace). Used by tests/test_baselines_adapters.py and the tests that import a system's
+eval.common.colorspace). Used by tests/test_baselines_adapters.py and the tests that import a system's
 outputs (export, runtime, lattice views, gspi-run external rows).
 """
 from __future__ import annotations
@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from eval.layout import read_view_file
+from eval.common.layout import read_view_file
 
 
-def srgb_oetf(x):  # IEC 61966-2-1, written out here on purpose (not eval.colorspace)
+def srgb_oetf(x):  # IEC 61966-2-1, written out here on purpose (not eval.common.colorspace)
     x = np.clip(x, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 

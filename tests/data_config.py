@@ -6,8 +6,8 @@ from pathlib import Path
 
 from hydra import compose, initialize_config_dir
 
-from eval.argv import apply_aliases
-from eval.config import CONF_DIR
+from eval.common.argv import apply_aliases
+from eval.common.conf import CONF_DIR
 
 
 def compose_data_config(preset: str, out: Path, seed: int, overrides: list[str]):

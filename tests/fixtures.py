@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.imageio import write_exr
-from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
-from eval.atomic import write_json_atomic
+from eval.common.imageio import write_exr
+from eval.common.layout import Scene, View, write_material, write_scene_json, write_view_file
+from eval.common.atomic import write_json_atomic
 
 RADIUS = 0.8
 
@@ -114,7 +114,7 @@ def make_dataset(root: str | Path, *, num_scenes: int = 2, size: int = 48) -> Pa
 def generated_scene(out: Path, image_size: int) -> Scene:
     """One procedural scene made by gspi-data's generator (seed 3, 1 train scene, 2 test views,
     1 relight environment, no extras) written to `out`, read back."""
-    from eval.layout import read_scene, read_splits
+    from eval.common.layout import read_scene, read_splits
     from gspi.data.generate import BenchmarkConfig, generate_dataset
 
     cfg = BenchmarkConfig(num_train_scenes=1, num_val_scenes=0, num_test_scenes=0, image_size=image_size,
@@ -128,7 +128,9 @@ def preset(name: str, *overrides: str):
     """The protocol of preset conf/eval/<name>.yaml with Hydra overrides, validated as at start-up."""
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR, register_configs, validate_protocol
+    from eval.common.conf import CONF_DIR
+
+    from eval.config import register_configs, validate_protocol
 
     register_configs()
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
@@ -160,8 +162,8 @@ def make_prediction(gt_root: str | Path, pred_root: str | Path, *, method: str =
     roughness: gt + offset inside the mask (exactly representable in 16 bits);
     albedo: linear albedo times `albedo_scale`; metallic: copied.
     """
-    from eval.colorspace import linear_to_srgb, srgb_to_linear
-    from eval.layout import read_scene, read_view_file, write_meta
+    from eval.common.colorspace import linear_to_srgb, srgb_to_linear
+    from eval.common.layout import read_scene, read_view_file, write_meta
     import torch
 
     gt_root, pred_root = Path(gt_root), Path(pred_root)

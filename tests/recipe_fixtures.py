@@ -8,7 +8,9 @@ from pathlib import Path
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from eval.config import CONF_DIR, register_configs
+from eval.common.conf import CONF_DIR
+
+from eval.config import register_configs
 
 # keys added after the golden was recorded, each off in every recipe (issues 52, 66): (section, key) -> off value
 ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighbourhood"): False,

@@ -16,7 +16,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from eval.config import CONF_DIR
+from eval.common.conf import CONF_DIR
 
 SIZE = 32  # px: the smallest size eval.metrics' LPIPS accepts
 
@@ -25,7 +25,7 @@ def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0
     """A sphere scene whose train split is the canonical 32-view lattice, with gt_points.npz.
     ``lit``: a procedural capture environment: the views are shaded under it by the split-sum
     shader (``envmaps/<lit>.exr`` and ``normal.exr`` written), as a generated scene's are."""
-    from eval.layout import Scene, View, write_material, write_scene_json, write_view_file
+    from eval.common.layout import Scene, View, write_material, write_scene_json, write_view_file
     from gspi.data.lattice import lattice_cameras
     from gspi.data.point_clouds import write_scene_point_cloud
     from tests.fixtures import render_sphere_maps
@@ -37,7 +37,7 @@ def make_lattice_scene(root: Path, name: str, *, size: int = SIZE, seed: int = 0
     write_scene_json(scene)
     env = None
     if lit:
-        from eval.imageio import write_exr
+        from eval.common.imageio import write_exr
         from gspi.data.environments import make_environment
 
         env = make_environment(lit, 32, supersample=1)
@@ -62,7 +62,7 @@ def shade_sphere(maps: dict, w2c: np.ndarray, env) -> np.ndarray:
     """[H, W, 3] linear radiance of the sphere's GT maps under ``env`` (eval.relight.split_sum)."""
     import torch
 
-    from eval.colorspace import srgb_to_linear
+    from eval.common.colorspace import srgb_to_linear
     from eval.relight import split_sum
 
     mask = maps["mask"] > 0
@@ -83,7 +83,7 @@ def shade_sphere(maps: dict, w2c: np.ndarray, env) -> np.ndarray:
 
 
 def make_lattice_dataset(root: Path, *, num_train: int = 2, num_test: int = 1) -> Path:
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
 
     names = {"train": [f"train_{k}" for k in range(num_train)], "test": [f"test_{k}" for k in range(num_test)]}
     for k, name in enumerate(names["train"] + names["test"]):
@@ -113,7 +113,7 @@ def tiny_cfg(dataset: Path, out: Path, *extra: str) -> dict:
 def gt_views_as_renders(root):
     """The scene's 32 lattice views in the form Stage I renders them (alpha = the GT mask): a
     ``LatticeRenders`` whose conditions must equal the training path's (condition parity)."""
-    from eval.layout import read_scene, read_view_file
+    from eval.common.layout import read_scene, read_view_file
     from gspi.gaussians.lattice_render import LatticeRenders
 
     scene = read_scene(root)

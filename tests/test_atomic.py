@@ -1,4 +1,4 @@
-"""eval/atomic.py: a file written atomically gets the mode a plain ``open(path, "w")`` gives
+"""eval/common/atomic.py: a file written atomically gets the mode a plain ``open(path, "w")`` gives
 under the current umask (0o666 & ~umask), not mkstemp's private 0600."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from contextlib import contextmanager
 
 import pytest
 
-from eval.atomic import atomic_path, current_umask, write_json_atomic, write_text_atomic
+from eval.common.atomic import atomic_path, current_umask, write_json_atomic, write_text_atomic
 
 
 @contextmanager

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from baselines.adapter import AdapterError, get_adapter, load_method_config
-from eval.layout import read_meta, read_scene, read_view_file
+from eval.common.layout import read_meta, read_scene, read_view_file
 from tests.adapter_fixtures import gt_maps, q8, save_image, srgb_eotf, srgb_oetf, write_gs_ir
 from tests.fixtures import make_scene
 

@@ -14,8 +14,8 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from baselines.adapter import AdapterError, get_adapter, load_method_config, systems
-from eval.colorspace import linear_to_srgb
-from eval.layout import read_meta, read_view_file
+from eval.common.colorspace import linear_to_srgb
+from eval.common.layout import read_meta, read_view_file
 from tests.fixtures import make_scene
 
 BLENDER_SYSTEMS = ("gs_ir", "r3dg", "gaussianshader", "irgs")

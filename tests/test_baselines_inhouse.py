@@ -9,10 +9,10 @@ import yaml
 from baselines import joint_ir, no_decomposition
 from baselines.joint_ir_shading import prefilter_operators, shade
 from baselines.joint_ir_weights import compositing_weights
-from eval.colorspace import linear_to_srgb
-from eval.imageio import write_exr
-from eval.layout import LayoutError, read_scene, read_view_file, write_view_file
-from eval.atomic import write_json_atomic
+from eval.common.colorspace import linear_to_srgb
+from eval.common.imageio import write_exr
+from eval.common.layout import LayoutError, read_scene, read_view_file, write_view_file
+from eval.common.atomic import write_json_atomic
 from eval.relight import split_sum
 from eval.views import view_directions
 from gspi.gaussians.rasterize import render_gaussians

@@ -15,7 +15,7 @@ from PIL import Image
 
 from baselines.adapter import AdapterError, get_adapter, load_method_config
 from baselines.mesh_render import MeshError, read_obj, render_uv_maps
-from eval.layout import read_view_file
+from eval.common.layout import read_view_file
 from tests.fixtures import make_scene
 
 SQUARES = ((0.0, 1.0), (0.4, 0.5))  # (height z, half size) of each textured square

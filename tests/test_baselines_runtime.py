@@ -6,7 +6,7 @@ import pytest
 from baselines import adapter as adapter_module
 from baselines.adapter import get_adapter, load_method_config
 from baselines.runtime import command_stages, given_runtime, split_seconds
-from eval.layout import read_meta
+from eval.common.layout import read_meta
 from tests.adapter_fixtures import gt_maps, write_gs_ir
 from tests.fixtures import make_scene
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_controlled_pairs import main, markdown_table, masked_means, score_pairs, score_run
-from eval.imageio import write_png
+from eval.common.imageio import write_png
 from gspi.data.controlled_pairs import write_manifest
 
 REPO = Path(__file__).resolve().parents[1]

@@ -28,3 +28,18 @@ def test_tiny_reconstructs_its_asset_and_keeps_the_rest():
     assert "stage1.image_size=64" in tiny  # the lattice at the tiny scenes' size, as the demo's at small's 128
     assert [o for o in tiny if o not in ("recon=tiny", "stage1.image_size=64")] == [
         o for o in DEMO if not o.startswith(("assets=", "recon="))]
+
+
+def test_material_cpu_sums_the_listed_stages_present(tmp_path):
+    import json
+
+    from benchmarks.budget_quality import material_cpu_seconds
+
+    meta = {"stages": {"recon": {"cpu_seconds": 50.0}, "stage1": {"cpu_seconds": 1.5}, "stage2": {"cpu_seconds": 2.0},
+                       "stage3": {"cpu_seconds": 0.25}}}
+    (tmp_path / "predictions" / "s0").mkdir(parents=True)
+    (tmp_path / "predictions" / "s0" / "meta.json").write_text(json.dumps(meta))
+    joint = {"stages": {"recon": {"cpu_seconds": 50.0}, "material": {"cpu_seconds": 7.0}}}
+    (tmp_path / "predictions" / "s1").mkdir(parents=True)
+    (tmp_path / "predictions" / "s1" / "meta.json").write_text(json.dumps(joint))
+    assert material_cpu_seconds(tmp_path, ["s0", "s1"]) == {"s0": 3.75, "s1": 7.0}  # Stage 0 is not material time

@@ -1,6 +1,6 @@
 """A stated error (a bad key, a bad file, device=cuda without CUDA, an unsupported glTF
 input) prints one line naming the key or file and exits with status 2, with no traceback
-(eval.errors; issue 25, item 4). Each CLI is run as installed, with one bad input."""
+(eval.common.errors; issue 25, item 4). Each CLI is run as installed, with one bad input."""
 from __future__ import annotations
 
 import os
@@ -26,7 +26,7 @@ CASES = {
     "gspi-report": (["gspi-report", "{tmp}/no_runs", "out={tmp}/rp"], "run folder(s) not found"),
     "gspi-run bad key": (["gspi-run", "data={tmp}/d", "out={tmp}/o", "scene_workers=0"], "scene_workers"),
 }
-# Path keys with characters Hydra's grammar does not take unquoted (eval.argv): the message must
+# Path keys with characters Hydra's grammar does not take unquoted (eval.common.argv): the message must
 # carry the whole path, so the CLI quoted it (unquoted, Hydra refuses the override itself).
 ODD = "{tmp}/a=b,c d"
 CASES.update({

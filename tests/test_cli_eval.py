@@ -56,6 +56,6 @@ def test_gspi_eval_reports_a_bad_override(sphere_dataset, tmp_path):
 
 
 def test_method_alias_is_rewritten_to_method_name():
-    from eval.argv import apply_aliases
+    from eval.common.argv import apply_aliases
 
     assert apply_aliases(["gt=a", "method=x", "out=o"], "gspi_eval") == ["gt=a", "method_name=x", "out=o"]

@@ -1,4 +1,4 @@
-"""``--help`` of every console script (eval/cli_help.py, issue 68): the tool's purpose, its own keys
+"""``--help`` of every console script (eval/common/cli_help.py, issue 68): the tool's purpose, its own keys
 with their defaults, its config groups and one example, not Hydra's banner; exit 0."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from eval.cli_help import config_groups, header, top_level_keys, usage
+from eval.common.cli_help import config_groups, header, top_level_keys, usage
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

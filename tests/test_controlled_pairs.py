@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.layout import read_scene, read_splits, read_view_file
+from eval.common.layout import read_scene, read_splits, read_view_file
 from gspi.cli.data import run
 from gspi.data.controlled_pairs import (KIND_MEMBERS, ControlledPairsConfig, controlled_pairs, read_manifest)
 from gspi.data.generate import BenchmarkConfig, scene_recipes

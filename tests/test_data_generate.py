@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
-from eval.imageio import read_exr
-from eval.layout import GT_VIEW_FILES, read_scene, read_splits, read_view_file
-from eval.argv import apply_aliases
+from eval.common.imageio import read_exr
+from eval.common.layout import GT_VIEW_FILES, read_scene, read_splits, read_view_file
+from eval.common.argv import apply_aliases
 from gspi.cli.data import run
 from gspi.data.lattice import lattice_cameras
 from gspi.data.procedural.render_scene import relight_stored_view

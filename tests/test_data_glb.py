@@ -11,8 +11,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.layout import read_scene, read_splits, read_view_file
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.layout import read_scene, read_splits, read_view_file
 from gspi.data.assets.gltf import GLTFError, read_gltf
 from gspi.data.lattice import intrinsics_from_fov, look_at_w2c
 from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
@@ -341,7 +341,9 @@ def test_real_objects_experiment_composes_the_three_methods():
     """+experiment=real_objects: GS-PI, no decomposition and joint IR, reconstructing each object."""
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR, register_configs
+    from eval.common.conf import CONF_DIR
+
+    from eval.config import register_configs
 
     register_configs()
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from eval.imageio import write_exr
-from eval.layout import read_scene
+from eval.common.imageio import write_exr
+from eval.common.layout import read_scene
 from eval.relight import split_sum
 from gspi.data import pmndrs_assets
 from gspi.data.env_sets import assign_environments, environment_sets, resolve_env_set
@@ -139,9 +139,9 @@ def test_asset_install_checks_checksum_and_decodes(tmp_path, monkeypatch):
     with pytest.raises(pmndrs_assets.AssetsUnavailable, match="SHA-256"):
         pmndrs_assets.install(tgz)
     assert not (tmp_path / "cache" / pmndrs_assets.FOLDER / "MANIFEST").exists()
-    import eval.npm_package
+    import eval.common.npm_package
 
-    monkeypatch.setattr(eval.npm_package.shutil, "which", lambda _: None)
+    monkeypatch.setattr(eval.common.npm_package.shutil, "which", lambda _: None)
     with pytest.raises(pmndrs_assets.AssetsUnavailable, match="npm not found"):
         pmndrs_assets.install()
 

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import torch
 
-from eval.colorspace import srgb_to_linear
+from eval.common.colorspace import srgb_to_linear
 from eval.envmap import latlong_directions
 from eval.evaluate import evaluate
-from eval.imageio import read_exr, read_png, write_exr, write_png
-from eval.layout import LayoutError, read_view_file
+from eval.common.imageio import read_exr, read_png, write_exr, write_png
+from eval.common.layout import LayoutError, read_view_file
 from gspi.data.layouts import detect_format
 from gspi.data.layouts.nero_glossy import export_nero_glossy, import_nero_glossy
 from gspi.data.layouts.orb_envmap import orb_directions, orb_to_world, world_to_orb
@@ -158,8 +158,8 @@ def test_tensoir_exact_linear_albedo_scores_at_the_cap(tmp_path, lpips_net, pres
     gspi prediction the normal way (sRGB-encoded albedo.png), scores at the PSNR cap under the
     default protocol and under eval=tensoir (issue 41: 11.9 / 29.5 dB when the reader copied the
     linear values into gspi's sRGB file)."""
-    from eval.colorspace import linear_to_srgb
-    from eval.layout import write_material
+    from eval.common.colorspace import linear_to_srgb
+    from eval.common.layout import write_material
     from tests.fixtures import preset
 
     src, truth = write_tensoir_fixture(tmp_path, size=32)  # LPIPS needs 32 px

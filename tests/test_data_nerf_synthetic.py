@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from eval.colorspace import linear_to_srgb
-from eval.layout import read_scene, read_view_file
+from eval.common.colorspace import linear_to_srgb
+from eval.common.layout import read_scene, read_view_file
 from gspi.data.layouts.nerf_synthetic import (blender_c2w_to_opencv_w2c, export_nerf_synthetic,
                                       import_nerf_synthetic, intrinsics_from_angle_x,
                                       opencv_w2c_to_blender_c2w, write_rgba)

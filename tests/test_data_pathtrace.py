@@ -10,7 +10,7 @@ import torch
 pytest.importorskip("mitsuba")
 
 from eval.envmap import latlong_directions, sample_latlong  # noqa: E402
-from eval.layout import read_scene  # noqa: E402
+from eval.common.layout import read_scene  # noqa: E402
 from eval.relight import prefilter_environment  # noqa: E402
 from gspi.data.environments import make_environment  # noqa: E402
 from gspi.data.generate import BenchmarkConfig, generate_dataset, scene_recipes  # noqa: E402
@@ -122,7 +122,7 @@ def test_pathtraced_relit_ground_truth_and_the_stored_reference(tmp_path):
     from omegaconf import OmegaConf
 
     from eval.config import ProtocolConfig
-    from eval.layout import LayoutError
+    from eval.common.layout import LayoutError
     from eval.scored_view import EnvironmentCache, load_gt_view, load_stored_relit, relit_pairs
 
     generate_dataset(tmp_path / "split", _tiny("splitsum"), seed=0)
@@ -155,7 +155,7 @@ def test_pathtraced_relit_ground_truth_and_the_stored_reference(tmp_path):
         else:  # shadows, interreflection and Mitsuba's BSDF: a different reference
             assert (read.gt_linear - shaded.gt_linear).abs().max() > 1e-3
     # through the evaluator's path (the GT scene scored as its own prediction)
-    from eval.imageio import read_exr
+    from eval.common.imageio import read_exr
     from eval.scored_view import scene_scored_views
     for scene, want_file in ((sa, False), (sb, True)):
         sv = scene_scored_views(scene, scene.root, stored, envs)[0][0]

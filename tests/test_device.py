@@ -95,20 +95,20 @@ def test_sampling_on_the_cpu_device_is_the_old_path_and_chunk_free():
 
 def test_gspi_and_eval_share_one_resolver():
     """gspi-eval (eval/, which never imports gspi) and the gspi commands accept the same values
-    and fail alike: gspi.device is eval.device under its gspi name, not a copy that could drift."""
-    import eval.device
+    and fail alike: gspi.device is eval.common.device under its gspi name, not a copy that could drift."""
+    import eval.common.device
     import gspi.device
 
-    assert gspi.device.resolve_device is eval.device.resolve_device
-    assert gspi.device.DeviceError is eval.device.DeviceError and issubclass(DeviceError, ValueError)
-    assert eval.device.resolve_device("auto") == resolve_device("auto")
-    assert eval.device.resolve_device(" CPU ") == torch.device("cpu")
+    assert gspi.device.resolve_device is eval.common.device.resolve_device
+    assert gspi.device.DeviceError is eval.common.device.DeviceError and issubclass(DeviceError, ValueError)
+    assert eval.common.device.resolve_device("auto") == resolve_device("auto")
+    assert eval.common.device.resolve_device(" CPU ") == torch.device("cpu")
 
 
 def _eval_cfg(tmp_path, device):
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return compose("gspi_eval", overrides=[f"gt={tmp_path}", f"pred={tmp_path}", f"out={tmp_path / 'ev'}",
@@ -168,8 +168,8 @@ def test_data_device_cuda_fails_at_start_up_before_writing(tmp_path, mode):
     """gspi-data, whatever the mode: refused before the output folder is made."""
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR
-    from eval.argv import apply_aliases
+    from eval.common.conf import CONF_DIR
+    from eval.common.argv import apply_aliases
     from gspi.cli.data import run
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):

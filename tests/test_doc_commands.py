@@ -3,7 +3,7 @@
 
 Fast (default): each documented ``gspi-*`` command goes through its CLI's own ``main()`` (argv
 aliases, positional folders, path quoting, the GLB-export dispatch) up to the start-up check that
-every CLI runs before Hydra starts (``eval.cli_precheck``: the config composes, every group choice
+every CLI runs before Hydra starts (``eval.common.cli_precheck``: the config composes, every group choice
 of a sweep exists, no required key is left unset); the task itself is not run. Placeholders
 (``<scene>``, ``...``) are filled with a dummy name. Slow: the cheap commands of REPRODUCE.md's
 "tiny" section run for real, in order, in a scratch folder.
@@ -63,9 +63,9 @@ def test_the_docs_show_commands():
 
 @pytest.mark.parametrize("doc,line", ALL, ids=[f"{d}:{i}" for i, (d, _) in enumerate(ALL)])
 def test_documented_command_passes_its_cli_start_up_check(doc, line, monkeypatch, tmp_path):
-    import eval.cli_entry as cli_entry
-    from eval.cli_precheck import precheck
-    from eval.config import CONF_DIR
+    import eval.common.cli_entry as cli_entry
+    from eval.common.cli_precheck import precheck
+    from eval.common.conf import CONF_DIR
     from tests.reliability.helpers import run_cli
 
     program = line.split()[0]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from eval.evaluate import evaluate
-from eval.layout import LayoutError, read_scene, write_material
+from eval.common.layout import LayoutError, read_scene, write_material
 from tests.fixtures import make_prediction, protocol
 
 
@@ -165,7 +165,7 @@ def test_metallic_mae_and_iou_on_scenes_with_metal(sphere_dataset, tmp_path, lpi
 
 
 def read_view_metallic(view_dir):
-    from eval.layout import read_view_file
+    from eval.common.layout import read_view_file
     return read_view_file(view_dir, "metallic.png")
 
 
@@ -197,7 +197,7 @@ def test_device_auto_scores_like_cpu_here(sphere_dataset, tmp_path, lpips_net):
     before), with the device-touched steps on: lstsq alignment, relight fills, scale fit, erosion."""
     import torch
 
-    from eval.device import resolve_device
+    from eval.common.device import resolve_device
 
     pred = make_prediction(sphere_dataset, tmp_path / "pred", albedo_scale=0.7, channels=("albedo", "roughness"))
     prot = protocol(albedo_alignment="lstsq", mask_erosion_px=1, **{"relight.scale_fit": "lstsq",

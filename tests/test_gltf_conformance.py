@@ -78,7 +78,7 @@ def trimesh_materials(path: Path, origins: np.ndarray, dirs: np.ndarray):
     import trimesh
     from trimesh.visual.color import uv_to_interpolated_color
 
-    from eval.colorspace import linear_to_srgb, srgb_to_linear
+    from eval.common.colorspace import linear_to_srgb, srgb_to_linear
 
     n = len(origins)
     best = np.full(n, np.inf)
@@ -113,7 +113,7 @@ def test_textured_real_assets_match_an_independent_reader(asset):
     """The GT maps gspi reads (gspi.data.assets.gltf + mesh_render at pixel centres) equal trimesh's
     reading of the same asset: median |difference| <= 0.01 per map over the pixels where both
     hit the same point (issue 26), from 6 directions at 48 px."""
-    from eval.colorspace import linear_to_srgb
+    from eval.common.colorspace import linear_to_srgb
     from eval.views import pixel_rays
     from gspi.data.assets.gltf import Y_UP_TO_Z_UP
     from gspi.data.lattice import fibonacci_hemisphere_lattice

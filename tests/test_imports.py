@@ -14,26 +14,29 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("eval", "gspi", "baselines", "experiments")
 PRODUCT = ("eval", "gspi", "baselines")  # experiments/ (the studies) sits above them all
 
-LOWER = ("eval", "gspi.repo", "gspi.strict_config", "gspi.device", "gspi.data", "gspi.gaussians",
+LOWER = ("eval", "eval.common", "gspi.repo", "gspi.strict_config", "gspi.device", "gspi.data", "gspi.gaussians",
          "gspi.point_cloud", "gspi.light")
 STAGE = LOWER + ("gspi.stage_clock",)
 # floor -> the floors (or modules) it may import besides itself. A floor missing here fails the
 # test: a new gspi subpackage or top-level module must be placed in the graph on purpose.
 ALLOWED: dict[str, tuple[str, ...]] = {
-    "eval": (),
+    # the common floor: layout, image and colour I/O, atomic records, stated errors, the CLI door,
+    # the device, the npm fetcher (issue 67); below the protocol, it imports nothing of the project
+    "eval.common": (),
+    "eval": ("eval.common",),  # the protocol
     "gspi": (),  # gspi/__init__.py
-    "gspi.strict_config": ("eval",),  # eval.errors: ConfigError is a stated error
-    "gspi.device": ("eval",),  # device=auto|cpu|cuda (issue #16): re-exports eval.device
+    "gspi.strict_config": ("eval.common",),  # eval.common.errors: ConfigError is a stated error
+    "gspi.device": ("eval.common",),  # device=auto|cpu|cuda (issue #16): re-exports eval.common.device
     "gspi.stage_clock": (),
     "gspi.repo": (),  # the repository root, resolved once
-    "gspi.data": ("eval", "gspi.strict_config"),
-    "gspi.gaussians": ("eval", "gspi.data"),
+    "gspi.data": ("eval", "eval.common", "gspi.strict_config"),
+    "gspi.gaussians": ("eval", "eval.common", "gspi.data"),
     # Stage I's output record (points with their source pixels) and its scatter/fill, read by
     # Stages II and III: a record between stages lives below them, not in Stage I's package.
-    "gspi.point_cloud": ("eval", "gspi.data"),
+    "gspi.point_cloud": ("eval", "eval.common", "gspi.data"),
     # the capture light and each point's material read against it (issue 66): the shader's math
     # over observations, read by Stage II's conditions and the light_fit method
-    "gspi.light": ("eval",),
+    "gspi.light": ("eval", "eval.common"),
     "gspi.recon": LOWER,
     "gspi.stage1": LOWER,
     "gspi.stage2": LOWER,  # no stage imports another stage
@@ -47,13 +50,13 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "gspi.run": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
                          "gspi.relight", "gspi.export", "baselines"),
     # gspi-reproduce (issue 53) runs the tools as commands, one subprocess per step: it imports none
-    "gspi.reproduce": ("eval", "gspi.repo"),
+    "gspi.reproduce": ("eval", "eval.common", "gspi.repo"),
     # make results: the results store (results/) and the docs' tables built from it by eval.tables
-    "gspi.publish": ("eval", "gspi.repo"),
+    "gspi.publish": ("eval", "eval.common", "gspi.repo"),
     "gspi.cli": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
                          "gspi.relight", "gspi.export", "gspi.run", "gspi.reproduce", "baselines"),
     # the studies (issue 40): they use the product; nothing in the product imports them
-    "experiments": ("eval", "gspi", "baselines"),
+    "experiments": ("eval", "eval.common", "gspi", "baselines"),
 }
 
 
@@ -82,8 +85,11 @@ def imported_names(path: Path) -> list[tuple[str, int]]:
 
 
 def floor(name: str) -> str | None:
-    """The floor of a dotted module name: eval, baselines, gspi.<first part>; None outside the project."""
+    """The floor of a dotted module name: eval.common, eval, baselines, gspi.<first part>; None outside
+    the project."""
     parts = name.split(".")
+    if parts[:2] == ["eval", "common"]:
+        return "eval.common"
     if parts[0] in ("eval", "baselines", "experiments"):
         return parts[0]
     if parts[0] == "gspi":
@@ -116,6 +122,8 @@ def test_scanner_sees_function_level_and_relative_imports(tmp_path):
     names = [n for n, _ in imported_names(ROOT / "gspi" / "pipeline.py")]
     assert "gspi.stage3.distill.distill" in names
     assert not is_allowed("eval", "gspi.data.lattice") and not is_allowed("gspi.stage1", "gspi.run.record")
+    assert is_allowed("eval", "eval.common.layout") and not is_allowed("eval.common", "eval.relight")
+    assert not is_allowed("eval.common", "eval.config") and floor("eval.common.cli_entry") == "eval.common"
     assert not is_allowed("gspi.stage2", "gspi.stage1.extract") and is_allowed("gspi.stage2", "gspi.point_cloud")
     assert not is_allowed("gspi.stage3", "gspi.stage1") and not is_allowed("gspi.stage3", "gspi.stage2")
     assert is_allowed("gspi.run", "gspi.pipeline") and not is_allowed("gspi.pipeline", "gspi.run.stage2_model")
@@ -256,11 +264,11 @@ ATOMIC_WRITERS = ("atomic_path", "write_text_atomic", "write_json_atomic")
 
 
 def test_the_atomic_writers_have_one_door():
-    """Everyone imports the atomic writers from eval.atomic, never through a re-export (issue 25)."""
+    """Everyone imports the atomic writers from eval.common.atomic, never through a re-export (issue 25)."""
     files = [p for pkg in (*PACKAGES, "tests", "benchmarks") for p in sorted((ROOT / pkg).rglob("*.py"))]
     bad = sorted(f"{p.relative_to(ROOT)}:{line} imports {name}" for p in files for name, line in imported_names(p)
-                 if name.rpartition(".")[2] in ATOMIC_WRITERS and name.rpartition(".")[0] != "eval.atomic")
-    assert not bad, "import the atomic writers from eval.atomic:\n" + "\n".join(bad)
+                 if name.rpartition(".")[2] in ATOMIC_WRITERS and name.rpartition(".")[0] != "eval.common.atomic")
+    assert not bad, "import the atomic writers from eval.common.atomic:\n" + "\n".join(bad)
 
 
 def test_eval_is_in_rooms():

@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 
 from baselines.adapter import AdapterError, get_adapter, load_method_config
 from eval.evaluate import evaluate
-from eval.layout import LayoutError, read_scene, read_view_file
+from eval.common.layout import LayoutError, read_scene, read_view_file
 from eval.protocol_id import describe_protocol, protocol_dict, protocol_hash, scored_split
 from tests.adapter_fixtures import q8, save_image, srgb_eotf, srgb_oetf
 from tests.fixtures import make_prediction, make_scene, protocol

@@ -15,7 +15,9 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from eval.config import CONF_DIR, register_configs, validate_protocol
+from eval.common.conf import CONF_DIR
+
+from eval.config import register_configs, validate_protocol
 from eval.lpips.net import load_lpips
 from eval.scored_view import albedo_scales, apply_scales, protocol_alignment, relit_pair
 from eval.scoring import pooled_psnr, score_map, score_relit_pair

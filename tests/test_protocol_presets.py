@@ -8,8 +8,8 @@ import math
 import pytest
 import torch
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.config import CONF_DIR
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.conf import CONF_DIR
 from eval.metrics import MSE_FLOOR_16BIT, erode_mask
 from eval.protocol import display_relit, fit_albedo_scale
 from eval.protocol_id import protocol_diff, protocol_dict, protocol_hash

@@ -38,7 +38,7 @@ def _single_thread():
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory) -> Path:
     """One generated scene (torus, rough plastic) at 48 px with 2 held-out views (~4 s)."""
-    from eval.argv import apply_aliases
+    from eval.common.argv import apply_aliases
     from gspi.cli.data import run as data_run
 
     out = tmp_path_factory.mktemp("recon_data")
@@ -96,7 +96,7 @@ def test_gspi_run_cache_is_the_same_reconstruction_and_record(recon_run, scene_d
     """gspi-run's Stage 0 (assets=null) and gspi-recon are one path: same asset, same record."""
     from omegaconf import OmegaConf
 
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.recon.reconstruct import reconstruction_seconds
     from gspi.run.assets import cached_reconstruction
 

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 
-from eval.layout import read_view_file
+from eval.common.layout import read_view_file
 from gspi.data.pool.asset_conditions import LATTICE_SPLIT
 from gspi.gaussians.lattice_render import render_lattice
 from gspi.recon.reconstructed_pool import DONE_FILE, display_psnr, highlight_stats, reconstruct_pool, summary_table

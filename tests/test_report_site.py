@@ -153,7 +153,7 @@ def test_unreadable_prediction_is_a_tile_not_a_crash(sweep, tmp_path):
 
     import numpy as np
 
-    from eval.layout import write_material
+    from eval.common.layout import write_material
 
     job = tmp_path / "runs" / "method=gspi"
     shutil.copytree(sweep / "method=gspi", job)
@@ -185,7 +185,7 @@ def test_hydra_overrides_compose():
     """`gt=` (not `data=`: conf/data/ is a config group) and positional folders."""
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
     from eval.tables.cli import positional_to_overrides
 
     overrides = positional_to_overrides(["/tmp", "out=/tmp/r", "gt=/tmp/data", "max_views=2"])
@@ -200,8 +200,8 @@ def test_viewer_install_checks_the_tarball_and_the_bundle(tmp_path, monkeypatch)
     import io
     import tarfile
 
-    import eval.npm_package
-    from eval.npm_package import NpmUnavailable
+    import eval.common.npm_package
+    from eval.common.npm_package import NpmUnavailable
     from eval.report_site import model_viewer
 
     monkeypatch.setenv("GSPI_CACHE", str(tmp_path / "cache"))
@@ -216,7 +216,7 @@ def test_viewer_install_checks_the_tarball_and_the_bundle(tmp_path, monkeypatch)
     with pytest.raises(NpmUnavailable, match="SHA-256"):
         model_viewer.install(fake)
     assert model_viewer.installed_script() is None
-    monkeypatch.setattr(eval.npm_package.shutil, "which", lambda _: None)
+    monkeypatch.setattr(eval.common.npm_package.shutil, "which", lambda _: None)
     with pytest.raises(NpmUnavailable, match="npm not found.*3D viewer"):
         model_viewer.install()
 
@@ -226,7 +226,7 @@ def test_viewer_hdr_is_the_environment_resampled(tmp_path):
     rounding); a constant map stays constant whichever way it is resampled."""
     import numpy as np
 
-    from eval.imageio import write_exr
+    from eval.common.imageio import write_exr
     from eval.radiance_hdr import read_hdr
     from eval.report_site.viewer import ENV_ROWS, env_hdr
 

@@ -191,7 +191,7 @@ def test_a_user_asset_that_does_not_match_the_photos_is_flagged(micro_dataset, t
     """asset_check (issue 41): a flat green sphere run on a scene whose photos it does not show
     is recorded below asset_check.min_psnr with a one-line warning naming the PLY, shown on the
     report's scene page; asset_check.strict=true fails the scene instead."""
-    from eval.layout import read_scene, read_splits
+    from eval.common.layout import read_scene, read_splits
     from eval.report_site.collect import Job
     from eval.report_site.scene_page import SceneWriter
     from gspi.gaussians.ply import write_ply

@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from eval.layout import read_scene, read_splits
+from eval.common.layout import read_scene, read_splits
 from gspi.run.runner import run_job
 from tests.adapter_fixtures import gt_maps, write_gs_ir
 from tests.run_helpers import run_config

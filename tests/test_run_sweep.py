@@ -91,7 +91,7 @@ def test_sweep_tells_the_truth_about_failed_jobs(micro_dataset, tmp_path):
     """A sweep whose job fails exits non-zero naming it on its last line (it exited 0, each job
     logging "complete"); a whole sweep's last line says it is complete, with counts; gspi-table
     names the row whose job failed instead of printing one row fewer."""
-    from eval.layout import read_scene, read_splits
+    from eval.common.layout import read_scene, read_splits
     from tests.adapter_fixtures import gt_maps, write_gs_ir
 
     name = read_splits(micro_dataset)["test"][0]

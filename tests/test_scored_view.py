@@ -15,7 +15,7 @@ import eval.evaluate as evaluate_module
 from eval.scoring import encode_albedo, metric_space
 import eval.scoring as scoring_module
 from eval.config import register_configs, validate_protocol
-from eval.layout import read_scene
+from eval.common.layout import read_scene
 from eval.protocol_id import protocol_dict, scored_split
 from eval.report_site.collect import Job
 from eval.report_site.panels import scene_panels
@@ -132,7 +132,7 @@ def test_erosion_shrinks_the_scored_mask(data, tmp_path):
 def test_relight_clamp_albedo_false_shades_the_unclamped_aligned_albedo(data):
     """relight.clamp_albedo: false (TensoIR relights albedo * ratio as it is): the relit
     prediction is shaded with the aligned albedo continued past 1, not the clamped one."""
-    from eval.colorspace import srgb_to_linear
+    from eval.common.colorspace import srgb_to_linear
     from eval.protocol import apply_albedo_scale, unclamped_linear_albedo
     from eval.scored_view import load_gt_view, relit_pairs
     from eval.views import relight_view
@@ -163,7 +163,7 @@ def test_relight_clamp_albedo_false_shades_the_unclamped_aligned_albedo(data):
 def test_environment_cache_prefilters_each_distinct_map_once(tmp_path, monkeypatch):
     """Files with the same pixels (each scene's copy of a shared map) share one prefiltering."""
     import eval.relight as relight
-    from eval.imageio import write_exr
+    from eval.common.imageio import write_exr
 
     calls = []
     real = relight.prefilter_environment

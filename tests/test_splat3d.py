@@ -93,7 +93,7 @@ def test_a_flattened_thin_asset_renders_as_its_surfels(tmp_path):
 
 
 def test_a_3dgs_user_asset_is_recorded_in_the_run(tmp_path, sphere_dataset):
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.run.assets import scene_asset
     from tests.fixtures import surfel_sphere
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from eval.config import CONF_DIR
+from eval.common.conf import CONF_DIR
 from gspi.cli.extract import run
 from gspi.gaussians.ply import write_ply
 from gspi.stage1.config import Stage1Config

@@ -139,7 +139,7 @@ def test_the_shipped_pool_checkpoints_are_their_recipes(name, preset, steps, par
 
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
     from gspi.stage2.checkpoint import load_stage2_checkpoint
 
     path = ROOT / "checkpoints" / f"{name}.pt"

@@ -35,7 +35,7 @@ def test_batch_shapes_per_condition(scene, mode):
 
 
 def test_targets_and_top_rgb_follow_the_stored_values(scene, tmp_path):
-    from eval.colorspace import linear_to_srgb
+    from eval.common.colorspace import linear_to_srgb
 
     with np.load(scene.root / "gt_points.npz") as npz:
         albedo, rough, rgb = npz["albedo"], npz["roughness"], npz["rgb"]

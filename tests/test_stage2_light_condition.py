@@ -193,7 +193,7 @@ def test_the_condition_on_an_asset_is_read_as_a_run_reads_it(lit, tmp_path):
     an asset is told so in one line."""
     import dataclasses
 
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.gaussians.ply import read_ply
     from gspi.recon.reconstructed_pool import reconstruct_pool
     from gspi.stage1.config import Stage1Config

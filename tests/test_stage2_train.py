@@ -9,8 +9,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from eval.config import CONF_DIR
-from eval.argv import apply_aliases
+from eval.common.conf import CONF_DIR
+from eval.common.argv import apply_aliases
 from gspi.cli.train import run
 from gspi.stage2.checkpoint import CheckpointError, export_ema_only, load_stage2_checkpoint
 from gspi.stage2.config import complete_stage2
@@ -253,7 +253,7 @@ def stage2_on_test_scene(checkpoint: Path, dataset: Path):
     """(model, saved config, Stage I's cloud, predict): the checkpoint's model and the dataset's test
     scene with its views as Stage I's renders, unprojected; ``predict(**condition keys)`` runs Stage II
     inference on that cloud (2 DDIM steps, 300 points) and returns its [P, 5] PBR."""
-    from eval.layout import read_splits
+    from eval.common.layout import read_splits
     from gspi.stage1.extract import unproject_renders
     from gspi.stage2.encoders import build_encoder
     from gspi.stage2.data import PointDataConfig

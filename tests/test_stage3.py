@@ -11,7 +11,7 @@ import torch
 from omegaconf import OmegaConf
 from plyfile import PlyData
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
 from eval.metrics import masked_psnr, masked_ssim
 from gspi.gaussians.cameras import intrinsics_from_fov, look_at
 from gspi.gaussians.model import Gaussians2D
@@ -550,7 +550,7 @@ def test_pbr_ply_round_trip_rerenders_identical_maps(tmp_path, sphere):
 def test_scene_predictions_are_scored_by_the_evaluator(tmp_path, lpips_net):
     from eval.config import ProtocolConfig
     from eval.evaluate import evaluate
-    from eval.layout import read_view_file
+    from eval.common.layout import read_view_file
     from tests.fixtures import RADIUS, make_scene
 
     scene = make_scene(tmp_path / "gt", "sphere_0", size=48, num_test=2)

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from eval.stats import paired_bootstrap_ci
 from eval.sweep import SweepError, load_sweep, read_record
 from eval.tables.cli import run
-from eval.atomic import write_text_atomic
+from eval.common.atomic import write_text_atomic
 from eval.tables.render import per_scene_markdown, to_csv, to_latex, to_markdown
 from eval.tables.build import TABLE_SPECS, build_sweep_table
 
@@ -363,7 +363,7 @@ class TestCommand:
     def test_config_composes_with_its_options(self, tmp_path):
         from hydra import compose, initialize_config_dir
 
-        from eval.config import CONF_DIR
+        from eval.common.conf import CONF_DIR
         with initialize_config_dir(version_base="1.3", config_dir=CONF_DIR):
             cfg = compose("gspi_table", overrides=["table=table3", "bootstrap.n=123"])
         assert cfg.table == "table3" and cfg.bootstrap.n == 123 and cfg.bootstrap.seed == 0

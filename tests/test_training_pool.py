@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.layout import read_scene, read_splits
+from eval.common.layout import read_scene, read_splits
 from gspi.cli.data import run
 from gspi.data.generate import BenchmarkConfig, scene_recipes
 from gspi.data.procedural.materials import MATERIAL_CLASSES

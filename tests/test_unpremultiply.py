@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
 from eval.evaluate import evaluate
-from eval.layout import read_scene, read_view_file, write_material, write_view_file
+from eval.common.layout import read_scene, read_view_file, write_material, write_view_file
 from eval.protocol_id import describe_protocol, protocol_dict, protocol_hash
 from eval.unpremultiply import unpremultiply
 from tests.fixtures import make_prediction, protocol

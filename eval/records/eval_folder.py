@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING
 
 import pandas as pd
 
-from eval.atomic import write_text_atomic
-from eval.errors import MissingInputError
-from eval.layout import LayoutError, read_json_object
+from eval.common.atomic import write_text_atomic
+from eval.common.errors import MissingInputError
+from eval.common.layout import LayoutError, read_json_object
 from eval.records.run_record import RECORD_NAME
 
 if TYPE_CHECKING:  # the writer's argument type only: reading a folder needs no evaluator

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from eval.errors import MissingInputError
-from eval.layout import LayoutError, read_json_object
+from eval.common.errors import MissingInputError
+from eval.common.layout import LayoutError, read_json_object
 
 FORMAT = "gspi-points-eval"
 VERSION = 1
@@ -38,7 +38,7 @@ def find_points_folders(paths: list[str | Path]) -> list[Path]:
 def write_points_scores(out_dir: str | Path, result: dict) -> Path:
     """``<out_dir>/scores.json`` with this format's name and version, atomically (NaN allowed:
     a channel the protocol cannot score)."""
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,6 @@ def run_points_path(folder: str | Path) -> Path:
 
 def write_run_points(job: str | Path, summary: dict) -> Path:
     """``<job>/points_eval/points_summary.json``, atomically."""
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
 
     return write_json_atomic(Path(job) / FOLDER / NAME, summary)

@@ -14,8 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-from eval.errors import StatedError
-from eval.layout import read_json_object
+from eval.common.errors import StatedError
+from eval.common.layout import read_json_object
 
 RECORD_NAME = "result.json"
 RECORD_FORMAT = "gspi-run"

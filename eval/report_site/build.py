@@ -9,8 +9,8 @@ from html import escape
 from pathlib import Path
 from typing import Callable
 
-from eval.imageio import read_exr
-from eval.layout import LayoutError, read_scene, scene_dir_in
+from eval.common.imageio import read_exr
+from eval.common.layout import LayoutError, read_scene, scene_dir_in
 from eval.report_site.collect import Job, Problem, collect_jobs, read_per_view
 from eval.report_site.html_tables import frame_html, sweep_table_html
 from eval.report_site.images import envmap_preview

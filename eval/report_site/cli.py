@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from eval.errors import MissingInputError
+from eval.common.errors import MissingInputError
 
 
 def report_progress(line: str) -> None:
@@ -51,7 +51,7 @@ def run(cfg):
 
 
 def main() -> None:
-    from eval.cli_entry import hydra_cli
+    from eval.common.cli_entry import hydra_cli
     from eval.tables.cli import positional_to_overrides
 
     hydra_cli(run, "gspi_report", rewrite=positional_to_overrides)()

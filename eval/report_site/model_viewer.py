@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Optional
 
 from eval.lpips.weights import cache_dir
-from eval.npm_package import NpmUnavailable, checked_tarball, install_main, npm_pack, sha256
+from eval.common.npm_package import NpmUnavailable, checked_tarball, install_main, npm_pack, sha256
 
 PACKAGE = "@google/model-viewer@4.4.0"
 TARBALL = "google-model-viewer-4.4.0.tgz"

@@ -17,8 +17,8 @@ import torch
 from omegaconf import OmegaConf
 
 from eval.config import RelightConfig
-from eval.imageio import read_exr
-from eval.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
+from eval.common.imageio import read_exr
+from eval.common.layout import MATERIAL_CHANNELS, LayoutError, Scene, material_file, read_view_file
 from eval.protocol import display_relit
 from eval.report_site.collect import Job
 from eval.scored_view import EnvironmentCache, scene_scored_views

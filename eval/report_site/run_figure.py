@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.layout import MATERIAL_CHANNELS, Scene
+from eval.common.layout import MATERIAL_CHANNELS, Scene
 from eval.scored_view import EnvironmentCache, ScoredView, scene_scored_views
 from eval.scoring import psnr_scores, scored_space
 

@@ -137,7 +137,7 @@ class SceneWriter:
     def asset_checks(self) -> str:
         """The user asset each job started from, checked against the scene's photos (gspi-run's
         ``asset_check``, in the prediction's meta.json): its PSNR, and its warning when below."""
-        from eval.layout import read_meta
+        from eval.common.layout import read_meta
 
         parts = []
         for job in self.jobs:

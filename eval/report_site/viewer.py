@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.imageio import read_exr
+from eval.common.imageio import read_exr
 from eval.radiance_hdr import encode_hdr
 from eval.report_site.model_viewer import SCRIPT, installed_script
 from eval.report_site.page import url

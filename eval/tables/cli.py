@@ -110,7 +110,7 @@ def warn_rows_with_failed_jobs(sweep, names, built: dict) -> None:
 def positional_to_overrides(argv: list[str]) -> list[str]:
     """Let `gspi-table DIR DIR` mean `gspi-table runs=[DIR,DIR]` (Hydra takes key=value only)."""
     # An existing path is a folder even with "=" in it (Hydra's sweep job folders: method=gspi).
-    from eval.argv import needs_quoting, quote_path_overrides, quote_value
+    from eval.common.argv import needs_quoting, quote_path_overrides, quote_value
 
     dirs = [a for a in argv if not a.startswith("-") and ("=" not in a or Path(a).exists())]
     rest = quote_path_overrides([a for a in argv if a not in dirs], ("out",))
@@ -119,7 +119,7 @@ def positional_to_overrides(argv: list[str]) -> list[str]:
 
 
 def main() -> None:
-    from eval.cli_entry import hydra_cli
+    from eval.common.cli_entry import hydra_cli
 
     hydra_cli(run, "gspi_table", rewrite=positional_to_overrides)()
 

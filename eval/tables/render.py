@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from eval.atomic import write_text_atomic
+from eval.common.atomic import write_text_atomic
 from eval.sweep import Sweep
 from eval.tables.build import Column, SweepTable, rows_with_failed_jobs
 

@@ -25,7 +25,7 @@ def radiance_stats(images: np.ndarray, mask: np.ndarray) -> dict:
     quantiles of the channel values, maximum, the fraction of pixels with a channel above 1
     (what the encoder's clamp saturates), and the mean of the encoder's input
     (clamp to [0, 1] + sRGB)."""
-    from eval.colorspace import linear_to_srgb
+    from eval.common.colorspace import linear_to_srgb
 
     values = images[mask]
     encoded = linear_to_srgb(torch.from_numpy(np.clip(values, 0.0, 1.0))).numpy()
@@ -37,7 +37,7 @@ def radiance_stats(images: np.ndarray, mask: np.ndarray) -> dict:
 def compare(asset_path: str, scene_dir: str) -> dict:
     """{"captured": stats of the scene's lattice (train) views, "asset": stats of the asset's
     lattice renders at the scene's size}, both inside the GT masks."""
-    from eval.layout import read_scene, read_view_file
+    from eval.common.layout import read_scene, read_view_file
     from gspi.gaussians.lattice_render import render_lattice
     from gspi.gaussians.ply import read_asset_ply
 

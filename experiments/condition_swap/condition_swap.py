@@ -57,7 +57,7 @@ def write_variant(variant: str, scene_dir: Path, asset_rgb: np.ndarray, out: Pat
 def condition_swap(checkpoint: Path, scene_dir: Path, asset_ply: Path, out: Path, *, num_steps: int = 10,
                    max_points: int | None = 20000, baseline_train: str | None = None) -> dict:
     """{variant: {channel: PSNR}} on the scene's GT cloud (module docstring)."""
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.stage2.checkpoint import load_stage2_checkpoint
     from gspi.stage2.evaluate_points import checkpoint_source, evaluate_checkpoint
 

@@ -21,7 +21,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from eval.layout import read_scene
+from eval.common.layout import read_scene
 from gspi.stage2.encoders import PriorConfig
 from experiments.known_light.scene_fit import READOUTS, Light, predict
 

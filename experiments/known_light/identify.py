@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.layout import read_scene, read_splits
+from eval.common.layout import read_scene, read_splits
 from experiments.known_light.fit import POOL_ENVS
 from experiments.known_light.scene_fit import asset_normals, env_path, gt_normals, observations, subset
-from eval.imageio import read_exr
+from eval.common.imageio import read_exr
 from eval.relight import prefilter_environment
 from gspi.light.estimate import MAX_POINTS, estimate_light
 from gspi.light.observations import PointViews

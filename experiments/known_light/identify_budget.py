@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.light.estimate import estimate_light
     from gspi.stage2.light_condition import candidate_lights
     from gspi.stage2.light_fit import LightFitConfig, observe_cloud

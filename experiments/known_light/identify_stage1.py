@@ -16,8 +16,8 @@ import numpy as np
 import torch
 import yaml
 
-from eval.imageio import read_exr
-from eval.layout import read_scene, read_splits
+from eval.common.imageio import read_exr
+from eval.common.layout import read_scene, read_splits
 from eval.relight import prefilter_environment
 from experiments.known_light.fit import POOL_ENVS
 from experiments.known_light.scene_fit import env_path

@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
     import torch
 
     torch.set_num_threads(1)
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.gaussians.ply import read_ply
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud

@@ -13,9 +13,9 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from eval.colorspace import linear_to_srgb
-from eval.imageio import read_exr
-from eval.layout import read_scene, read_view_file
+from eval.common.colorspace import linear_to_srgb
+from eval.common.imageio import read_exr
+from eval.common.layout import read_scene, read_view_file
 from eval.relight import PrefilteredEnvironment, prefilter_environment
 from gspi.gaussians.model import Gaussians2D
 from gspi.light.observations import PointViews

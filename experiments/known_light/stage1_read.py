@@ -42,7 +42,7 @@ def metal_iou(points, metallic: np.ndarray, gt: np.ndarray, mask: np.ndarray) ->
 def asset_stage1(scene_dir: Path, asset_ply: Path):
     """(Stage I's cloud, its lattice renders, the scene's photos at them or None, which views) of
     a scene's Stage 0 asset, as gspi-run builds them (the pool's scenes are 64 or 128 px)."""
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.gaussians.ply import read_ply
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from eval.lpips.net import load_lpips
     from gspi.data.gt_maps import read_gt_view_maps
     from gspi.stage2.data import srgb_top_rgb

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from experiments.known_light.scene_fit import env_path, gt_normals, observations, prefiltered, subset
 from gspi.light.readout import fit_grid, pool_neighbours, read_best, read_posterior
 from gspi.stage2.data import load_scene_points

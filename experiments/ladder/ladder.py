@@ -48,7 +48,7 @@ def ladder_config(data_dir: str | Path, seed: int, overrides: tuple[str, ...] = 
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("gspi_train", overrides=[f"stage2={LADDER_RECIPE}", f"data_dir={data_dir}", "out=unused",
@@ -216,7 +216,7 @@ def _eval_sets(specs: list[str]) -> list[tuple[str, str, str]]:
 
 
 def run_train(args: argparse.Namespace) -> None:
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
     from gspi.stage2.encoders import build_encoder
     from gspi.stage2.splits import load_split
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.atomic import write_json_atomic, write_text_atomic
-from eval.config import CONF_DIR
+from eval.common.atomic import write_json_atomic, write_text_atomic
+from eval.common.conf import CONF_DIR
 from gspi.stage1.config import Stage1Config
 from gspi.stage1.extract import LatticeRenders, apply_filters, render_lattice, unproject_renders
 from gspi.point_cloud import PointCloud

@@ -20,7 +20,7 @@ import argparse
 import json
 from pathlib import Path
 
-from eval.layout import read_splits
+from eval.common.layout import read_splits
 from gspi.data.pool.split import link_scene
 
 

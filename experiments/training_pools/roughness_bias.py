@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.layout import read_splits, read_view_file
+from eval.common.layout import read_splits, read_view_file
 
 
 def view_masks(data_scene: Path) -> dict[str, np.ndarray]:

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from eval.layout import read_splits
+from eval.common.layout import read_splits
 from gspi.stage2.view_statistics import NEIGHBOURHOOD_KS as NEIGHBOURHOODS  # k nearest of the 3000 subset points
 
 POINTS_PER_SCENE = 3000

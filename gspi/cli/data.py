@@ -35,7 +35,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +127,7 @@ def run(cfg: DictConfig) -> dict:
                       len(stats["failed"]) + len(stats["scenes"]), ", ".join(f["file"] for f in stats["failed"]))
         # each asset's line ("asset k/N: ...") was logged as it finished (gspi.data.assets.glb_import)
     elif mode == "import":
-        from eval.layout import merge_splits
+        from eval.common.layout import merge_splits
 
         scene, fmt = import_layout(cfg["import"], out)
         merge_splits(out, {"test": [scene.name]})

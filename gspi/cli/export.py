@@ -19,7 +19,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 
 ASSET_KEY = "asset="
 

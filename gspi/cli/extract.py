@@ -28,8 +28,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
-from eval.errors import MissingInputError
+from eval.common.cli_entry import hydra_cli
+from eval.common.errors import MissingInputError
 
 log = logging.getLogger(__name__)
 # Absolute: a relative config_path resolves as a Python package under console scripts.
@@ -53,8 +53,8 @@ def run(cfg: DictConfig) -> dict:
     """Extracts ``cfg.asset`` into ``cfg.out``; returns stage1.json's content."""
     import torch
 
-    from eval.layout import read_scene
-    from eval.atomic import write_json_atomic
+    from eval.common.layout import read_scene
+    from eval.common.atomic import write_json_atomic
     from gspi.gaussians.ply import read_ply
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud

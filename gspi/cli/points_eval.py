@@ -19,8 +19,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
-from eval.errors import MissingInputError
+from eval.common.cli_entry import hydra_cli
+from eval.common.errors import MissingInputError
 
 
 def run(cfg: DictConfig) -> dict:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 
@@ -34,8 +34,8 @@ def run(cfg: DictConfig) -> dict:
     """Reconstructs ``cfg.scene`` into ``cfg.out``; returns recon.json's content."""
     import torch
 
-    from eval.layout import read_scene
-    from eval.atomic import write_json_atomic
+    from eval.common.layout import read_scene
+    from eval.common.atomic import write_json_atomic
     from gspi.device import resolve_device
     from gspi.gaussians.ply import write_ply
     from gspi.recon.data import ReconInputError

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
-from eval.errors import MissingInputError
+from eval.common.cli_entry import hydra_cli
+from eval.common.errors import MissingInputError
 
 log = logging.getLogger(__name__)
 SPINS = ("camera", "env")
@@ -72,7 +72,7 @@ def run(cfg: DictConfig) -> dict:
     import torch
     from PIL import Image
 
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
     from eval.relight import prefilter_environment
     from gspi.gaussians.ply import read_ply
     from gspi.relight import framing, load_environment, rotate_environment

@@ -25,7 +25,7 @@ import logging
 import sys
 from pathlib import Path
 
-from eval.errors import EXIT_STATED, StatedError, one_line
+from eval.common.errors import EXIT_STATED, StatedError, one_line
 from gspi.repo import REPO
 
 log = logging.getLogger("gspi-reproduce")
@@ -40,7 +40,7 @@ class ReproduceError(StatedError, ValueError):
 
 def conf_dirs(study: str | None) -> list[Path]:
     """The config folders of a call: conf/, then the study's (``study=<name>``)."""
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
 
     if study is None:
         return [Path(CONF_DIR)]
@@ -76,7 +76,7 @@ def compose(argv: list[str]):
     from omegaconf.errors import OmegaConfBaseException
     from yaml import YAMLError
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
 
     pairs = {}
     for arg in argv:
@@ -129,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = sys.argv[1:] if argv is None else argv
     if any(a in ("-h", "--help", "help") for a in argv):
-        from eval.cli_help import usage
-        from eval.config import CONF_DIR
+        from eval.common.cli_help import usage
+        from eval.common.conf import CONF_DIR
 
         # its own keys (conf/gspi_reproduce.yaml), the tables it knows, then the module's examples
         tables = ", ".join(call_name(n) for n in available())

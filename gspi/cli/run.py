@@ -23,10 +23,10 @@ from typing import Optional
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
-# Quoted for Hydra's grammar when they hold = , ' spaces or non-ASCII (eval/argv.py).
+# Quoted for Hydra's grammar when they hold = , ' spaces or non-ASCII (eval/common/argv.py).
 PATH_KEYS = ("data_dir", "out", "assets", "cache_dir")
 
 
@@ -61,7 +61,7 @@ def run_task(cfg: DictConfig) -> Optional[dict]:
         return result
     from hydra.core.hydra_config import HydraConfig
 
-    from eval.errors import StatedError, one_line
+    from eval.common.errors import StatedError, one_line
     from gspi.run.record import RESULT_FILE
     from gspi.run.sweep_report import job_name
 

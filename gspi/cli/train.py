@@ -22,7 +22,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from eval.cli_entry import hydra_cli
+from eval.common.cli_entry import hydra_cli
 
 log = logging.getLogger(__name__)
 # `data=<dir>` is an alias of the key `data_dir=<dir>`: conf/data/ is a config group (dataset
@@ -40,7 +40,7 @@ def run(cfg: DictConfig) -> dict:
     from gspi.stage2.distributed import from_env, shutdown
     from gspi.stage2.train import train
 
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
     from gspi.strict_config import check_value
 
     check_value("threads", cfg.threads, int, lo=1, hi=1024)

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb
-from eval.imageio import read_exr, write_png
-from eval.layout import Scene, read_view_file
+from eval.common.colorspace import linear_to_srgb
+from eval.common.imageio import read_exr, write_png
+from eval.common.layout import Scene, read_view_file
 
 
 def _srgb(x: np.ndarray) -> np.ndarray:

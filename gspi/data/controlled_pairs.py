@@ -33,9 +33,9 @@ from typing import ClassVar
 import numpy as np
 import torch
 
-from eval.atomic import write_json_atomic
-from eval.colorspace import srgb_to_linear
-from eval.layout import read_json_object
+from eval.common.atomic import write_json_atomic
+from eval.common.colorspace import srgb_to_linear
+from eval.common.layout import read_json_object
 from gspi.data.environments import env_names
 from gspi.data.procedural.materials import METAL_F0, plain_material
 from gspi.data.procedural.scene_recipe import held_out_view_directions

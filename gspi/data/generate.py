@@ -33,8 +33,8 @@ from typing import Any, ClassVar, Optional
 
 import torch
 
-from eval.layout import read_scene
-from eval.atomic import write_json_atomic
+from eval.common.layout import read_scene
+from eval.common.atomic import write_json_atomic
 from gspi.data.contact_sheet import write_contact_sheet
 from gspi.data.environments import env_names
 from gspi.data.lattice import CANONICAL_LATTICE
@@ -180,7 +180,7 @@ def write_environments(env_dir: Path, names: list[str], cfg: BenchmarkConfig) ->
     """Make each named environment once into `env_dir` (a scratch folder); name -> path.
 
     Sources follow `cfg.capture_envs` / `cfg.relight_envs` (gspi.data.env_sets)."""
-    from eval.imageio import write_exr
+    from eval.common.imageio import write_exr
     from gspi.data.env_sets import environment_sets, make_named_environment
 
     capture, relight = environment_sets(cfg.capture_envs, cfg.relight_envs)

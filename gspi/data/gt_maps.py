@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.layout import Scene, read_scene, read_view_file
+from eval.common.layout import Scene, read_scene, read_view_file
 
 PBR_FILES = ("albedo.png", "roughness.png", "metallic.png")
 

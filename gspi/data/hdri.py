@@ -33,7 +33,7 @@ import torch
 from torch import Tensor
 
 from eval.envmap import downsample_latlong, latlong_directions, sample_latlong
-from eval.imageio import ImageFormatError, read_exr
+from eval.common.imageio import ImageFormatError, read_exr
 
 POLYHAVEN_HELDOUT = ("city", "forest", "lobby", "studio", "sunset", "workshop")
 POLYHAVEN_CAPTURE = ("apartment", "bridge", "dawn", "esplanade", "hall", "lab", "night",

@@ -13,7 +13,7 @@ the single place that defines that lattice (method-notes.md, section 6):
 Camera i sits at c_i = origin + radius * d_i and looks at the origin with a fixed field of view;
 the pose depends only on (num_views, radius, min_elevation), never on the scene, and the
 intrinsics only on (fov, image size). Camera convention: OpenCV (x right, y down, z forward),
-`w2c` maps world -> camera, as in `eval.layout`.
+`w2c` maps world -> camera, as in `eval.common.layout`.
 """
 from __future__ import annotations
 

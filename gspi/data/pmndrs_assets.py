@@ -22,8 +22,8 @@ import tempfile
 from pathlib import Path
 
 from eval.lpips.weights import cache_dir
-from eval.npm_package import NpmUnavailable, checked_tarball, install_main, sha256
-from eval.npm_package import npm_pack as eval_npm_pack
+from eval.common.npm_package import NpmUnavailable, checked_tarball, install_main, sha256
+from eval.common.npm_package import npm_pack as eval_npm_pack
 
 PACKAGE = "@pmndrs/assets@1.7.0"
 TARBALL = "pmndrs-assets-1.7.0.tgz"

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.layout import Scene, read_view_file
+from eval.common.layout import Scene, read_view_file
 from eval.views import pixel_rays
 
 POINT_FIELDS = ("xyz", "view", "pixel", "rgb", "albedo", "roughness", "metallic")

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.errors import MissingInputError, StatedError
+from eval.common.errors import MissingInputError, StatedError
 from gspi.export.config import ExportConfig
 
 log = logging.getLogger(__name__)
@@ -62,7 +62,7 @@ def load_pbr_asset(path: Path):
 def export_asset(asset_path: str | Path, out: str | Path, cfg: ExportConfig | None = None) -> dict:
     """Export ``asset_path`` (a PBR-GS PLY) to the GLB ``out``; returns what was done and how long
     each step took (seconds)."""
-    from eval.colorspace import linear_to_srgb
+    from eval.common.colorspace import linear_to_srgb
     from gspi.export.bake import bake_textures, texel_materials, texel_samples
     from gspi.export.gltf_write import write_glb
     from gspi.export.surface import asset_surface, face_normals, lattice_views

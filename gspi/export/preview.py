@@ -33,7 +33,7 @@ def preview_camera(size: int) -> tuple[np.ndarray, np.ndarray]:
 
 def preview_panels(glb: str | Path, size: int = PANEL_PX) -> np.ndarray:
     """[size, 4 size, 3] uint8: shaded | base colour | roughness | metallic (module docstring)."""
-    from eval.colorspace import tonemap
+    from eval.common.colorspace import tonemap
     from eval.relight import prefilter_environment
     from gspi.data.environments import make_environment
     from gspi.data.assets.gltf import read_gltf

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.layout import MATERIAL_CHANNELS, read_scene, read_view_file
+from eval.common.layout import MATERIAL_CHANNELS, read_scene, read_view_file
 from eval.metrics import masked_psnr
 from gspi.gaussians.model import Gaussians2D
 

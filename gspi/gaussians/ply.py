@@ -35,7 +35,7 @@ import torch
 from plyfile import PlyData, PlyElement, PlyParseError
 from torch import Tensor
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.sh import MAX_SH_DEGREE, num_sh_bases
 

@@ -291,6 +291,23 @@ def speed_block() -> str:
     return "\n".join(lines) + "\n\n" + "; ".join(notes) + ".\n"
 
 
+def demo_time_text(rec: dict) -> str:
+    """One paragraph of `make demo`'s time from benchmarks/bench_demo.py's record: the total
+    without the install, wall and CPU, and each step's wall time."""
+    minutes, seconds = divmod(round(rec["wall_s"]), 60)
+    steps = ", ".join(f"{s['step']} {s['wall_s']:.0f} s" for s in rec["steps"] if s["wall_s"] >= 0.5)
+    return (f"`make demo` after its install takes **{minutes} min {seconds:02d} s** ({rec['cpu_s']:.0f} CPU-s on "
+            f"{rec['cores']} cores: {steps}), measured by `{rec['command']}` on {rec['date']} "
+            f"({rec['machine'].split(': ', 1)[-1]}, load average {rec['load_average'][0]:.1f} -> "
+            f"{rec['load_average'][1]:.1f}).\n")
+
+
+def demo_time_block() -> str:
+    """README's demo time, from make bench's record (results/speed/cpu/demo.json)."""
+    path = SPEED / "demo.json"
+    return demo_time_text(read_json(path)) if path.is_file() else "No record yet: `make bench` writes it.\n"
+
+
 # ---- targets ------------------------------------------------------------------------------------
 FILES: dict[str, Callable[[], str]] = {
     "docs/results/table1.md": table1_file,
@@ -301,6 +318,7 @@ FILES: dict[str, Callable[[], str]] = {
 }
 BLOCKS: dict[tuple[str, str], Callable[[], str]] = {("README.md", "table1"): table1_block,
                                                    ("README.md", "speed"): speed_block,
+                                                   ("README.md", "demo_time"): demo_time_block,
                                                    ("checkpoints/README.md", "shipping"): shipping_block}
 
 

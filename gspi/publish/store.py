@@ -7,6 +7,7 @@
     results/heldout/cpu/<model>/scores.json             a shipped model on the held-out pool scenes
     results/shipping/cpu/<model>/scores.json            a retired shipping-rule candidate's record (eval.tables.cards)
     results/speed/cpu/pipeline_<preset>.json            make bench's GS-PI vs joint IR material time (bench_pipeline)
+    results/speed/cpu/demo.json                         make bench's `make demo` time, step by step (bench_demo)
     results/speed/cpu/budget_<data>.json                a speed budget's cost in quality (benchmarks/budget_quality.py)
 
 A table's reproduce file (conf/reproduce/<table>_<scale>.yaml) names its folder as ``scores_dir``;

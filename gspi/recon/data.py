@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.layout import LayoutError, Scene, read_scene, read_view_file
+from eval.common.layout import LayoutError, Scene, read_scene, read_view_file
 
 INPUT_FILES = ("rgb.exr", "mask.png")
 

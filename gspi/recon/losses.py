@@ -1,7 +1,7 @@
 """Photometric losses of the reconstruction (3DGS recipe) and 2DGS's normal consistency.
 
 The display transform maps linear HDR radiance to the values the loss and the held-out
-metrics compare: ``eval.colorspace.tonemap`` (default ACES filmic + sRGB encoding, the
+metrics compare: ``eval.common.colorspace.tonemap`` (default ACES filmic + sRGB encoding, the
 evaluation protocol's relighting display transform). Both the rendered and the input
 radiance go through it; the asset itself stays in linear radiance (SH colours are
 unbounded above, so highlights brighter than 1 are representable).
@@ -13,14 +13,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from eval.colorspace import tonemap
+from eval.common.colorspace import tonemap
 from gspi.gaussians.cameras import unproject
 
 SSIM_C1, SSIM_C2 = 0.01**2, 0.03**2
 
 
 def display(radiance: Tensor, *, mode: str = "aces", exposure_stops: float = 0.0, srgb: bool = True) -> Tensor:
-    """Linear radiance -> display values in [0, 1] (``eval.colorspace.tonemap``)."""
+    """Linear radiance -> display values in [0, 1] (``eval.common.colorspace.tonemap``)."""
     return tonemap(radiance, mode=mode, exposure_stops=exposure_stops, srgb=srgb)
 
 

@@ -23,7 +23,7 @@ from typing import Any, Mapping, Optional
 
 import torch
 
-from eval.layout import Scene
+from eval.common.layout import Scene
 from gspi.gaussians.model import Gaussians2D
 from gspi.recon.data import SceneViews, load_scene_views
 from gspi.recon.init import init_gaussians

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from eval.layout import read_splits
+from eval.common.layout import read_splits
 from gspi.data.pool.asset_conditions import LATTICE_SPLIT, write_asset_conditions
 from gspi.recon.reconstruct import reconstruction_seconds
 
@@ -50,7 +50,7 @@ def recon_config(name: str, overrides: tuple[str, ...] = ()) -> dict:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("gspi_recon", overrides=[f"recon={name}", "scene=unused", "out=unused", *overrides])
@@ -80,8 +80,8 @@ def reconstruct_pool_scene(scene_dir: Path, dst: Path, recon_cfg: dict[str, Any]
     ``pool_format``, ``source``, ``cpu_seconds``, ``lattice_display_psnr`` and ``highlights``."""
     import torch
 
-    from eval.layout import read_scene
-    from eval.atomic import write_json_atomic
+    from eval.common.layout import read_scene
+    from eval.common.atomic import write_json_atomic
     from gspi.gaussians.ply import write_ply
     from gspi.gaussians.lattice_render import render_lattice
     from gspi.recon.data import load_scene_views
@@ -121,7 +121,7 @@ def reconstruct_pool(src: str | Path, out: str | Path, *, recon: str = "fast", w
                      overrides: tuple[str, ...] = ()) -> list[dict]:
     """Every scene of ``src``'s splits reconstructed into ``out`` (module docstring)."""
     src, out = Path(src), Path(out)
-    splits = read_splits(src)  # eval.layout: names the file and the problem
+    splits = read_splits(src)  # eval.common.layout: names the file and the problem
     names = [n for split in ("train", "val", "test") for n in splits.get(split, [])]
     cfg = recon_config(recon, overrides)
     out.mkdir(parents=True, exist_ok=True)
@@ -178,6 +178,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from eval.errors import run_command
+    from eval.common.errors import run_command
 
     run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

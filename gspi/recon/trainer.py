@@ -66,7 +66,7 @@ class LossConfig:
 
 @dataclass
 class DisplayConfig:
-    tonemap: str = "aces"         # eval.colorspace.tonemap mode: aces | clamp | reinhard
+    tonemap: str = "aces"         # eval.common.colorspace.tonemap mode: aces | clamp | reinhard
     exposure_stops: float = 0.0
     srgb: bool = True
 
@@ -128,7 +128,7 @@ def _display_cfg(cfg: DisplayConfig) -> dict:
 
 def display_transform_name(cfg: DisplayConfig) -> str:
     exp = f" x 2^{cfg.exposure_stops:g}" if cfg.exposure_stops else ""
-    return f"eval.colorspace.tonemap(mode={cfg.tonemap!r}{exp}, srgb={cfg.srgb}) of linear radiance"
+    return f"eval.common.colorspace.tonemap(mode={cfg.tonemap!r}{exp}, srgb={cfg.srgb}) of linear radiance"
 
 
 @torch.no_grad()

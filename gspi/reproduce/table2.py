@@ -17,7 +17,7 @@ from typing import Any, Callable, Mapping
 
 from gspi.reproduce.costs import cost, scene_count
 from gspi.reproduce.plan import Step
-from eval.errors import MissingInputError
+from eval.common.errors import MissingInputError
 from gspi.reproduce.kept_state import restore
 from eval.portable import write_portable_scores
 

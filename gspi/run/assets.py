@@ -17,10 +17,10 @@ from typing import Any, ClassVar, Mapping, Optional
 import numpy as np
 import torch
 
-from eval.atomic import atomic_path
-from eval.errors import StatedError
-from eval.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file
-from eval.atomic import write_json_atomic
+from eval.common.atomic import atomic_path
+from eval.common.errors import StatedError
+from eval.common.layout import MATERIAL_CHANNELS, Scene, material_file, read_view_file
+from eval.common.atomic import write_json_atomic
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.ply import read_asset_ply, read_ply, write_ply
 from gspi.run.locks import file_lock

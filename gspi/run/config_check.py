@@ -47,7 +47,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> StageConfigs:
     from omegaconf import OmegaConf
 
     from eval.config import validate_protocol
-    from eval.layout import SPLITS
+    from eval.common.layout import SPLITS
     from gspi.device import resolve_device
 
     for key, (kind, lo, hi) in JOB_KEYS.items():
@@ -63,7 +63,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> StageConfigs:
     if cfg.get("scenes") is not None:
         if not isinstance(cfg["scenes"], (list, tuple)):
             raise ConfigError(f"scenes={cfg['scenes']!r}: must be a list of scene names or null")
-        from eval.layout import check_name
+        from eval.common.layout import check_name
         for name in cfg["scenes"]:
             check_name(name, "scenes")
     stages = parse_stage_configs(cfg)
@@ -78,7 +78,7 @@ def check_run_config(cfg: Mapping[str, Any]) -> StageConfigs:
 def check_checkpoint_exists(stage2: Mapping[str, Any]) -> None:
     """``stage2.checkpoint=<path>`` names a file (resolved as the run resolves it): a missing one
     fails at start-up, naming the key."""
-    from eval.errors import MissingInputError
+    from eval.common.errors import MissingInputError
     from gspi.run.stage2_model import resolve_path
 
     path = stage2.get("checkpoint")

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Optional
 
 from hydra.utils import get_class
 
-from eval.layout import Scene
+from eval.common.layout import Scene
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage_clock import StageClock
 

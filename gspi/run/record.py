@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
-from eval.atomic import write_json_atomic
+from eval.common.atomic import write_json_atomic
 from eval.records.run_record import RECORD_NAME, RecordError, build_record, invalidate_record, read_record_json
 
 RESULT_FILE = RECORD_NAME

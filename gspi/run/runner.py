@@ -32,9 +32,9 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import torch
 
-from eval.layout import LayoutError, Scene, read_meta, read_scene, read_splits, scene_dir_in, write_meta
-from eval.atomic import write_json_atomic
-from eval.errors import MissingInputError, StatedError, one_line
+from eval.common.layout import LayoutError, Scene, read_meta, read_scene, read_splits, scene_dir_in, write_meta
+from eval.common.atomic import write_json_atomic
+from eval.common.errors import MissingInputError, StatedError, one_line
 from eval.records import run_points
 from eval.records.eval_folder import RESULT_FILES
 from gspi.device import resolve_device

@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
-from eval.layout import read_splits
+from eval.common.layout import read_splits
 from gspi.pipeline import Stage2Context
 from gspi.repo import REPO
 from gspi.run.locks import file_lock

@@ -42,7 +42,7 @@ def stage2_sweeps(config_dir: str, config_name: str, overrides: list[str]) -> di
     dataset first (:func:`check_sweep_data`)."""
     from hydra import compose, initialize_config_dir
 
-    from eval.cli_precheck import first_of_sweeps, sweep_values
+    from eval.common.cli_precheck import first_of_sweeps, sweep_values
 
     swept = sweep_values(overrides)
     found = {k: v for k, v in swept.items() if is_stage2_key(k)}
@@ -88,7 +88,7 @@ def check_sweep_checkpoints(argv: list[str], config_dir: str, config_name: str =
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from eval.cli_precheck import first_of_sweeps
+    from eval.common.cli_precheck import first_of_sweeps
 
     overrides = [a for a in argv if a not in MULTIRUN_FLAGS]
     if any(a.startswith("-") for a in overrides):
@@ -110,8 +110,8 @@ def check_sweep_checkpoints(argv: list[str], config_dir: str, config_name: str =
 
 
 def check_gspi_run(argv: list[str]) -> None:
-    """`gspi-run`'s check before Hydra starts (eval.cli_entry.hydra_cli's ``check``): sweeps only."""
-    from eval.config import CONF_DIR
+    """`gspi-run`'s check before Hydra starts (eval.common.cli_entry.hydra_cli's ``check``): sweeps only."""
+    from eval.common.conf import CONF_DIR
 
     if any(a in MULTIRUN_FLAGS for a in argv) or any("experiment=" in a for a in argv):
         check_sweep_checkpoints(argv, str(Path(CONF_DIR)))

@@ -20,8 +20,8 @@ from typing import Any, Optional
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from eval.atomic import write_json_atomic
-from eval.errors import one_line
+from eval.common.atomic import write_json_atomic
+from eval.common.errors import one_line
 
 FOLDER = ".sweep_jobs"
 EXIT_JOBS_FAILED = 1

@@ -25,7 +25,7 @@ from gspi.data.pool.asset_conditions import ASSET_STAGE1_POINTS, ASSET_STAGE1_RE
 
 def write_asset_stage1(scene_dir: Path) -> Path:
     """Stage I of ``scene_dir/asset/point_cloud.ply`` written to ``scene_dir/asset/stage1/``."""
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
     from gspi.gaussians.ply import read_ply
     from gspi.stage1.config import Stage1Config
     from gspi.stage1.extract import extract_point_cloud

@@ -17,8 +17,8 @@ from typing import Any
 
 import torch
 
-from eval.atomic import atomic_path
-from eval.errors import MissingInputError, StatedError
+from eval.common.atomic import atomic_path
+from eval.common.errors import MissingInputError, StatedError
 from gspi.stage2.model import RCWConfig, RCWDenoiser
 
 CHECKPOINT_FORMAT = "gspi-stage2"

@@ -81,7 +81,7 @@ def local_condition_dim(name: str) -> int:
 
 def srgb_top_rgb(rgb_linear: np.ndarray) -> np.ndarray:
     """[..., 3] linear HDR -> [..., 3] float32 ``linear_to_srgb(clamp(x, 0, 1))`` (Top-RGB)."""
-    from eval.colorspace import linear_to_srgb
+    from eval.common.colorspace import linear_to_srgb
 
     return linear_to_srgb(torch.from_numpy(np.asarray(rgb_linear, dtype=np.float32))).numpy()
 
@@ -90,7 +90,7 @@ def read_lattice_views(scene_dir: str | Path, *, depth: bool = True
                        ) -> tuple[np.ndarray, Optional[np.ndarray]]:
     """(linear radiance [V, H, W, 3] float32, GT depth [V, H, W] float32 or None) of a scene
     folder's lattice views (its train split: ``rgb.exr``, ``depth.exr``), in the split's order."""
-    from eval.layout import read_scene, read_view_file
+    from eval.common.layout import read_scene, read_view_file
 
     scene = read_scene(scene_dir)
     dirs = [scene.view_dir("train", v.id) for v in scene.split_views("train")]
@@ -102,7 +102,7 @@ def read_lattice_views(scene_dir: str | Path, *, depth: bool = True
 
 def read_lattice_cameras(scene_dir: str | Path):
     """(Scene, LatticeCameras) of a canonical scene folder; the train split must be the 32-view lattice."""
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
 
     scene = read_scene(scene_dir)
     views = scene.split_views("train")
@@ -197,7 +197,7 @@ class ScenePoints:
 
     def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, cams: LatticeCameras,
                     xyz: np.ndarray, normals):
-        from eval.layout import read_scene
+        from eval.common.layout import read_scene
         from gspi.stage2 import light_condition as lc
         from gspi.stage2.light_condition import candidate_lights, capture_light
 

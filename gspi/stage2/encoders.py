@@ -228,8 +228,8 @@ def lattice_images_srgb(scene_dir: str | Path) -> Tensor:
     Returns:
         [V, 3, H, W] float32: ``linear_to_srgb(clamp(rgb.exr, 0, 1))``, in lattice order.
     """
-    from eval.colorspace import linear_to_srgb
-    from eval.layout import read_scene, read_view_file
+    from eval.common.colorspace import linear_to_srgb
+    from eval.common.layout import read_scene, read_view_file
 
     scene = read_scene(scene_dir)
     images = [read_view_file(scene.view_dir("train", v.id), "rgb.exr") for v in scene.split_views("train")]

@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping
 
 import torch
 
-from eval.layout import LayoutError
+from eval.common.layout import LayoutError
 from eval.points_protocol import measure_record
 from eval.records.points_scores import write_points_scores
 from gspi.stage2.data import ScenePoints
@@ -205,6 +205,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from eval.errors import run_command
+    from eval.common.errors import run_command
 
     run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from eval.atomic import atomic_path
+from eval.common.atomic import atomic_path
 from gspi.stage2.encoders import GRID_SIZE, PriorEncoder, encoder_hash, lattice_images_srgb
 
 log = logging.getLogger(__name__)
@@ -32,7 +32,7 @@ def cache_path(cache_dir: str | Path, scene_name: str, encoder: PriorEncoder, *,
 
 def input_fingerprint(scene_dir: str | Path) -> list:
     """[(view id, size, mtime_ns)] of the lattice views' rgb.exr (changes when the data does)."""
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
 
     scene = read_scene(scene_dir)
     out = []

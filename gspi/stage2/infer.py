@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.point_cloud import PointCloud, nearest_fill

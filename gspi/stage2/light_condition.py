@@ -28,9 +28,9 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from eval.envmap import downsample_latlong
-from eval.imageio import read_exr
+from eval.common.imageio import read_exr
 from eval.relight import PrefilteredEnvironment, prefilter_environment
 from gspi.data.env_sets import make_named_environment, resolve_env_set
 from gspi.light.estimate import LightEstimate, estimate_light

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
 from gspi.light.estimate import estimate_light
 from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,

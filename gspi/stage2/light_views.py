@@ -53,7 +53,7 @@ def lattice_photos(scene_dir: Path, renders, *, atol: float = 1e-4) -> tuple[Opt
     (None, why not). Issue 66, item 3: Stage 0 blurs the highlights that the photos keep, so the
     light is read from the photos with the asset for geometry and visibility; an asset that comes
     without photos at these cameras (a user's own object) is read from its renders."""
-    from eval.layout import LayoutError, read_scene, read_view_file
+    from eval.common.layout import LayoutError, read_scene, read_view_file
 
     try:
         scene = read_scene(scene_dir)

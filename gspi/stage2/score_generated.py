@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.layout import LayoutError
+from eval.common.layout import LayoutError
 from gspi.data.gt_maps import read_gt_view_maps
 from gspi.data.lattice import NUM_LATTICE_VIEWS
 from gspi.point_cloud import PointCloud, nearest_fill, scatter_pixel_values
@@ -119,6 +119,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from eval.errors import run_command
+    from eval.common.errors import run_command
 
     run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

@@ -22,7 +22,7 @@ def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool 
     False (scenes read for their ground truth only, e.g. the no-decomposition baseline's).
     ``light_source``: the light ``stage2.data.light_readout`` is told: ``capture`` (the scene's own,
     training) or ``estimated`` (among the model's candidates, as at inference: Table 2's measure)."""
-    from eval.layout import read_splits
+    from eval.common.layout import read_splits
 
     data_dir = Path(cfg["data_dir"])
     names = read_splits(data_dir).get(split, [])

@@ -23,7 +23,7 @@ import torch
 
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage3.config import Stage3Config
-from eval.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
 from gspi.stage3.init import blend_base_color, initialize_pbr
 from gspi.stage3.loss import PROPERTIES, masked_material_loss
 from gspi.stage3.render import render_base_color, render_geometry, render_materials

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.layout import Scene, write_material
+from eval.common.layout import Scene, write_material
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage3.render import render_materials
 
@@ -51,7 +51,7 @@ def write_scene_predictions(asset: Gaussians2D, scene: Scene, out_scene_dir: Pat
     """Renders the asset's material maps at a scene's views into the canonical prediction layout.
 
     Writes ``<out_scene_dir>/<split>/<view id>/{albedo,roughness,metallic}.png`` (16-bit, albedo
-    sRGB-encoded) through ``eval.layout.write_material``; ``meta.json`` (method name, runtimes)
+    sRGB-encoded) through ``eval.common.layout.write_material``; ``meta.json`` (method name, runtimes)
     is the runner's (``gspi.run``), not written here.
 
     Returns:

@@ -46,7 +46,7 @@ import torch.nn.functional as F
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from eval.colorspace import srgb_to_linear
+from eval.common.colorspace import srgb_to_linear
 from gspi.gaussians.model import Gaussians2D
 from gspi.stage3.config import SH_MODES, Stage3Config
 from gspi.stage3.render import render_geometry

@@ -4,7 +4,7 @@ Colour space: ``Gaussians2D.albedo`` is LINEAR RGB. The rasterizer composites th
 albedo, roughness and metallic of the surfels alpha-premultiplied over zero; a map is that
 sum divided by the accumulated alpha where alpha > ``min_alpha`` (0 elsewhere), i.e. the
 blend-weight average of the surfels on the ray. The albedo map is then sRGB-encoded
-(``eval.colorspace.linear_to_srgb``), so the Stage III loss compares it with the sRGB targets
+(``eval.common.colorspace.linear_to_srgb``), so the Stage III loss compares it with the sRGB targets
 and the exported maps are in the canonical layout's encoding (albedo PSNR during distillation
 and in ``gspi-eval`` measure the same thing).
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from gspi.gaussians.model import Gaussians2D
 from gspi.gaussians.rasterize import rasterize_2dgs
 

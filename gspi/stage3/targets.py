@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from eval.layout import Scene
+from eval.common.layout import Scene
 from gspi.data.gt_maps import read_gt_view_maps
 from gspi.gaussians.lattice_render import LatticeRenders
 from gspi.point_cloud import PointCloud, scatter_pixel_values
@@ -134,7 +134,7 @@ def scene_targets(scene: Scene, split: str = "train") -> StagedTargets:
     """Targets from a scene's ground-truth maps (an oracle Stage II), valid = ``mask.png``.
 
     Args:
-        scene: a canonical scene (``eval.layout.read_scene``); its ``train`` split holds the
+        scene: a canonical scene (``eval.common.layout.read_scene``); its ``train`` split holds the
             32 lattice views of generated scenes.
         split: which views to read.
     """

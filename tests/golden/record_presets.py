@@ -138,7 +138,7 @@ def albedo_as_linear(case: dict) -> dict:
     """A fixture's albedo maps as TensoIR's data holds them: its albedo.png values are linear
     (gspi stores their sRGB encoding, gspi/data/layouts/tensoir.py), and so are the albedo maps
     its, GS-IR's and IRGS's models render; these projects' code is handed these values."""
-    from eval.colorspace import srgb_to_linear
+    from eval.common.colorspace import srgb_to_linear
 
     return {**case, "gt": [srgb_to_linear(g) for g in case["gt"]], "pred": [srgb_to_linear(p) for p in case["pred"]]}
 
@@ -350,7 +350,7 @@ def record_r3dg(root: Path) -> dict:
     from utils.image_utils import psnr
     from utils.loss_utils import ssim
 
-    from eval.colorspace import linear_to_srgb
+    from eval.common.colorspace import linear_to_srgb
 
     ev = files["eval_relighting_syn4.py"]
     out = {"albedo": {}, "relight": {}}
@@ -360,7 +360,7 @@ def record_r3dg(root: Path) -> dict:
         for v in range(len(c["gt"])):
             env_rows = []
             for e, _ in enumerate(RELIT_ENVS):
-                # the relit GT PNG and the rendered images: clamp + sRGB display (eval.colorspace)
+                # the relit GT PNG and the rendered images: clamp + sRGB display (eval.common.colorspace)
                 gt_display = linear_to_srgb(r["gt"][v][e].float())
                 ns = {"torch": torch, "psnr": psnr, "ssim": ssim, "lpips": lpips, "bg": 0,
                       "image": gt_display.numpy(), "mask": r["mask"][v][..., None].float().numpy(),

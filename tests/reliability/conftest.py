@@ -10,7 +10,7 @@ import pytest
 def tiny_gt(tmp_path_factory) -> Path:
     """One analytic sphere scene (32 px, 2 test views) + splits.json: a dataset gspi-eval scores
     in about a second with eval.channels=[roughness,metallic]."""
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
     from tests.fixtures import make_scene
 
     root = tmp_path_factory.mktemp("rel_gt") / "gt"

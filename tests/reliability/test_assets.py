@@ -15,7 +15,7 @@ from tests.run_helpers import TINY_RUN
 
 
 def _test_scene(micro_dataset):
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
 
     name = json.loads((micro_dataset / "splits.json").read_text())["test"][0]
     return read_scene(micro_dataset / name)
@@ -71,7 +71,7 @@ def test_gspi_run_fails_on_a_degenerate_user_asset(micro_dataset, tmp_path, kind
 
 
 def test_black_predictions_fail_the_scene(workspace):
-    from eval.layout import read_scene, write_material
+    from eval.common.layout import read_scene, write_material
     from gspi.run.assets import AssetError, check_prediction_covers_scene
 
     scene = read_scene(workspace / "gt" / "sphere_0")

@@ -29,7 +29,7 @@ def write_huge_png(path, size: int = 12000) -> None:
 
 
 def test_png_size_is_checked_from_the_header_before_decoding(tmp_path):
-    from eval.imageio import ImageFormatError, read_png
+    from eval.common.imageio import ImageFormatError, read_png
 
     path = tmp_path / "albedo.png"
     write_huge_png(path)
@@ -48,7 +48,7 @@ def test_png_size_is_checked_from_the_header_before_decoding(tmp_path):
 
 def _read_capped(path):
     """read_png with a lowered MAX_PIXELS: the cap applies when no shape is expected."""
-    import eval.imageio as imageio
+    import eval.common.imageio as imageio
 
     old = imageio.MAX_PIXELS
     imageio.MAX_PIXELS = 1000 * 1000
@@ -69,7 +69,7 @@ def test_gspi_eval_refuses_an_oversized_prediction_by_its_header(workspace):
 
 
 def test_exr_size_is_checked_from_the_header(tmp_path):
-    from eval.imageio import ImageFormatError, read_exr, write_exr
+    from eval.common.imageio import ImageFormatError, read_exr, write_exr
 
     write_exr(tmp_path / "n.exr", np.zeros((8, 12, 3), np.float32))
     assert read_exr(tmp_path / "n.exr", shape=(8, 12)).shape == (8, 12, 3)
@@ -92,7 +92,7 @@ def test_gspi_eval_names_a_symlink_loop_instead_of_calling_it_not_modelled(works
 def test_gspi_eval_names_the_mask_too_close_to_the_border(workspace):
     """Before: "mask has no pixel at least 5 pixels away from the image border", no file named."""
     from eval.cli import main
-    from eval.layout import write_view_file
+    from eval.common.layout import write_view_file
 
     mask = np.zeros((32, 32), np.float32)
     mask[0:2, :] = 1.0
@@ -112,7 +112,7 @@ BROKEN_FILES = {"truncated_png": lambda p: p.write_bytes(p.read_bytes()[:60]),
 @pytest.mark.parametrize("case", sorted(BROKEN_FILES))
 def test_gspi_eval_names_a_broken_prediction_file(workspace, case):
     from eval.cli import main
-    from eval.imageio import write_png
+    from eval.common.imageio import write_png
 
     vdir = workspace / "pred" / "sphere_0" / "test" / "001"
     target = vdir / ("albedo.png" if case == "grey_albedo" else "roughness.png")

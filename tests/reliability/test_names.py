@@ -1,6 +1,6 @@
 """Class 2, names used as paths: a `scene.json` name, a view id, a splits.json entry, a
 `scenes=` entry or an import's scene name such as `../../x` is refused (naming the file and
-key), and nothing is written outside `out`. One check, eval.layout.check_name, guards every
+key), and nothing is written outside `out`. One check, eval.common.layout.check_name, guards every
 Scene and View however it is made, so no writer (predictions, recon cache, imports, exports)
 needs its own."""
 from __future__ import annotations
@@ -16,7 +16,7 @@ BAD_NAMES = ["../../x", "..", "a/b", "", ".hidden", "a\\b", "tab\there"]
 
 @pytest.mark.parametrize("name", BAD_NAMES)
 def test_check_name_refuses_what_is_not_one_path_component(name):
-    from eval.layout import LayoutError, check_name
+    from eval.common.layout import LayoutError, check_name
 
     with pytest.raises(LayoutError, match="where.json: .*not allowed as a name"):
         check_name(name, "where.json: key")
@@ -24,7 +24,7 @@ def test_check_name_refuses_what_is_not_one_path_component(name):
 
 @pytest.mark.parametrize("name", ["s000_torus_metal", "t00", "lego", "scène-ü 1", "a=b,c"])
 def test_check_name_accepts_ordinary_names(name):
-    from eval.layout import check_name
+    from eval.common.layout import check_name
 
     assert check_name(name, "x") == name
 

@@ -128,7 +128,7 @@ def test_ctrl_c_is_one_line_and_exit_130(tiny_gt, tmp_path):
 
 
 def test_run_command_turns_stated_errors_and_ctrl_c_into_one_line(capsys):
-    from eval.errors import MissingInputError, run_command
+    from eval.common.errors import MissingInputError, run_command
 
     def interrupted():
         raise KeyboardInterrupt

@@ -1,6 +1,6 @@
 """Class 9, paths that needed undocumented quoting: `=`, `,`, `'`, spaces and non-ASCII in a
 path, including the `method=gspi` job folders our own sweeps write. The CLIs quote their path
-keys for Hydra (eval/argv.py) and gspi-table quotes its positional folders."""
+keys for Hydra (eval/common/argv.py) and gspi-table quotes its positional folders."""
 from __future__ import annotations
 
 import shutil
@@ -29,7 +29,7 @@ def test_gspi_eval_then_gspi_table_accept_any_folder_name(workspace, folder):
 def test_quoting_round_trips_through_hydras_parser():
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
-    from eval.argv import quote_path_overrides
+    from eval.common.argv import quote_path_overrides
 
     parser = OverridesParser.create()
     for value in [*AWKWARD, "trailing\\", "plain/path", "${oc.env:HOME}/x"]:

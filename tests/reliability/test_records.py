@@ -24,7 +24,7 @@ def test_gspi_run_removes_the_old_record_before_it_writes(micro_dataset, tmp_pat
     """The protocol without a real run (fast): a job of config B in a folder holding A's
     complete record and scores, killed as soon as it starts its method, leaves neither A's
     record nor A's scores; A's rerun is then not "complete, skipped"."""
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
     from gspi.run.methods import InhouseMethod
     from gspi.run.record import config_hash, is_complete, write_result
     from gspi.run.runner import run_job
@@ -121,7 +121,7 @@ def test_gspi_table_killed_while_writing_keeps_the_previous_table(workspace):
     """A table file is replaced whole or not at all; no temporary file is left behind."""
     import unittest.mock as mock
 
-    import eval.atomic as atomic
+    import eval.common.atomic as atomic
     import eval.cli as cli
     from eval.tables.cli import main as table_main
 

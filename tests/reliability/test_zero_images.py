@@ -24,7 +24,7 @@ def _capital_split(pred):
 def _exr_maps(pred):
     import numpy as np
 
-    from eval.imageio import write_exr
+    from eval.common.imageio import write_exr
     for png in sorted((pred / "sphere_0" / "test").rglob("*.png")):
         write_exr(png.with_suffix(".exr"), np.zeros((32, 32, 1), np.float32))
         png.unlink()

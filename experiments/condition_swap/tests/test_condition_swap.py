@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 
-from eval.layout import read_scene, read_view_file
+from eval.common.layout import read_scene, read_view_file
 from gspi.data.pool.asset_conditions import LATTICE_SPLIT
 from experiments.condition_swap.condition_swap import write_variant
 from tests.stage2_fixtures import make_lattice_scene

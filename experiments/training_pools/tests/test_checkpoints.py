@@ -49,7 +49,7 @@ def test_the_pool_checkpoints_are_their_recipes(name, preset, steps, parameters)
     truncated-SNR weight, the recipe's steps and sizes) and is the file its card hashes."""
     from hydra import compose, initialize_config_dir
 
-    from eval.config import CONF_DIR
+    from eval.common.conf import CONF_DIR
     from gspi.stage2.checkpoint import load_stage2_checkpoint
 
     path = CHECKPOINTS / f"{name}.pt"

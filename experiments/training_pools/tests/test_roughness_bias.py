@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from eval.imageio import write_png
+from eval.common.imageio import write_png
 from experiments.training_pools.roughness_bias import main, roughness_rows
 
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.layout import SPLITS, read_scene
+from eval.common.layout import SPLITS, read_scene
 from gspi.data.lattice import fibonacci_hemisphere_lattice, held_out_directions
 from gspi.data.procedural.scene_recipe import scene_rng
 
@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 
 def glb_sources(src: str | Path) -> dict[str, list[Path]]:
     """split -> asset files (see module docstring)."""
-    from eval.errors import MissingInputError
+    from eval.common.errors import MissingInputError
     from gspi.data.assets.gltf import GLTFError
 
     if not str(src).strip():
@@ -101,7 +101,7 @@ def _mark_empty_views(scene_dir: Path) -> list[str]:
     to score, and the evaluator skips them. Returns their "split/id"s (also logged)."""
     import dataclasses
 
-    from eval.layout import read_view_file, write_scene_json
+    from eval.common.layout import read_view_file, write_scene_json
 
     scene = read_scene(scene_dir)
     empty = []
@@ -127,7 +127,7 @@ def import_glb(src: str | Path, out_dir: str | Path, cfg, *, seed: int = 0) -> d
     """
     from eval.relight import prefilter_environment
     from gspi.data.env_sets import environment_sets, make_named_environment
-    from eval.layout import merge_splits
+    from eval.common.layout import merge_splits
     from gspi.data.assets.gltf import GLTFError, read_gltf
     from gspi.data.assets.mesh_render import render_mesh_views, unit_frame_mesh
     from gspi.data.assets.pathtrace import retracer

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from eval.colorspace import srgb_to_linear
+from eval.common.colorspace import srgb_to_linear
 from eval.relight import split_sum
 from eval.views import pixel_rays
 # `_aggregate` is render_view's per-pixel reduction; reused so both renderers reduce alike.

@@ -111,7 +111,7 @@ def sdf_mesh_parts(recipe: dict, resolution: int) -> list[dict]:
 
 def glb_mesh_parts(mesh) -> list[dict]:
     """One part per material of a `gspi.data.assets.mesh_render.PBRMesh`, textures baked linear."""
-    from eval.colorspace import srgb_to_linear
+    from eval.common.colorspace import srgb_to_linear
 
     corners = mesh.vertices[mesh.faces]
     face_n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])

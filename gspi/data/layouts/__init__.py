@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from eval.layout import LayoutError
+from eval.common.layout import LayoutError
 
 FORMATS = ("nerf_synthetic", "tensoir", "stanford_orb", "nero_glossy")
 TENSOIR_VIEW = re.compile(r"^(train|val|test)_\d+$")

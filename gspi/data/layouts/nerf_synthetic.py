@@ -35,10 +35,10 @@ import numpy as np
 import png  # pypng: 16-bit RGBA
 import torch
 
-from eval.atomic import write_json_atomic
-from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.imageio import read_exr, read_png
-from eval.layout import SPLITS, LayoutError, Scene, View, check_name, read_scene, read_view_file, \
+from eval.common.atomic import write_json_atomic
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.imageio import read_exr, read_png
+from eval.common.layout import SPLITS, LayoutError, Scene, View, check_name, read_scene, read_view_file, \
     write_material, write_scene_json, write_view_file
 
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])  # right-multiply a c2w: negate columns 1, 2

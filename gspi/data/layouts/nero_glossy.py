@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.atomic import write_json_atomic
-from eval.imageio import read_png, write_png
-from eval.layout import LayoutError, Scene, View, check_name, read_json_object, read_scene, \
+from eval.common.atomic import write_json_atomic
+from eval.common.imageio import read_png, write_png
+from eval.common.layout import LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_scene_json, write_view_file
 from gspi.data.layouts.nerf_synthetic import linear_from_rgba, rgba_from_linear, write_input_view
 

@@ -38,10 +38,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.atomic import write_json_atomic
-from eval.colorspace import linear_to_srgb, srgb_to_linear
-from eval.imageio import read_exr, read_png, write_exr, write_png
-from eval.layout import GT_CHANNELS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
+from eval.common.atomic import write_json_atomic
+from eval.common.colorspace import linear_to_srgb, srgb_to_linear
+from eval.common.imageio import read_exr, read_png, write_exr, write_png
+from eval.common.layout import GT_CHANNELS, LayoutError, Scene, View, check_name, read_json_object, read_scene, \
     read_view_file, write_material, write_scene_json, write_view_file
 from gspi.data.layouts.orb_envmap import orb_to_world, world_to_orb
 from gspi.data.layouts.nerf_synthetic import blender_c2w_to_opencv_w2c, check_angle_x_camera, \

@@ -42,7 +42,7 @@ def link_tree(src: Path, dst: Path, replace: set[str]) -> None:
 
 
 def lattice_view_ids(scene_dir: Path) -> list[str]:
-    from eval.layout import read_scene
+    from eval.common.layout import read_scene
 
     return [v.id for v in read_scene(scene_dir).split_views(LATTICE_SPLIT)]
 
@@ -50,7 +50,7 @@ def lattice_view_ids(scene_dir: Path) -> list[str]:
 def write_asset_conditions(scene_dir: Path, asset_rgb: np.ndarray, dst: Path,
                            conditions: tuple[str, ...] = CONDITIONS) -> Path:
     """``dst`` (a scene folder) = ``scene_dir`` with ``conditions`` read from ``asset_rgb``."""
-    from eval.imageio import write_exr
+    from eval.common.imageio import write_exr
 
     scene_dir, dst = Path(scene_dir), Path(dst)
     unknown = set(conditions) - set(CONDITIONS)

@@ -19,8 +19,8 @@ import json
 import os
 from pathlib import Path
 
-from eval.errors import MissingInputError
-from eval.layout import LayoutError
+from eval.common.errors import MissingInputError
+from eval.common.layout import LayoutError
 from gspi.data.pool.training_pool import is_complete
 
 SPLITS = ("train", "val", "test")
@@ -97,6 +97,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from eval.errors import run_command
+    from eval.common.errors import run_command
 
     run_command(main)  # a stated error or Ctrl-C: one line (exit 2 / 130)

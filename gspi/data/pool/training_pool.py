@@ -154,7 +154,7 @@ def pending_recipes(out_dir: Path, recipes: list[dict]) -> list[dict]:
 
 def mark_complete(scene_dir: Path, recipe: dict, seed: int) -> None:
     """Written last: the scene's files are all there (no timings: byte-reproducible)."""
-    from eval.atomic import write_json_atomic
+    from eval.common.atomic import write_json_atomic
 
     write_json_atomic(scene_dir / DONE_FILE, {"seed": int(seed), "index": recipe["index"],
                                               "name": recipe["name"]})

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.colorspace import srgb_to_linear
+from eval.common.colorspace import srgb_to_linear
 from gspi.data.procedural import patterns
 
 MATERIAL_CLASSES = ("rough_plastic", "glossy_plastic", "metal", "painted_metal", "fabric",

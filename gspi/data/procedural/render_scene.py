@@ -1,4 +1,4 @@
-"""Render and write one procedural scene in the canonical layout (docs/FORMAT.md, eval.layout).
+"""Render and write one procedural scene in the canonical layout (docs/FORMAT.md, eval.common.layout).
 
 `<out>/<scene name>/`:
     scene.json                 cameras (OpenCV) + capture/relight env names + `generator` recipe
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.colorspace import linear_to_srgb
-from eval.imageio import read_exr, write_exr
-from eval.layout import Scene, View, read_view_file, write_material, write_scene_json, \
+from eval.common.colorspace import linear_to_srgb
+from eval.common.imageio import read_exr, write_exr
+from eval.common.layout import Scene, View, read_view_file, write_material, write_scene_json, \
     write_view_file
 from eval.views import relight_view, view_directions
 from gspi.data.lattice import cameras_from_directions, lattice_cameras
@@ -62,7 +62,7 @@ def write_view(view_dir: Path, r: ViewRender) -> None:
     write_view_file(view_dir, "normal.exr", r.normal)
     write_view_file(view_dir, "depth.exr", r.depth)
     write_view_file(view_dir, "mask.png", r.mask.astype(np.float32))
-    if r.outside_brdf is not None:  # optional (eval/layout.py OPTIONAL_GT_FILES)
+    if r.outside_brdf is not None:  # optional (eval/common/layout.py OPTIONAL_GT_FILES)
         write_view_file(view_dir, "outside_brdf.png", r.outside_brdf.astype(np.float32))
 
 

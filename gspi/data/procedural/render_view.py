@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from eval.colorspace import linear_to_srgb
+from eval.common.colorspace import linear_to_srgb
 from eval.relight import split_sum
 from eval.views import pixel_rays
 from gspi.data.procedural.materials import evaluate_material

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.atomic import write_json_atomic
-from eval.errors import StatedError
-from eval.imageio import ImageFormatError, read_exr, read_png, write_exr, write_png
+from eval.common.atomic import write_json_atomic
+from eval.common.errors import StatedError
+from eval.common.imageio import ImageFormatError, read_exr, read_png, write_exr, write_png
 
 FORMAT_VERSION = 1
 CAMERA_CONVENTION = "opencv"  # x right, y down, z forward; w2c maps world -> camera

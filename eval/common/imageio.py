@@ -12,7 +12,7 @@ import numpy as np
 import OpenEXR
 import png  # pypng
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 
 
 class ImageFormatError(StatedError, ValueError):

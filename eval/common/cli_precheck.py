@@ -8,15 +8,15 @@ value of a config-group sweep must name an option of the group) and turns what i
 stated line:
 
 - a required key nobody set: ``required key(s) not set: out (conf/gspi_run.yaml: ???); add out=...``
-  (the hint uses the command-line alias of ``eval.argv.ALIASES`` where there is one: ``data=...``);
+  (the hint uses the command-line alias of ``eval.common.argv.ALIASES`` where there is one: ``data=...``);
 - an unknown config-group choice or key, a malformed override: Hydra's own message, one line.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from eval.argv import ALIASES
-from eval.errors import StatedError
+from eval.common.argv import ALIASES
+from eval.common.errors import StatedError
 
 HYDRA_FLAGS = ("-m", "--multirun", "--cfg", "--info", "-c", "--help", "-h", "--hydra-help", "--resolve",
                "-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir", "-p", "--package",

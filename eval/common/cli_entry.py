@@ -1,8 +1,8 @@
-"""The one way a gspi CLI starts: one config directory (``eval.config.CONF_DIR``), its argv
-aliases rewritten by the one table ``eval.argv.ALIASES``, its path keys quoted for Hydra's grammar (``eval.argv``), the command line checked
-against the config before Hydra starts (``eval.cli_precheck``: missing required keys, bad
+"""The one way a gspi CLI starts: one config directory (``eval.common.conf.CONF_DIR``), its argv
+aliases rewritten by the one table ``eval.common.argv.ALIASES``, its path keys quoted for Hydra's grammar (``eval.common.argv``), the command line checked
+against the config before Hydra starts (``eval.common.cli_precheck``: missing required keys, bad
 overrides), its task run under ``@hydra.main`` with stated errors as one line and Ctrl-C as one line with exit
-130 (``eval.errors``); ``--help``/``-h`` prints the tool's own usage (``eval.cli_help``).
+130 (``eval.common.errors``); ``--help``/``-h`` prints the tool's own usage (``eval.common.cli_help``).
 
     main = hydra_cli(run_task, "gspi_extract", path_keys=("asset", "out", "scene"))
 """
@@ -13,10 +13,10 @@ import sys
 from pathlib import Path
 from typing import Callable, Optional
 
-from eval.argv import apply_aliases, quote_path_overrides
-from eval.cli_help import usage, wants_help
-from eval.config import CONF_DIR
-from eval.errors import StatedError, exit_on_stated_error, print_stated_error, run_command
+from eval.common.argv import apply_aliases, quote_path_overrides
+from eval.common.cli_help import usage, wants_help
+from eval.common.conf import CONF_DIR
+from eval.common.errors import StatedError, exit_on_stated_error, print_stated_error, run_command
 
 
 def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = (),
@@ -41,10 +41,10 @@ def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = 
         exit_on_stated_error(guarded))
 
     def start() -> None:
-        if wants_help(sys.argv[1:]):  # the tool's own keys, not Hydra's banner (eval/cli_help.py)
+        if wants_help(sys.argv[1:]):  # the tool's own keys, not Hydra's banner (eval/common/cli_help.py)
             print(usage(CONF_DIR, config_name))
             return
-        argv = apply_aliases(sys.argv[1:], config_name)  # the one alias table (eval.argv.ALIASES)
+        argv = apply_aliases(sys.argv[1:], config_name)  # the one alias table (eval.common.argv.ALIASES)
         argv = argv if rewrite is None else rewrite(argv)
         argv = quote_path_overrides(argv, path_keys)
         precheck_or_exit(config_name, argv)
@@ -66,8 +66,8 @@ def hydra_cli(task: Callable, config_name: str, *, path_keys: tuple[str, ...] = 
 
 
 def precheck_or_exit(config_name: str, argv: list[str]) -> None:
-    """:func:`eval.cli_precheck.precheck`: a missing required key or a bad override -> one line, exit 2."""
-    from eval.cli_precheck import CommandLineError, precheck
+    """:func:`eval.common.cli_precheck.precheck`: a missing required key or a bad override -> one line, exit 2."""
+    from eval.common.cli_precheck import CommandLineError, precheck
 
     try:
         precheck(CONF_DIR, config_name, argv)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import torch
 
-from eval.errors import StatedError
+from eval.common.errors import StatedError
 
 CHOICES = ("auto", "cpu", "cuda")
 
