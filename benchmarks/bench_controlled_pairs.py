@@ -17,7 +17,7 @@ End to end, at the `small` size with today's Stage 0 (`recon=fast`) and the ship
                                                   # data.controlled_pairs.colours=1 for 6 pairs)
     gspi-run data=data/pairs out=runs/pairs recon=fast logger=none
     python benchmarks/bench_controlled_pairs.py runs/pairs --data data/pairs \\
-        --json benchmarks/results/controlled_pairs_fast.json
+        --json results/controlled_pairs/cpu/gspi_recon_fast.json
 
 `RUN` is a gspi-run job folder (its predictions/<scene>/<split>/<view>/roughness.png and
 metallic.png, docs/FORMAT.md); a scene of the manifest without predictions is an error naming it.
@@ -34,6 +34,7 @@ import yaml
 from eval.common.atomic import write_json_atomic
 from eval.common.layout import read_scene, read_view_file
 from gspi.data.controlled_pairs import KIND_MEMBERS, read_manifest
+from gspi.publish.pairs import pairs_table
 
 CHANNELS = ("roughness", "metallic")
 MIN_GAP = 0.3      # issue 52: a glossy/matte pair counts as read when ordered by at least this much
@@ -102,31 +103,6 @@ def score_pairs(pairs: list[dict], means: dict[str, dict[str, float]], *, min_ga
                       "separated": fraction("metal", "separated")}}
 
 
-def _percent(value) -> str:
-    return "--" if value is None else f"{100 * value:.0f} %"
-
-
-def markdown_table(scores: dict) -> str:
-    """One row per pair (predicted means of both members, the verdict), then the fractions."""
-    lines = ["| pair | kind | family | low member: roughness, metallic | high member: roughness, metallic "
-             "| verdict |", "|---|---|---|---|---|---|"]
-    for r in scores["pairs"]:
-        low, high = KIND_MEMBERS[r["kind"]]
-        cells = [f"{m} {r['roughness'][m]:.2f}, {r['metallic'][m]:.2f}" for m in (low, high)]
-        if r["kind"] == "roughness":
-            verdict = (f"gap {r['gap']:+.2f}: " + ("ordered, gap >= %.1f" % scores["min_gap"] if r["ordered_with_gap"]
-                                                 else "ordered, gap too small" if r["ordered"] else "inverted"))
-        else:
-            verdict = "separated" if r["separated"] else f"not separated at {scores['threshold']}"
-        lines.append(f"| {r['id']} | {r['kind']} | {r['family']} | {cells[0]} | {cells[1]} | {verdict} |")
-    rough, metal = scores["roughness"], scores["metal"]
-    lines += ["", f"glossy/matte pairs ordered: {_percent(rough['ordered'])} of {rough['pairs']}; "
-                  f"with a gap >= {scores['min_gap']}: {_percent(rough['ordered_with_gap'])}",
-              f"metal/dielectric pairs separated at {scores['threshold']}: {_percent(metal['separated'])} "
-              f"of {metal['pairs']}"]
-    return "\n".join(lines)
-
-
 def score_run(run: Path, data: Path, manifest: Path | None = None, *, split: str = "test",
               min_gap: float = MIN_GAP, threshold: float = THRESHOLD, pair_ids: list[str] | None = None) -> dict:
     """`score_pairs` of a gspi-run folder's predictions on a controlled-pairs dataset (only the
@@ -168,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    print(markdown_table(scores))
+    print(pairs_table(scores))
     if args.json is not None:
         write_json_atomic(args.json, scores)
     return 0

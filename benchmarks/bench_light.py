@@ -1,5 +1,6 @@
 """Time of the light estimate and the per-point read-out at a `small` scene's size, one thread:
-20 000 points seen by 14 views each (the lattice's median), the 8 procedural capture environments
+the points ``method=light_fit`` reads on the demo's assets (``max_points``, capped at
+``points_per_gaussian`` x the median demo asset's Gaussians) seen by 14 views each (the lattice's median), the 8 procedural capture environments
 as candidates at 64 rows (``stage2.data.light_env_height`` / ``method.env_height``), the views
 shaded by the split-sum shader under one of them turned and scaled; the estimate on
 ``method=light_fit``'s ``identify_points`` (all, and its coarse search on ``identify_coarse_points``
@@ -13,6 +14,7 @@ medians, the machine and whether the light was found.
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 
 import torch
@@ -21,14 +23,19 @@ import yaml
 from benchmarks.common import REPO, machine, median_seconds
 from eval.relight import prefilter_environment, split_sum
 from gspi.data.environments import CAPTURE_ENVS, make_environment
+from gspi.gaussians.ply import read_ply
 from gspi.light.estimate import estimate_light
 from gspi.light.observations import PointViews
 from gspi.light.readout import fit_grid, fit_grid_normal_search, pool_neighbours, read_posterior
 from gspi.light.shading import turn_directions
+from gspi.stage2.infer import asset_point_budget
 
-NUM_POINTS, VIEWS, ENV_HEIGHT = 20_000, 14, 64
+VIEWS, ENV_HEIGHT = 14, 64
 TRUTH, TURN, GAIN = "window_room", 75.0, 1.3
 LIGHT_FIT = yaml.safe_load((REPO / "conf" / "method" / "light_fit.yaml").read_text())  # method=light_fit's settings
+DEMO_GAUSSIANS = int(statistics.median(read_ply(p).num_gaussians
+                                       for p in sorted((REPO / "checkpoints" / "demo_assets").glob("*/point_cloud.ply"))))
+NUM_POINTS = asset_point_budget(LIGHT_FIT["max_points"], LIGHT_FIT["points_per_gaussian"], DEMO_GAUSSIANS)
 SEARCH_RINGS = tuple(LIGHT_FIT["normal_search_deg"])
 IDENTIFY_POINTS = int(LIGHT_FIT["identify_points"])
 COARSE_POINTS = LIGHT_FIT["identify_coarse_points"]  # the coarse search on these of the identify points
@@ -84,7 +91,8 @@ def main() -> None:
           f"{TURN:.0f} deg x{GAIN}; margin {est.margin:.1f}): median {t_est:.2f} s")
     print(f"the same with the coarse search on {COARSE_POINTS} of them (light_fit's; {coarse.env} turned "
           f"{coarse.rotation_deg:.1f} deg x{coarse.gain:.2f}): median {t_coarse:.2f} s")
-    print(f"read-out of {NUM_POINTS} points x {VIEWS} views (grid fit, 16-neighbour pooling, posterior): "
+    print(f"read-out of {NUM_POINTS} points (light_fit's on the demo's median asset of {DEMO_GAUSSIANS} Gaussians) x "
+          f"{VIEWS} views (grid fit, 16-neighbour pooling, posterior): "
           f"median {t_read:.2f} s")
     print(f"the same with each normal searched in a cone (rings {SEARCH_RINGS} degrees): median {t_search:.2f} s")
     print(f"each grid cell the best of the {PROFILE} best-ranked searched normals (light_fit's): median {t_profile:.2f} s")

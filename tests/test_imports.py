@@ -52,7 +52,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     # gspi-reproduce (issue 53) runs the tools as commands, one subprocess per step: it imports none
     "gspi.reproduce": ("eval", "eval.common", "gspi.repo"),
     # make results: the results store (results/) and the docs' tables built from it by eval.tables
-    "gspi.publish": ("eval", "eval.common", "gspi.repo"),
+    "gspi.publish": ("eval", "eval.common", "gspi.repo", "gspi.data"),  # gspi.data: the controlled pairs' members
     "gspi.cli": STAGE + ("gspi.recon", "gspi.stage1", "gspi.stage2", "gspi.stage3", "gspi.pipeline",
                          "gspi.relight", "gspi.export", "gspi.run", "gspi.reproduce", "baselines"),
     # the studies (issue 40): they use the product; nothing in the product imports them

@@ -32,7 +32,7 @@ unless they start with docs/ or benchmarks/ (the product's committed scores):
   four scenes (``log/stage0_only/demo_<recon>.json`` against the committed demo run,
   results/table1/cpu/, whose assets are ``recon=fast``'s) and the controlled pairs
   (``log/stage0_only/controlled_pairs_<recon>.json`` against
-  benchmarks/results/controlled_pairs_fast.json).
+  results/controlled_pairs/cpu/gspi_recon_fast.json).
 * ``retrained_real_objects.md``: the 19 real objects end to end behind ``recon=fast_view_mild``
   (``log/retrained_real_objects/real_<scores folder>__<run>.json``, and no
   decomposition's ``real_no_decomposition.json`` on the same reconstructions) against the default
@@ -244,7 +244,7 @@ def end_to_end_table(demo_runs: dict[str, dict], pairs: dict[str, dict], *,
 
 def fast_pairs() -> dict:
     """The controlled-pairs benchmark of the shipped Stage II under recon=fast (committed)."""
-    return json.loads((ROOT / "benchmarks" / "results" / "controlled_pairs_fast.json").read_text())
+    return json.loads((ROOT / "results" / "controlled_pairs" / "cpu" / "gspi_recon_fast.json").read_text())
 
 
 def end_to_end_runs(folder: Path) -> tuple[dict[str, dict], dict[str, dict]]:
