@@ -106,4 +106,7 @@ done
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2
 $PY -m experiments.known_light.metal_gate "$WORK/heldout_test" "$WORK/rheldout_fast" "$RES/metal_gate_heldout.json" --baseline "$BASE"
 $PY -m experiments.known_light.metal_gate --table "$RES/metal_gate_train.json" "$RES/metal_gate_heldout.json"
+# The read-out's cost against its quality (finding 22): 20 000 points vs 1/2/3 per Gaussian.
+$PY -m experiments.known_light.light_budget "$WORK/heldout_test" "$WORK/rheldout_fast" "$RES/light_budget.json" --baseline "$BASE"
+$PY -m experiments.known_light.light_budget --table "$RES/light_budget.json"
 $PY -m experiments.known_light.tables
