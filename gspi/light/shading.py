@@ -74,16 +74,17 @@ class _LatLongSampler:
         return bilinear_latlong(envmap, self.row_frac * h - 0.5, self.col_frac * w - 0.5)
 
 
-def _specular_at(pre: PrefilteredEnvironment, sample: _LatLongSampler, roughness: float) -> Tensor:
-    """``eval.relight``'s specular lookup at one roughness: its two bracketing levels, interpolated."""
+def _specular_at(pre: PrefilteredEnvironment, level, roughness: float) -> Tensor:
+    """``eval.relight``'s specular lookup at one roughness: its two bracketing levels (``level(k)``:
+    level k sampled at the directions), interpolated."""
     levels = pre.level_roughness
     k = min(max(bisect_right(levels, roughness) - 1, 0), len(levels) - 2)
     t = min(max((roughness - levels[k]) / (levels[k + 1] - levels[k]), 0.0), 1.0)
     if t == 0.0:
-        return sample(pre.specular[k])
+        return level(k)
     if t == 1.0:
-        return sample(pre.specular[k + 1])
-    return (1 - t) * sample(pre.specular[k]) + t * sample(pre.specular[k + 1])
+        return level(k + 1)
+    return (1 - t) * level(k) + t * level(k + 1)
 
 
 def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, roughness: Tensor, *,
@@ -97,8 +98,15 @@ def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, ro
     n_dot_v = n_dot_wo[:, 0].clamp(1e-4, 1.0)
     diffuse = _LatLongSampler(n)(pre.irradiance) / math.pi
     at_refl = _LatLongSampler(refl)
+    sampled: dict[int, Tensor] = {}  # each level read once, though several roughness values bracket it
+
+    def level(k: int) -> Tensor:
+        if k not in sampled:
+            sampled[k] = at_refl(pre.specular[k])
+        return sampled[k]
+
     rough = [min(max(float(r), 0.0), 1.0) for r in roughness.tolist()]
-    spec = torch.stack([_specular_at(pre, at_refl, r) for r in rough])
+    spec = torch.stack([_specular_at(pre, level, r) for r in rough])
     grid = torch.tensor(rough, dtype=n_dot_v.dtype)[:, None].expand(len(rough), len(n_dot_v))
     dfg_a, dfg_b = lookup_dfg(pre.lut, n_dot_v[None].expand_as(grid), grid)
     return ViewTerms(diffuse=diffuse, specular=spec, dfg_a=dfg_a, dfg_b=dfg_b)
