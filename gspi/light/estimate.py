@@ -20,7 +20,7 @@ import torch
 from eval.relight import PrefilteredEnvironment
 from gspi.light.observations import PointViews
 from gspi.light.readout import grid_at_gain, grid_sums
-from gspi.light.shading import view_terms
+from gspi.light.shading import view_dfg, view_terms
 
 COARSE_ROUGHNESS = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0)
 IDENTIFY_ROUGHNESS = tuple(k / 10 for k in range(11))
@@ -66,10 +66,11 @@ class LightEstimate:
 
 
 def score(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gains,
-          roughness=IDENTIFY_ROUGHNESS) -> list[float]:
-    """The score of ``pre`` turned by ``rotation_deg`` at each gain of ``gains``."""
+          roughness=IDENTIFY_ROUGHNESS, dfg=None) -> list[float]:
+    """The score of ``pre`` turned by ``rotation_deg`` at each gain of ``gains`` (``dfg``: the
+    observations' ``view_dfg`` at ``roughness``, when computed once for several turns)."""
     rough = torch.as_tensor(roughness, dtype=torch.float32)
-    terms = view_terms(pre, obs.normal[obs.point], obs.view_dir, rough, rotation_deg=rotation_deg)
+    terms = view_terms(pre, obs.normal[obs.point], obs.view_dir, rough, rotation_deg=rotation_deg, dfg=dfg)
     sums = grid_sums(obs, terms, rough)
     seen = obs.views_per_point() > 0
     return [float(grid_at_gain(sums, g).best_error()[seen].mean()) for g in gains]
@@ -79,8 +80,9 @@ def _ranked(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, 
             roughness=IDENTIFY_ROUGHNESS) -> list[Hypothesis]:
     """Each turn's best gain, best turn first."""
     out = []
+    dfg = view_dfg(pre, obs.normal[obs.point], obs.view_dir, torch.as_tensor(roughness, dtype=torch.float32))
     for rot in rotations:
-        scores = score(obs, pre, float(rot) % 360.0, gains, roughness)
+        scores = score(obs, pre, float(rot) % 360.0, gains, roughness, dfg)
         k = min(range(len(gains)), key=scores.__getitem__)
         out.append(Hypothesis(name, float(rot) % 360.0, float(gains[k]), scores[k]))
     return sorted(out, key=lambda h: h.score)

@@ -87,15 +87,29 @@ def _specular_at(pre: PrefilteredEnvironment, level, roughness: float) -> Tensor
     return (1 - t) * level(k) + t * level(k + 1)
 
 
+def _clamped(roughness: Tensor) -> list[float]:
+    return [min(max(float(r), 0.0), 1.0) for r in roughness.tolist()]
+
+
+def view_dfg(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, roughness: Tensor) -> tuple[Tensor, Tensor]:
+    """(A, B), each [R, M]: the DFG terms at (n.v, r) of the observations for each roughness. They
+    depend on neither the light nor its turn (n.v is the same turned), so a light search over turns
+    computes them once."""
+    n_dot_v = (normal * view_dir).sum(-1).clamp(1e-4, 1.0)
+    rough = _clamped(roughness)
+    grid = torch.tensor(rough, dtype=n_dot_v.dtype)[:, None].expand(len(rough), len(n_dot_v))
+    return lookup_dfg(pre.lut, n_dot_v[None].expand_as(grid), grid)
+
+
 def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, roughness: Tensor, *,
-               rotation_deg: float = 0.0) -> ViewTerms:
+               rotation_deg: float = 0.0, dfg: tuple[Tensor, Tensor] | None = None) -> ViewTerms:
     """E, S, A, B at observations with unit ``normal`` and ``view_dir`` [M, 3] (surface -> camera),
-    for each roughness of ``roughness`` [R], under ``pre`` turned by ``rotation_deg``."""
+    for each roughness of ``roughness`` [R], under ``pre`` turned by ``rotation_deg``; ``dfg``: the
+    observations' ``view_dfg`` when already computed."""
     n = turn_directions(normal, rotation_deg)
     wo = turn_directions(view_dir, rotation_deg)
     n_dot_wo = (n * wo).sum(-1, keepdim=True)
     refl = 2 * n_dot_wo * n - wo
-    n_dot_v = n_dot_wo[:, 0].clamp(1e-4, 1.0)
     diffuse = _LatLongSampler(n)(pre.irradiance) / math.pi
     at_refl = _LatLongSampler(refl)
     sampled: dict[int, Tensor] = {}  # each level read once, though several roughness values bracket it
@@ -105,10 +119,8 @@ def view_terms(pre: PrefilteredEnvironment, normal: Tensor, view_dir: Tensor, ro
             sampled[k] = at_refl(pre.specular[k])
         return sampled[k]
 
-    rough = [min(max(float(r), 0.0), 1.0) for r in roughness.tolist()]
-    spec = torch.stack([_specular_at(pre, level, r) for r in rough])
-    grid = torch.tensor(rough, dtype=n_dot_v.dtype)[:, None].expand(len(rough), len(n_dot_v))
-    dfg_a, dfg_b = lookup_dfg(pre.lut, n_dot_v[None].expand_as(grid), grid)
+    spec = torch.stack([_specular_at(pre, level, r) for r in _clamped(roughness)])
+    dfg_a, dfg_b = dfg if dfg is not None else view_dfg(pre, normal, view_dir, roughness)
     return ViewTerms(diffuse=diffuse, specular=spec, dfg_a=dfg_a, dfg_b=dfg_b)
 
 
