@@ -313,6 +313,8 @@ PAIRS_RUNS = {  # run -> what it is (each results/controlled_pairs/cpu/<run>.jso
     "gspi_recon_fast": "GS-PI (the default Stage II), `recon=fast`",
     "gspi_recon_fast_shn": "GS-PI (the default Stage II), `recon=fast recon.lr.shN=2.5e-3`",
     "light_fit_recon_fast": "`method=light_fit` (the training-free light read-out), `recon=fast`",
+    "gspi_recon_fast_18": "GS-PI (the default Stage II), `recon=fast`, the full 18-pair set",
+    "light_fit_recon_fast_18": "`method=light_fit`, `recon=fast`, the full 18-pair set",
 }
 
 
