@@ -78,7 +78,7 @@ chromium:
 report-check: install
 	GSPI_REPORT=$(DEMO)/report $(PY) -m pytest -q tests/test_report_browser.py -k existing
 
-# Every benchmark at its CPU defaults, one torch thread each (~12 min on the 2-core VM; bench_pipeline
+# Every benchmark at its CPU defaults, one torch thread each (~17 min on the 2-core VM; bench_pipeline
 # generates the demo's data and runs GS-PI and joint IR on its 4 scenes, ~5 min, then the same on
 # the 2 `tiny` test scenes); each prints the machine it ran on. Paper sizes: see each module's docstring
 # (--paper, --sizes 512).
