@@ -17,7 +17,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
+
+from experiments.known_light.stage1_read import read_or_table
 
 log = logging.getLogger(__name__)
 BUDGETS = {"points_20000": None, "per_gaussian_3": 3.0, "per_gaussian_2": 2.0, "per_gaussian_1": 1.0}
@@ -31,7 +32,7 @@ def read_scenes(args) -> None:
     import yaml
 
     from eval.lpips.net import load_lpips
-    from experiments.known_light.stage1_read import asset_stage1, metal_iou, pending_scenes
+    from experiments.known_light.stage1_read import asset_stage1, gt_metal_fraction, metal_iou, pending_scenes
     from gspi.data.gt_maps import read_gt_view_maps
     from gspi.gaussians.ply import read_ply
     from gspi.repo import REPO
@@ -51,9 +52,7 @@ def read_scenes(args) -> None:
         gaussians = read_ply(ply).num_gaussians
         points, renders, photos, _ = asset_stage1(args.data / name, ply)
         gt, mask = read_gt_view_maps(args.data / name)
-        with np.load(args.data / name / "gt_points.npz") as npz:
-            fraction = float((npz["metallic"] > 0.5).mean())
-        row = {"gaussians": gaussians, "points": len(points), "gt_metal_fraction": fraction}
+        row = {"gaussians": gaussians, "points": len(points), "gt_metal_fraction": gt_metal_fraction(args.data / name)}
         for key, per_gaussian in BUDGETS.items():
             budget = replace(cfg, points_per_gaussian=per_gaussian).for_asset(gaussians)
             wall, cpu = time.perf_counter(), time.process_time()
@@ -111,18 +110,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("assets", type=Path, nargs="?")
     ap.add_argument("out", type=Path, nargs="?")
     ap.add_argument("--baseline", type=Path, help="a scores.json whose baseline constants to reuse")
-    ap.add_argument("--table", type=Path, default=None, help="print the table of a finished read (writes results/light_budget.md)")
-    args = ap.parse_args(argv)
-    if args.table:
-        text = table(args.table)
-        (Path(__file__).parent / "results" / "light_budget.md").write_text(text)
-        print(text)
-        return
-    if not (args.data and args.assets and args.out and args.baseline):
-        ap.error("SCENES ASSETS OUT and --baseline are needed to read")
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    torch.set_num_threads(1)
-    read_scenes(args)
+    ap.add_argument("--table", type=Path, nargs=1, metavar="OUT", default=None,
+                    help="print the table of a finished read (writes results/light_budget.md)")
+    read_or_table(ap, argv, read_scenes, table, Path(__file__).parent / "results" / "light_budget.md")
 
 
 if __name__ == "__main__":

@@ -26,7 +26,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
+
+from experiments.known_light.stage1_read import read_or_table
 
 log = logging.getLogger(__name__)
 CHANNELS = ("albedo", "roughness", "metallic")
@@ -36,7 +37,7 @@ def read_scenes(args) -> None:
     import yaml
 
     from eval.lpips.net import load_lpips
-    from experiments.known_light.stage1_read import asset_stage1, metal_iou, pending_scenes
+    from experiments.known_light.stage1_read import asset_stage1, gt_metal_fraction, metal_iou, pending_scenes
     from gspi.data.gt_maps import read_gt_view_maps
     from gspi.repo import REPO
     from gspi.stage2.evaluate_points import recorded_constants
@@ -56,8 +57,7 @@ def read_scenes(args) -> None:
         points, renders, photos, _ = asset_stage1(scene_dir, args.assets / name / "asset" / "point_cloud.ply")
         read = read_light(points, renders, cfg, candidates, photos)
         gt, mask = read_gt_view_maps(scene_dir)
-        with np.load(scene_dir / "gt_points.npz") as npz:
-            fraction = float((npz["metallic"] > 0.5).mean())
+        fraction = gt_metal_fraction(scene_dir)
         row = {"evidence": read.metal_evidence, "gt_metal_fraction": fraction, "light": read.light.env}
         for key, allowed in (("metal", True), ("dielectric", False)):
             pbr = read.pbr(points, cfg.temperature, metal=allowed)
@@ -132,17 +132,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--every", type=int, default=1, help="read every n-th scene (sorted by name)")
     ap.add_argument("--table", type=Path, nargs=2, metavar=("TRAIN", "HELDOUT"), default=None,
                     help="print the table of two finished reads (writes results/metal_gate.md)")
-    args = ap.parse_args(argv)
-    if args.table:
-        text = table(*args.table)
-        (Path(__file__).parent / "results" / "metal_gate.md").write_text(text)
-        print(text)
-        return
-    if not (args.data and args.assets and args.out and args.baseline):
-        ap.error("SCENES ASSETS OUT and --baseline are needed to read")
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    torch.set_num_threads(1)
-    read_scenes(args)
+    read_or_table(ap, argv, read_scenes, table, Path(__file__).parent / "results" / "metal_gate.md")
 
 
 if __name__ == "__main__":

@@ -61,6 +61,29 @@ def pending_scenes(assets: Path, done: dict, every: int = 1) -> list[str]:
     return [n for n in names if n not in done["scenes"]]
 
 
+def gt_metal_fraction(scene_dir: Path) -> float:
+    """The share of a scene's GT surface points that are metal (metallic > 0.5)."""
+    with np.load(scene_dir / "gt_points.npz") as npz:
+        return float((npz["metallic"] > 0.5).mean())
+
+
+def read_or_table(ap: argparse.ArgumentParser, argv: list[str] | None, read_scenes, table, table_md: Path) -> None:
+    """The door of a resumable per-scene read with a ``--table`` mode (``ap`` holds ``data``,
+    ``assets``, ``out``, ``--baseline`` and ``--table``, a list of record files): the table of
+    finished reads, printed and written to ``table_md``; else ``read_scenes(args)`` on one torch thread."""
+    args = ap.parse_args(argv)
+    if args.table:
+        text = table(*args.table)
+        table_md.write_text(text)
+        print(text)
+        return
+    if not (args.data and args.assets and args.out and args.baseline):
+        ap.error("SCENES ASSETS OUT and --baseline are needed to read")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    torch.set_num_threads(1)
+    read_scenes(args)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data", type=Path)
