@@ -26,6 +26,7 @@ from typing import Callable
 from eval.stats import mean_and_sem, paired_bootstrap_ci
 from eval.tables.cards import default_checkpoint
 from eval.tables.labels import METHOD_LABELS
+from gspi.publish.pairs import pairs_table
 from gspi.publish.store import table_folder
 from gspi.repo import REPO as ROOT
 
@@ -320,8 +321,6 @@ PAIRS_RUNS = {  # run -> what it is (each results/controlled_pairs/cpu/<run>.jso
 
 def controlled_pairs_block() -> str:
     """docs/STAGE2.md's controlled-pairs tables: one per committed run, with the command that made it."""
-    from gspi.publish.pairs import pairs_table
-
     unknown = sorted(p.stem for p in PAIRS.glob("*.json") if p.stem not in PAIRS_RUNS)
     if unknown:
         raise ValueError(f"{PAIRS}: {unknown} not in gspi.publish.docs.PAIRS_RUNS (say what each run is)")

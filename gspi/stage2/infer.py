@@ -71,9 +71,7 @@ class InferenceConfig:
         if unknown:
             raise ValueError(f"stage2.inference: unknown keys {unknown} (known: {sorted(known)})")
         config = cls(**dict(cfg))
-        if config.points_per_gaussian is not None and config.points_per_gaussian <= 0:
-            raise ValueError(f"stage2.inference.points_per_gaussian must be positive or null, "
-                             f"got {config.points_per_gaussian}")
+        check_points_per_gaussian(config.points_per_gaussian, "stage2.inference.points_per_gaussian")
         return config
 
     def for_asset(self, num_gaussians: Optional[int]) -> "InferenceConfig":
@@ -81,6 +79,12 @@ class InferenceConfig:
         Stage III gives each Gaussian the mean of the points that land on it, so a few points per
         Gaussian carry what the whole cloud does (the demo: docs/log/speed/asset_budget.json)."""
         return replace(self, max_points=asset_point_budget(self.max_points, self.points_per_gaussian, num_gaussians))
+
+
+def check_points_per_gaussian(value: Optional[float], key: str) -> None:
+    """A points-per-Gaussian budget is positive or null; else an error naming ``key``."""
+    if value is not None and not value > 0:
+        raise ValueError(f"{key} must be positive or null, got {value}")
 
 
 def asset_point_budget(max_points: Optional[int], points_per_gaussian: Optional[float],

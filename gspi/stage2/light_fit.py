@@ -22,7 +22,7 @@ from gspi.light.estimate import estimate_light
 from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,
                                 pool_neighbours, read_posterior, without_metal)
 from gspi.point_cloud import PointCloud, nearest_fill
-from gspi.stage2.infer import asset_point_budget, subsample_indices
+from gspi.stage2.infer import asset_point_budget, check_points_per_gaussian, subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_condition import candidate_lights, cloud_normals
 from gspi.stage2.light_views import LIGHT_VIEWS, LatticePhotos, observe_points, views_to_read
@@ -60,9 +60,7 @@ class LightFitConfig:
             values["candidates"] = tuple(str(c) for c in values["candidates"])
         if "normal_search_deg" in values:
             values["normal_search_deg"] = tuple(float(d) for d in values["normal_search_deg"] or ())
-        ppg = values.get("points_per_gaussian")
-        if ppg is not None and not ppg > 0:
-            raise ValueError(f"method.points_per_gaussian must be positive or null, got {ppg}")
+        check_points_per_gaussian(values.get("points_per_gaussian"), "method.points_per_gaussian")
         if values.get("views", "photos") not in LIGHT_VIEWS:
             raise ValueError(f"method.views={values['views']!r}: must be one of {', '.join(LIGHT_VIEWS)}")
         return cls(**values)
