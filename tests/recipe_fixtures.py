@@ -17,7 +17,7 @@ ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighb
              ("data", "light_readout"): False, ("data", "light_wrong_share"): 0.0,
              ("data", "light_candidates"): "procedural", ("data", "light_env_height"): 64,
              ("data", "light_geometry"): "cloud", ("data", "light_normal_search_deg"): None,
-             ("data", "light_normal_profile"): 1,
+             ("data", "light_normal_profile"): 1, ("data", "light_metal_min_evidence"): None,
              ("data", "subset"): "local", ("inference", "patch_points"): None, ("inference", "patch_coverage"): 2.0,
              ("inference", "light_views"): "photos",  # light_views: read only by a light_readout model
              ("inference", "points_per_gaussian"): None}

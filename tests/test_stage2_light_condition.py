@@ -78,6 +78,22 @@ def test_a_wrong_light_is_told_and_fits_worse(lit):
     assert wrong[0, 6] > right[0, 6] + 0.5  # the scene's residual: three times larger at least
 
 
+def test_the_scene_level_metal_test_gates_the_condition(lit):
+    """light_metal_min_evidence: a scene whose metal evidence passes keeps its rows as read; one
+    held to a floor it fails reads every point dielectric, the residual taken over dielectric cells."""
+    scene, root = lit
+    capture = ToldLight(env=ENV, pre=capture_light(root / "envmaps" / f"{ENV}.exr", 32))
+    rgb, depth = scene.lattice_linear(), scene.lattice_views()[1]
+    normals = cloud_normals_of(scene.xyz, scene.view, scene.cameras)
+    read = lambda floor: readout_table(rgb, depth, scene.cameras, scene.xyz, normals, capture,
+                                       metal_min_evidence=floor)[1]
+    plain, passes, fails = read(None), read(1.1), read(1e6)
+    np.testing.assert_array_equal(passes, plain)  # a half-metal sphere passes the shipped floor
+    assert (plain[:, 1] > 0.5).mean() > 0.2
+    assert (fails[:, 1] == 0).all()
+    assert (fails[:, 5] >= plain[:, 5] - 1e-6).all()  # the best dielectric fit is never better than the best
+
+
 def test_the_measure_estimates_the_light_among_the_candidates(lit):
     _, root = lit
     scene = load_scene_points(root, None)
@@ -91,6 +107,8 @@ def test_config_width_and_checks():
     assert PointDataConfig(light_readout=True).condition_width(0) == 35 + LIGHT_READOUT_WIDTH
     with pytest.raises(ValueError, match="light_wrong_share must lie in"):
         PointDataConfig.from_mapping({"light_wrong_share": 1.5})
+    with pytest.raises(ValueError, match="light_metal_min_evidence is a ratio >= 1"):
+        PointDataConfig.from_mapping({"light_metal_min_evidence": 0.5})
 
 
 def test_cloud_normals_are_the_surface_plane_facing_the_camera():

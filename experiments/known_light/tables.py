@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.stats import paired_bootstrap_ci
+from experiments.known_light.shipping_rule import shipping_rule_table
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -253,7 +254,8 @@ def stage1_table() -> str | None:
 
 
 def tables() -> dict[Path, str]:
-    out = {RESULTS / "known_light.md": read_table(), RESULTS / "metallic_split.md": metallic_split_table()}
+    out = {RESULTS / "known_light.md": read_table(), RESULTS / "metallic_split.md": metallic_split_table(),
+           RESULTS / "shipping_rule.md": shipping_rule_table()}
     stage1 = stage1_table()
     if stage1:
         out[RESULTS / "stage1_read.md"] = stage1

@@ -219,6 +219,14 @@ def metal_evidence(pooled_error: Tensor, metallic: Tensor, seen: Tensor) -> floa
     return float(dielectric.mean() / best.mean().clamp_min(_EPS))
 
 
+def metal_ruled_out(evidence: float, min_evidence: float | None) -> bool:
+    """The scene-level metal test (``method.metal_min_evidence``, ``stage2.data.light_metal_min_evidence``):
+    whether every metal cell is ruled out because allowing metal explains the object less than
+    ``min_evidence`` times better than dielectric alone (``metal_evidence``; nan, no point seen:
+    ruled out). None: never (each point read on its own)."""
+    return min_evidence is not None and not evidence >= min_evidence
+
+
 def without_metal(pooled_error: Tensor, metallic: Tensor) -> Tensor:
     """The pooled grid with every metal cell (m > 0) ruled out: its posterior puts no weight there."""
     out = pooled_error.clone()

@@ -192,7 +192,8 @@ class ScenePoints:
             light = self._told_light(cfg, rgb, depth, cams, xyz, normals)
             self._light = lc.readout_table(rgb, depth, cams, xyz, normals, light, tol_pixels=cfg.visibility_tol_pixels,
                                            normal_search_deg=cfg.light_normal_search_deg,
-                                           normal_profile=cfg.light_normal_profile)
+                                           normal_profile=cfg.light_normal_profile,
+                                           metal_min_evidence=cfg.light_metal_min_evidence)
         return lc.readout_lookup(self._light, self.xyz[idx])
 
     def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, cams: LatticeCameras,
@@ -418,6 +419,7 @@ class PointDataConfig:
                                    # of its Stage 0 asset, in its photos (as a run reads it; a reconstructed pool)
     light_normal_search_deg: Any = None  # the read-out's normal search, degrees (as method=light_fit's); None = none
     light_normal_profile: int = 1  # each grid cell the best of this many searched normals (method.normal_profile)
+    light_metal_min_evidence: Any = None  # the read-out's scene-level metal test (method.metal_min_evidence); None = none
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "PointDataConfig":
@@ -429,6 +431,9 @@ class PointDataConfig:
             out = replace(out, light_candidates=tuple(out.light_candidates))
         if out.light_normal_search_deg is not None:
             out = replace(out, light_normal_search_deg=tuple(float(d) for d in out.light_normal_search_deg))
+        if out.light_metal_min_evidence is not None and not float(out.light_metal_min_evidence) >= 1.0:
+            raise ValueError("stage2.data.light_metal_min_evidence is a ratio >= 1 (the metal evidence's floor) "
+                             f"or null, got {out.light_metal_min_evidence}")
         if out.light_geometry not in LIGHT_GEOMETRY:
             raise ValueError(f"stage2.data.light_geometry must be one of {', '.join(LIGHT_GEOMETRY)}, "
                              f"got {out.light_geometry!r}")

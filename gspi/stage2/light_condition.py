@@ -34,7 +34,8 @@ from eval.common.imageio import read_exr
 from eval.relight import PrefilteredEnvironment, prefilter_environment
 from gspi.data.env_sets import make_named_environment, resolve_env_set
 from gspi.light.estimate import LightEstimate, estimate_light
-from gspi.light.readout import fit_grid, fit_grid_normal_search, pool_neighbours, read_posterior
+from gspi.light.readout import (fit_grid, fit_grid_normal_search, metal_evidence, metal_ruled_out, pool_neighbours,
+                                read_posterior, without_metal)
 from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_views import lattice_photos, observe_points, views_to_read
 from gspi.stage2.view_statistics import neighbourhood_mean
@@ -75,19 +76,24 @@ def readout_subset(num_points: int) -> np.ndarray:
     return np.sort(np.random.default_rng(READOUT_SEED).choice(num_points, READOUT_POINTS, replace=False))
 
 
-def readout_rows(obs, light: ToldLight, normal_search_deg=(), normal_profile: int = 1) -> np.ndarray:
+def readout_rows(obs, light: ToldLight, normal_search_deg=(), normal_profile: int = 1,
+                 metal_min_evidence: float | None = None) -> np.ndarray:
     """[n, LIGHT_READOUT_WIDTH] the condition's rows of the observed points ``obs`` (each normal
     searched in a cone at ``normal_search_deg``, each cell the best of ``normal_profile`` of the
-    searched normals, as ``method=light_fit`` reads: () = the given normals)."""
+    searched normals, as ``method=light_fit`` reads: () = the given normals; the posterior with
+    every metal cell ruled out when the scene fails ``metal_min_evidence``, as light_fit's
+    ``method.metal_min_evidence``: None = no scene-level test)."""
     if normal_search_deg:  # None or () = the given normals
         grid = fit_grid_normal_search(obs, light.pre, rings_deg=tuple(normal_search_deg), profile=normal_profile,
                                       rotation_deg=light.rotation_deg, gain=light.gain)
     else:
         grid = fit_grid(obs, light.pre, rotation_deg=light.rotation_deg, gain=light.gain)
     pooled = pool_neighbours(grid, obs.xyz)
+    seen = grid.views > 0
+    if metal_ruled_out(metal_evidence(pooled, grid.metallic, seen), metal_min_evidence):
+        pooled = without_metal(pooled, grid.metallic)
     albedo, rough, metal = read_posterior(grid, pooled)
     point_err = pooled.flatten(1).min(dim=1).values
-    seen = grid.views > 0
     scene_err = grid.best_error()[seen].mean() if bool(seen.any()) else torch.tensor(1.0)
     rows = torch.cat([rough[:, None], metal[:, None], linear_to_srgb(albedo.clamp(0, 1)),
                       torch.log10(point_err.clamp_min(_FLOOR))[:, None],
@@ -97,14 +103,15 @@ def readout_rows(obs, light: ToldLight, normal_search_deg=(), normal_profile: in
 
 def readout_table(images: np.ndarray, depth: np.ndarray, cams: LatticeCameras, xyz: np.ndarray,
                   normals: Callable[[np.ndarray], np.ndarray], light: ToldLight, *, tol_pixels: float = 2.0,
-                  normal_search_deg=(), normal_profile: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                  normal_search_deg=(), normal_profile: int = 1, metal_min_evidence: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """(subset xyz [m, 3], its rows [m, LIGHT_READOUT_WIDTH]) of the cloud xyz [n, 3], read in
     linear renders [V, H, W, 3] with depths [V, H, W]; ``normals(indices)`` gives the unit normals
     of those points (only the subset's are computed: ``cloud_normals`` over a 280k-point cloud
     costs a minute)."""
     sub = readout_subset(len(xyz))
     obs = observe_points(images, depth, cams, xyz[sub], normals(sub), tol_pixels=tol_pixels)
-    return xyz[sub], readout_rows(obs, light, normal_search_deg, normal_profile)
+    return xyz[sub], readout_rows(obs, light, normal_search_deg, normal_profile, metal_min_evidence)
 
 
 def readout_lookup(table: tuple[np.ndarray, np.ndarray], xyz: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from eval.common.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
 from gspi.light.estimate import estimate_light
 from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,
-                                pool_neighbours, read_posterior, without_metal)
+                                metal_ruled_out, pool_neighbours, read_posterior, without_metal)
 from gspi.point_cloud import PointCloud, nearest_fill
 from gspi.stage2.infer import asset_point_budget, check_points_per_gaussian, subsample_indices
 from gspi.stage2.lattice_cameras import LatticeCameras
@@ -139,7 +139,7 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
     read = read_light(points, renders, cfg, candidates, photos)
     t0 = time.perf_counter()
     evidence = read.metal_evidence
-    gated = cfg.metal_min_evidence is not None and not evidence >= cfg.metal_min_evidence
+    gated = metal_ruled_out(evidence, cfg.metal_min_evidence)
     pbr = read.pbr(points, cfg.temperature, metal=not gated)
     light = read.light
     stats = {"light": {"env": light.env, "rotation_deg": round(light.rotation_deg, 2), "gain": round(light.gain, 4),
@@ -171,6 +171,7 @@ def inference_light_table(points: PointCloud, renders, data_cfg, photos: Lattice
     light, est = estimate_scene_light(images, depth, cams, xyz, normals, candidates, tol_pixels=tol)
     table = readout_table(images, depth, cams, xyz, normals, light, tol_pixels=tol,
                           normal_search_deg=data_cfg.light_normal_search_deg,
-                          normal_profile=data_cfg.light_normal_profile)
+                          normal_profile=data_cfg.light_normal_profile,
+                          metal_min_evidence=data_cfg.light_metal_min_evidence)
     return table, {"env": est.env, "rotation_deg": round(est.rotation_deg, 2), "gain": round(est.gain, 4),
                    "margin": round(est.margin, 3)}
