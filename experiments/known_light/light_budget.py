@@ -29,19 +29,16 @@ CHANNELS = ("albedo", "roughness", "metallic", "avg")
 def read_scenes(args) -> None:
     from dataclasses import replace
 
-    import yaml
-
     from eval.lpips.net import load_lpips
     from experiments.known_light.stage1_read import asset_stage1, gt_metal_fraction, metal_iou, pending_scenes
     from gspi.data.gt_maps import read_gt_view_maps
     from gspi.gaussians.ply import read_ply
-    from gspi.repo import REPO
     from gspi.stage2.evaluate_points import recorded_constants
     from gspi.stage2.light_condition import candidate_lights
     from gspi.stage2.light_fit import LightFitConfig, predict_light_fit
     from gspi.stage2.score_generated import score_generated_points
 
-    cfg = LightFitConfig.from_mapping(yaml.safe_load((REPO / "conf" / "method" / "light_fit.yaml").read_text()))
+    cfg = LightFitConfig.shipped()
     candidates = candidate_lights(cfg.candidates, cfg.env_height)
     net = load_lpips()
     done = json.loads(args.out.read_text()) if args.out.is_file() else {"scenes": {}}

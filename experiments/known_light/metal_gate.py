@@ -34,18 +34,15 @@ CHANNELS = ("albedo", "roughness", "metallic")
 
 
 def read_scenes(args) -> None:
-    import yaml
-
     from eval.lpips.net import load_lpips
     from experiments.known_light.stage1_read import asset_stage1, gt_metal_fraction, metal_iou, pending_scenes
     from gspi.data.gt_maps import read_gt_view_maps
-    from gspi.repo import REPO
     from gspi.stage2.evaluate_points import recorded_constants
     from gspi.stage2.light_condition import candidate_lights
     from gspi.stage2.light_fit import LightFitConfig, read_light
     from gspi.stage2.score_generated import score_generated_points
 
-    cfg = LightFitConfig.from_mapping(yaml.safe_load((REPO / "conf" / "method" / "light_fit.yaml").read_text()))
+    cfg = LightFitConfig.shipped()
     candidates = candidate_lights(cfg.candidates, cfg.env_height)
     net = load_lpips()
     rough, metal = recorded_constants(args.baseline)

@@ -10,6 +10,7 @@ sRGB, roughness, metallic; stats), so the pipeline's Stage III takes either.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
@@ -64,6 +65,15 @@ class LightFitConfig:
         if values.get("views", "photos") not in LIGHT_VIEWS:
             raise ValueError(f"method.views={values['views']!r}: must be one of {', '.join(LIGHT_VIEWS)}")
         return cls(**values)
+
+    @classmethod
+    def shipped(cls) -> "LightFitConfig":
+        """``method=light_fit`` as shipped: conf/method/light_fit.yaml (what a run without overrides reads)."""
+        import yaml
+
+        from eval.common.conf import CONF_DIR
+
+        return cls.from_mapping(yaml.safe_load((Path(CONF_DIR) / "method" / "light_fit.yaml").read_text()))
 
     def for_asset(self, num_gaussians: int | None) -> "LightFitConfig":
         """This config with ``max_points`` capped at ``points_per_gaussian`` x ``num_gaussians``
