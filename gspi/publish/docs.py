@@ -26,7 +26,7 @@ from typing import Callable
 from eval.stats import mean_and_sem, paired_bootstrap_ci
 from eval.tables.cards import default_checkpoint
 from eval.tables.labels import METHOD_LABELS
-from gspi.publish.pairs import pairs_table
+from gspi.publish.pairs import pairs_table, percent
 from gspi.publish.store import table_folder
 from gspi.repo import REPO as ROOT
 
@@ -319,19 +319,35 @@ PAIRS_RUNS = {  # run -> what it is (each results/controlled_pairs/cpu/<run>.jso
 }
 
 
-def controlled_pairs_block() -> str:
-    """docs/STAGE2.md's controlled-pairs tables: one per committed run, with the command that made it."""
+def committed_pairs_runs() -> list[tuple[str, str, Path]]:
+    """(run, what it is, its scores) of each committed controlled-pairs run, in PAIRS_RUNS's order."""
     unknown = sorted(p.stem for p in PAIRS.glob("*.json") if p.stem not in PAIRS_RUNS)
     if unknown:
         raise ValueError(f"{PAIRS}: {unknown} not in gspi.publish.docs.PAIRS_RUNS (say what each run is)")
+    return [(run, label, PAIRS / f"{run}.json") for run, label in PAIRS_RUNS.items() if (PAIRS / f"{run}.json").is_file()]
+
+
+def controlled_pairs_file() -> str:
+    """docs/results/controlled_pairs.md: one table per committed run, pair by pair, with its command."""
     parts = []
-    for run, label in PAIRS_RUNS.items():
-        path = PAIRS / f"{run}.json"
-        if path.is_file():
-            scores = read_json(path)
-            command = " ".join(o for o in scores.get("overrides") or [] if not o.startswith(("out=", "data_dir=")))
-            parts.append(f"{label} (`{path.relative_to(ROOT)}`; gspi-run {command}):\n\n{pairs_table(scores)}\n")
-    return "\n".join(parts)
+    for _, label, path in committed_pairs_runs():
+        scores = read_json(path)
+        command = " ".join(o for o in scores.get("overrides") or [] if not o.startswith(("out=", "data_dir=")))
+        parts.append(f"### {label}\n\n`{path.relative_to(ROOT)}`; gspi-run {command}\n\n{pairs_table(scores)}\n")
+    return (HEADER.format(source=f"{PAIRS.relative_to(ROOT)}/*.json")
+            + "## Controlled pairs, pair by pair (docs/STAGE2.md \"Controlled pairs\")\n\n" + "\n".join(parts))
+
+
+def controlled_pairs_block() -> str:
+    """docs/STAGE2.md's controlled-pairs summary: a row per committed run (its pairs: docs/results/controlled_pairs.md)."""
+    lines = ["| run | glossy/matte pairs | ordered | ordered with a gap >= 0.3 | metal/dielectric pairs | separated at 0.5 |",
+             "|---|---|---|---|---|---|"]
+    for _, label, path in committed_pairs_runs():
+        scores = read_json(path)
+        rough, metal = scores["roughness"], scores["metal"]
+        lines.append(f"| {label} | {rough['pairs']} | {percent(rough['ordered'])} | {percent(rough['ordered_with_gap'])} "
+                     f"| {metal['pairs']} | {percent(metal['separated'])} |")
+    return "\n".join(lines) + "\n\nPair by pair, with each run's command: [docs/results/controlled_pairs.md](results/controlled_pairs.md).\n"
 
 
 # ---- targets ------------------------------------------------------------------------------------
@@ -341,6 +357,7 @@ FILES: dict[str, Callable[[], str]] = {
     "docs/results/table3.md": table3_file,
     "docs/results/heldout.md": heldout_file,
     "docs/results/real_objects.md": real_objects_file,
+    "docs/results/controlled_pairs.md": controlled_pairs_file,
 }
 BLOCKS: dict[tuple[str, str], Callable[[], str]] = {("README.md", "table1"): table1_block,
                                                    ("README.md", "speed"): speed_block,

@@ -1,12 +1,12 @@
 """The controlled-pairs benchmark's table (benchmarks/bench_controlled_pairs.py prints it; `make
-results` writes docs/STAGE2.md's from the committed scores, results/controlled_pairs/cpu/<run>.json):
+results` writes docs/results/controlled_pairs.md's from the committed scores, results/controlled_pairs/cpu/<run>.json):
 one row per pair (the predicted means of both members, the verdict), then the fractions."""
 from __future__ import annotations
 
 from gspi.data.controlled_pairs import KIND_MEMBERS
 
 
-def _percent(value) -> str:
+def percent(value) -> str:
     return "--" if value is None else f"{100 * value:.0f} %"
 
 
@@ -23,8 +23,8 @@ def pairs_table(scores: dict) -> str:
             verdict = "separated" if r["separated"] else f"not separated at {scores['threshold']}"
         lines.append(f"| {r['id']} | {r['kind']} | {r['family']} | {cells[0]} | {cells[1]} | {verdict} |")
     rough, metal = scores["roughness"], scores["metal"]
-    lines += ["", f"glossy/matte pairs ordered: {_percent(rough['ordered'])} of {rough['pairs']}; "
-                  f"with a gap >= {scores['min_gap']}: {_percent(rough['ordered_with_gap'])}",
-              f"metal/dielectric pairs separated at {scores['threshold']}: {_percent(metal['separated'])} "
+    lines += ["", f"glossy/matte pairs ordered: {percent(rough['ordered'])} of {rough['pairs']}; "
+                  f"with a gap >= {scores['min_gap']}: {percent(rough['ordered_with_gap'])}",
+              f"metal/dielectric pairs separated at {scores['threshold']}: {percent(metal['separated'])} "
               f"of {metal['pairs']}"]
     return "\n".join(lines)
