@@ -126,4 +126,8 @@ $PY -m experiments.known_light.metal_gate --table "$RES/metal_gate_train.json" "
 # The read-out's cost against its quality (finding 22): 20 000 points vs 1/2/3 per Gaussian.
 $PY -m experiments.known_light.light_budget "$WORK/heldout_test" "$WORK/rheldout_fast" "$RES/light_budget.json" --baseline "$BASE"
 $PY -m experiments.known_light.light_budget --table "$RES/light_budget.json"
+# The read-out's pooling behind Stage 0 (finding 25): (k, T) chosen on every other training scene, scored held out.
+$PY -m experiments.known_light.pooling "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/pooling_train.json" --baseline "$BASE" --every 2
+$PY -m experiments.known_light.pooling "$WORK/heldout_test" "$WORK/rheldout_fast" "$RES/pooling_heldout.json" --baseline "$BASE"
+$PY -m experiments.known_light.pooling --table "$RES/pooling_train.json" "$RES/pooling_heldout.json"
 $PY -m experiments.known_light.tables
