@@ -89,7 +89,7 @@ bench: install
 	@for b in $(BENCHES); do echo "== benchmarks/$$b.py"; OMP_NUM_THREADS=1 $(PY) -m benchmarks.$$b || exit 1; done
 	@for p in small tiny; do echo "== benchmarks/bench_pipeline.py --preset $$p"; \
 	  OMP_NUM_THREADS=1 $(PY) -m benchmarks.bench_pipeline --preset $$p --record results/speed/cpu/pipeline_$$p.json || exit 1; done
-	@echo "== benchmarks/bench_demo.py"; $(PY) -m benchmarks.bench_demo --record results/speed/cpu/demo.json
+	@echo "== benchmarks/bench_demo.py"; $(PY) -m benchmarks.bench_demo --install --record results/speed/cpu/demo.json
 
 # The one-shot GPU check (docs/REPRODUCE.md "GPU check"): wheels + weights for the device call,
 # then the call to paste; its CPU smoke run (tiny sizes, ~35 s).

@@ -36,3 +36,22 @@ def test_readme_demo_time_is_generated_from_the_record():
     assert "**4 min 43 s**" in text and "420 CPU-s on 2 cores" in text
     assert "gspi-data 19 s, gspi-run 201 s)" in text and "rm" not in text and "host" not in text
     assert "load average 0.1 -> 1.9" in text
+
+
+def test_the_install_when_timed_is_added_to_the_demo_time():
+    rec = {"wall_s": 262.3, "cpu_s": 400.8, "cores": 2, "date": "2026-12-07", "command": "python -m benchmarks.bench_demo",
+           "machine": "host: AMD EPYC, 2 cores", "load_average": [0.9, 1.5], "steps": [{"step": "gspi-run", "wall_s": 183.0}],
+           "install": {"wall_s": 77.4, "cpu_s": 74.9, "commit": "abc1234", "date": "2026-12-07", "load_average": [1.2, 1.4]}}
+    text = demo_time_text(rec)
+    assert "adds 77 s (75 CPU-s; 2026-12-07 at abc1234" in text and "**5 min 40 s** in all" in text
+    rec["install"] = "not timed (make install before it)"
+    assert "install in a fresh clone" not in demo_time_text(rec)
+
+
+def test_install_only_needs_an_existing_record(tmp_path):
+    import pytest
+
+    from benchmarks.bench_demo import main
+
+    with pytest.raises(SystemExit, match="--install-only updates an existing record: .*missing.json is not a file"):
+        main(["--install-only", "--record", str(tmp_path / "missing.json")])

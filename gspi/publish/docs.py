@@ -301,7 +301,18 @@ def demo_time_text(rec: dict) -> str:
     return (f"`make demo` after its install takes **{minutes} min {seconds:02d} s** ({rec['cpu_s']:.0f} CPU-s on "
             f"{rec['cores']} cores: {steps}), measured by `{rec['command']}` on {rec['date']} "
             f"({rec['machine'].split(': ', 1)[-1]}, load average {rec['load_average'][0]:.1f} -> "
-            f"{rec['load_average'][1]:.1f}).\n")
+            f"{rec['load_average'][1]:.1f}).{install_text(rec)}\n")
+
+
+def install_text(rec: dict) -> str:
+    """The install's sentence of the demo time, when the record timed it (bench_demo --install)."""
+    inst = rec.get("install")
+    if not isinstance(inst, dict):
+        return ""
+    minutes, seconds = divmod(round(rec["wall_s"] + inst["wall_s"]), 60)
+    return (f" Its install in a fresh clone (a new .venv from the pip cache as the VM had it, `bench_demo --install`) "
+            f"adds {inst['wall_s']:.0f} s ({inst['cpu_s']:.0f} CPU-s; {inst['date']} at {inst['commit']}, load average "
+            f"{inst['load_average'][0]:.1f} -> {inst['load_average'][1]:.1f}): **{minutes} min {seconds:02d} s** in all.")
 
 
 def demo_time_block() -> str:
