@@ -25,7 +25,7 @@ from experiments.known_light.stage1_read import read_or_table
 log = logging.getLogger(__name__)
 CHANNELS = ("albedo", "roughness", "metallic")
 NEIGHBOURS = (16, 32, 64, 128)
-TEMPERATURES = (0.05, 0.1, 0.2)
+TEMPERATURES = (0.05, 0.1, 0.2, 0.4)
 SHIPPED = "k16_T0.1"  # method=light_fit's (gspi.light.readout.NEIGHBOURS, POSTERIOR_TEMPERATURE)
 
 
