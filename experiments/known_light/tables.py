@@ -49,6 +49,8 @@ FAST_ROWS = {
                                     "of the asset, the photos, normals searched at 4 and 8 degrees; estimated light)",
     "condition_readout_fast_asset_profile": "the same, each cell the best of 3 searched normals (`light_normal_profile=3`: "
                                             "what the asset-trained rows below are given)",
+    "condition_readout_fast_asset_gated": "the same with the scene-level metal test (`light_metal_min_evidence=1.1`: what "
+                                          "the gated asset-trained rows are given)",
     "light_residual_s0_step5000_fast": "Stage II `light_residual` trained on exact renders (step 5000), its condition on "
                                        "the GT cloud in the assets' renders",
 }
@@ -77,17 +79,29 @@ def row(label: str, scores: dict, method: str) -> str:
             f"{iou_mean(ious, METAL_SCENES):.2f} | {iou_mean(ious, PARTS_SCENES):.2f} |")
 
 
-def asset_trained_runs() -> list[Path]:
-    """results/light_residual_asset_s<seed>_step<N>_fast/scores.json, by seed then step."""
+ASSET_TRAINED = {  # results/<prefix>_s<seed>_step<N>_fast: its caption
+    "light_residual_asset": "Stage II `light_residual` trained behind the training scenes' assets, read as a run reads it",
+    "light_residual_gated_asset": "Stage II `light_residual` trained behind the training scenes' assets, its condition "
+                                  "gated by the scene-level metal test (`light_metal_min_evidence=1.1`)",
+}
+
+
+def asset_trained_runs(prefix: str) -> list[Path]:
+    """results/<prefix>_s<seed>_step<N>_fast/scores.json, by seed then step."""
     def key(path: Path) -> tuple[int, int]:
-        seed, step = path.parent.name.removeprefix("light_residual_asset_s").removesuffix("_fast").split("_step")
+        seed, step = path.parent.name.removeprefix(f"{prefix}_s").removesuffix("_fast").split("_step")
         return int(seed), int(step)
-    return sorted(RESULTS.glob("light_residual_asset_s*_step*_fast/scores.json"), key=key)
+    return sorted(RESULTS.glob(f"{prefix}_s*_step*_fast/scores.json"), key=key)
 
 
-def asset_trained_label(path: Path) -> str:
-    seed, step = path.parent.name.removeprefix("light_residual_asset_s").removesuffix("_fast").split("_step")
-    return f"seed {seed}, step {step}"
+def asset_trained_rows() -> dict[str, Path]:
+    """{caption with seed and step: scores} of every asset-trained run, by prefix, seed, step."""
+    rows = {}
+    for prefix, caption in ASSET_TRAINED.items():
+        for path in asset_trained_runs(prefix):
+            seed, step = path.parent.name.removeprefix(f"{prefix}_s").removesuffix("_fast").split("_step")
+            rows[f"{caption}, seed {seed}, step {step}"] = path
+    return rows
 
 
 def read_table() -> str:
@@ -117,8 +131,7 @@ def read_table() -> str:
                 lines.append(row(CONDITION, json.loads(given.read_text()), "stage2"))
         if folder == "fast_true":
             fast = {label: RESULTS / name / "scores.json" for name, label in FAST_ROWS.items()}
-            fast.update({f"Stage II `light_residual` trained behind the training scenes' assets, read as a run reads it, "
-                         f"{asset_trained_label(p)}": p for p in asset_trained_runs()})
+            fast.update(asset_trained_rows())
             lines += [row(label, json.loads(p.read_text()), "stage2") for label, p in fast.items() if p.is_file()]
         lines += [row(f"per-point fit, `{r}`", s, "stage2") for r, s in scores.items()] + [""]
     return "\n".join(lines)
@@ -128,8 +141,7 @@ def metallic_split_table() -> str:
     """Each fast_true row's metallic PSNR over the scenes without metal and over the others."""
     rows = {"no decomposition": (FULL_SCORES, "no_decomposition"), "Stage II Full (shipped recipe, s0)": (FULL_SCORES, "stage2")}
     rows.update({label: (RESULTS / name / "scores.json", "stage2") for name, label in FAST_ROWS.items()})
-    rows.update({f"Stage II `light_residual` trained behind the training scenes' assets, {asset_trained_label(p)}":
-                 (p, "stage2") for p in asset_trained_runs()})
+    rows.update({label: (p, "stage2") for label, p in asset_trained_rows().items()})
     lines = ["# Where the metallic PSNR comes from, behind the held-out scenes' `recon=fast` assets", "",
              "Table 2's measure (metallic PSNR, dB, per-view, capped at 60 dB): the mean over the 32 held-out "
              f"scenes, over the {len(NO_METAL_SCENES)} whose GT has no metal ({', '.join(NO_METAL_SCENES)}: a "
