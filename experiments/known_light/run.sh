@@ -102,22 +102,24 @@ M="light_residual_asset_s${SEED}_step${STEP}_fast"
 if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -rf "$(dirname "$KEPT")"; fi
 done
 # The same prior given the read-out with the scene-level metal test (finding 20; finding 24):
-# stage2.data.light_metal_min_evidence=1.1 as light_fit's method.metal_min_evidence, one seed so far.
+# stage2.data.light_metal_min_evidence=1.1 as light_fit's method.metal_min_evidence; two seeds.
 GATED="stage2.data.light_geometry=asset stage2.data.light_normal_search_deg=[4,8] stage2.data.light_normal_profile=3 stage2.data.light_metal_min_evidence=1.1"
-RUN="$WORK/runs/train_light_residual_gated_asset_s0"
-KEPT=experiments/known_light/resume/light_residual_gated_asset_s0/checkpoint.pt
+for SEED in 0 1; do
+RUN="$WORK/runs/train_light_residual_gated_asset_s$SEED"
+KEPT=experiments/known_light/resume/light_residual_gated_asset_s$SEED/checkpoint.pt
 if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
-.venv/bin/gspi-train data="$WORK/rtrain_fast" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=0 \
+.venv/bin/gspi-train data="$WORK/rtrain_fast" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
   stage2.train.stop_after_minutes=40 stage2.train.run_log=null $GATED
 STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
 [ -f "$RES/condition_readout_fast_asset_gated/scores.json" ] || $PY -m experiments.known_light.condition \
   "$RUN/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast_asset_gated" --baseline "$BASE" \
   --results "$RES/condition_readout_fast_asset_gated" --label "parts_pool[224:256]/recon=fast"   # what it is given
-M="light_residual_gated_asset_s0_step${STEP}_fast"
+M="light_residual_gated_asset_s${SEED}_step${STEP}_fast"
 [ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
   data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
   $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
 if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -rf "$(dirname "$KEPT")"; fi
+done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2
