@@ -51,8 +51,12 @@ def light_fit_scores() -> dict:
 
 def candidates() -> list[tuple[str, dict[int, dict], str | None]]:
     """(label, {seed: per-scene scores}, its controlled-pairs run or None) of each measured candidate."""
-    out = [("`method=light_fit` (training-free read-out, 2 points per Gaussian)",
+    out = [("`method=light_fit` (training-free read-out, 2 points per Gaussian; on Stage I's cloud)",
             {seed: light_fit_scores() for seed in (0, 1, 2)}, "light_fit_recon_fast_18")]
+    if (RESULTS / "condition_readout_fast_asset_gated" / "scores.json").is_file():  # the same read-out, as Full is scored
+        gated = stage2_scores("condition_readout_fast_asset_gated")
+        out.append(("the gated read-out as Stage II's condition carries it (5 000 points, 1-NN; on the GT cloud, as Full)",
+                    {seed: gated for seed in (0, 1, 2)}, None))
     for name, label in (("light_residual_asset", "Stage II `light_residual`, asset-trained"),
                         ("light_residual_gated_asset", "Stage II `light_residual`, asset-trained, its condition "
                                                        "gated by the scene-level metal test")):
@@ -131,6 +135,9 @@ def targets_rows() -> list[str]:
              {n: r[LIGHT_FIT_BUDGET]["metal_iou"] for n, r in budget.items()})
     runs = {"the default (Full, `stage2_pool224_pixel_5k`)": full,
             "`method=light_fit` (on Stage I's cloud)": {0: light}}
+    if (RESULTS / "condition_readout_fast_asset_gated" / "scores.json").is_file():
+        runs["the gated read-out as the condition carries it (on the GT cloud)"] = {
+            0: stage2(RESULTS / "condition_readout_fast_asset_gated" / "scores.json")}
     for name, label in (("light_residual_asset", "Stage II `light_residual`, asset-trained"),
                         ("light_residual_gated_asset", "Stage II `light_residual`, asset-trained, gated condition")):
         seeds = {seed: stage2(RESULTS / f"{name}_s{seed}_step5000_fast" / "scores.json") for seed in (0, 1)
