@@ -10,7 +10,6 @@ read timed (wall and process CPU, one thread) and scored by Table 2's measure on
 """
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import time
@@ -102,14 +101,7 @@ def table(path: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("data", type=Path, nargs="?")
-    ap.add_argument("assets", type=Path, nargs="?")
-    ap.add_argument("out", type=Path, nargs="?")
-    ap.add_argument("--baseline", type=Path, help="a scores.json whose baseline constants to reuse")
-    ap.add_argument("--table", type=Path, nargs=1, metavar="OUT", default=None,
-                    help="print the table of a finished read (writes results/light_budget.md)")
-    read_or_table(ap, argv, read_scenes, table, Path(__file__).parent / "results" / "light_budget.md")
+    read_or_table(__doc__, argv, read_scenes, table, Path(__file__).parent / "results" / "light_budget.md", table_files=("OUT",), every=False)
 
 
 if __name__ == "__main__":

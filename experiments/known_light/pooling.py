@@ -12,7 +12,6 @@ not use). The setting is chosen on training-pool scenes and scored on the held-o
 """
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import time
@@ -124,15 +123,7 @@ def table(train_path: Path, heldout_path: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("data", type=Path, nargs="?")
-    ap.add_argument("assets", type=Path, nargs="?")
-    ap.add_argument("out", type=Path, nargs="?")
-    ap.add_argument("--baseline", type=Path, help="a scores.json (as the other reads; the PSNR needs no constants)")
-    ap.add_argument("--every", type=int, default=1, help="read every n-th scene (sorted by name)")
-    ap.add_argument("--table", type=Path, nargs=2, metavar=("TRAIN", "HELDOUT"), default=None,
-                    help="print the table of two finished reads (writes results/pooling.md)")
-    read_or_table(ap, argv, read_scenes, table, Path(__file__).parent / "results" / "pooling.md")
+    read_or_table(__doc__, argv, read_scenes, table, Path(__file__).parent / "results" / "pooling.md")
 
 
 if __name__ == "__main__":

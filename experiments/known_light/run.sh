@@ -84,41 +84,34 @@ M="light_residual_s0_step${STEP}_fast"
 # normals searched), in 40-minute chunks (rerun to resume), measured behind the held-out assets.
 $PY -m gspi.recon.reconstructed_pool "$WORK/train_view" "$WORK/rtrain_fast" --recon fast --workers 1
 $PY -m gspi.stage1.pool_clouds "$WORK/rtrain_fast"
+# asset_prior NAME CONDITION OVERRIDES...: one chunk of the asset-trained light_residual NAME_s$SEED
+# (40 minutes; kept state in resume/NAME_s$SEED/ while under way), the condition it is given scored
+# once (results/CONDITION), the prior at the step reached (results/NAME_s$SEED_step<N>_fast).
+asset_prior() {
+  local name=$1 condition=$2; shift 2
+  local run="$WORK/runs/train_${name}_s$SEED" kept=experiments/known_light/resume/${name}_s$SEED/checkpoint.pt
+  if [ ! -f "$run/checkpoint.pt" ] && [ -f "$kept" ]; then mkdir -p "$run" && cp "$kept" "$run/checkpoint.pt"; fi
+  .venv/bin/gspi-train data="$WORK/rtrain_fast" out="$run" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
+    stage2.train.stop_after_minutes=40 stage2.train.run_log=null "$@"
+  local step
+  step=$($PY -c "import torch; print(torch.load('$run/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+  [ -f "$RES/$condition/scores.json" ] || $PY -m experiments.known_light.condition \
+    "$run/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/$condition" --baseline "$BASE" \
+    --results "$RES/$condition" --label "parts_pool[224:256]/recon=fast"   # what it is given
+  local m="${name}_s${SEED}_step${step}_fast"
+  [ -f "$RES/$m/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$run/checkpoint.pt" \
+    data="$WORK/rheldout_fast" out="$WORK/runs/$m" baseline="$BASE" points_measure=table2 && \
+    $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$m/scores.json'), Path('$RES/$m/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
+  if [ "$step" -lt 5000 ]; then mkdir -p "$(dirname "$kept")" && cp "$run/checkpoint.pt" "$kept"; else rm -rf "$(dirname "$kept")"; fi
+}
+AS_A_RUN=(stage2.data.light_geometry=asset 'stage2.data.light_normal_search_deg=[4,8]' stage2.data.light_normal_profile=3)
 for SEED in 0 1; do   # two seeds (the issue's); each resumes from its kept state
-RUN="$WORK/runs/train_light_residual_asset_s$SEED"
-KEPT=experiments/known_light/resume/light_residual_asset_s$SEED/checkpoint.pt
-if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
-.venv/bin/gspi-train data="$WORK/rtrain_fast" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
-  stage2.train.stop_after_minutes=40 stage2.train.run_log=null stage2.data.light_geometry=asset \
-  'stage2.data.light_normal_search_deg=[4,8]' stage2.data.light_normal_profile=3
-STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
-[ -f "$RES/condition_readout_fast_asset_profile/scores.json" ] || $PY -m experiments.known_light.condition \
-  "$RUN/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast_asset_profile" --baseline "$BASE" \
-  --results "$RES/condition_readout_fast_asset_profile" --label "parts_pool[224:256]/recon=fast"   # what it is given
-M="light_residual_asset_s${SEED}_step${STEP}_fast"
-[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
-  data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
-if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -rf "$(dirname "$KEPT")"; fi
+  asset_prior light_residual_asset condition_readout_fast_asset_profile "${AS_A_RUN[@]}"
 done
-# The same prior given the read-out with the scene-level metal test (finding 20; finding 24):
+# The same prior given the read-out with the scene-level metal test (finding 20; finding 26):
 # stage2.data.light_metal_min_evidence=1.1 as light_fit's method.metal_min_evidence; two seeds.
-GATED="stage2.data.light_geometry=asset stage2.data.light_normal_search_deg=[4,8] stage2.data.light_normal_profile=3 stage2.data.light_metal_min_evidence=1.1"
 for SEED in 0 1; do
-RUN="$WORK/runs/train_light_residual_gated_asset_s$SEED"
-KEPT=experiments/known_light/resume/light_residual_gated_asset_s$SEED/checkpoint.pt
-if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
-.venv/bin/gspi-train data="$WORK/rtrain_fast" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
-  stage2.train.stop_after_minutes=40 stage2.train.run_log=null $GATED
-STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
-[ -f "$RES/condition_readout_fast_asset_gated/scores.json" ] || $PY -m experiments.known_light.condition \
-  "$RUN/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast_asset_gated" --baseline "$BASE" \
-  --results "$RES/condition_readout_fast_asset_gated" --label "parts_pool[224:256]/recon=fast"   # what it is given
-M="light_residual_gated_asset_s${SEED}_step${STEP}_fast"
-[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
-  data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
-if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -rf "$(dirname "$KEPT")"; fi
+  asset_prior light_residual_gated_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" stage2.data.light_metal_min_evidence=1.1
 done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).

@@ -67,10 +67,21 @@ def gt_metal_fraction(scene_dir: Path) -> float:
         return float((npz["metallic"] > 0.5).mean())
 
 
-def read_or_table(ap: argparse.ArgumentParser, argv: list[str] | None, read_scenes, table, table_md: Path) -> None:
-    """The door of a resumable per-scene read with a ``--table`` mode (``ap`` holds ``data``,
-    ``assets``, ``out``, ``--baseline`` and ``--table``, a list of record files): the table of
-    finished reads, printed and written to ``table_md``; else ``read_scenes(args)`` on one torch thread."""
+def read_or_table(doc: str, argv: list[str] | None, read_scenes, table, table_md: Path, *,
+                  table_files: tuple[str, ...] = ("TRAIN", "HELDOUT"), every: bool = True) -> None:
+    """The door of a resumable per-scene read (``SCENES ASSETS OUT --baseline SCORES.json``, and
+    ``--every n`` when ``every``) with a ``--table`` mode: the table of finished reads (the record
+    files named ``table_files``), printed and written to ``table_md``; else ``read_scenes(args)``
+    on one torch thread."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("data", type=Path, nargs="?")
+    ap.add_argument("assets", type=Path, nargs="?")
+    ap.add_argument("out", type=Path, nargs="?")
+    ap.add_argument("--baseline", type=Path, help="a scores.json whose baseline constants to reuse")
+    if every:
+        ap.add_argument("--every", type=int, default=1, help="read every n-th scene (sorted by name)")
+    ap.add_argument("--table", type=Path, nargs=len(table_files), metavar=table_files, default=None,
+                    help=f"print the table of finished reads (writes {table_md.parent.name}/{table_md.name})")
     args = ap.parse_args(argv)
     if args.table:
         text = table(*args.table)
