@@ -101,7 +101,7 @@ def rule_row(label: str, candidate: dict[int, dict], pairs_run: str | None) -> s
     ordered, separated, pair_fails = pairs_cells(pairs_run)
     n = sum(len(s) for s in candidate.values())
     verdict = "yes (then issue 42's checks)" if not fails + pair_fails else "no: " + "; ".join(fails + pair_fails)
-    return f"| {label} | {n} ({len(candidate)} seeds) | " + " | ".join(cells) + f" | {ordered} | {separated} | {verdict} |"
+    return f"| {label} | {n} ({len(candidate)} seed{'s' if len(candidate) > 1 else ''}) | " + " | ".join(cells) + f" | {ordered} | {separated} | {verdict} |"
 
 
 def target_cells(per_seed: dict[int, dict], no_dec: dict[int, dict], ious: dict[int, dict]) -> list[str]:
