@@ -21,6 +21,7 @@ import json
 from pathlib import Path
 
 from eval.stats import paired_bootstrap_ci
+from experiments.known_light.scene_groups import METAL_SCENES, PARTS_SCENES, iou_mean
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -107,8 +108,6 @@ def rule_row(label: str, candidate: dict[int, dict], pairs_run: str | None) -> s
 def target_cells(per_seed: dict[int, dict], no_dec: dict[int, dict], ious: dict[int, dict]) -> list[str]:
     """avg, roughness minus no decomposition [CI] paired over (scene, seed), metal class IoU (7 scenes)
     and multi-material IoU (parts scenes with metal), each IoU the mean of the seeds' means."""
-    from experiments.known_light.tables import METAL_SCENES, PARTS_SCENES, iou_mean
-
     avg = sum(sum(r.values()) / 3 for sc in per_seed.values() for r in sc.values()) / sum(map(len, per_seed.values()))
     rough = {(n, seed): r["roughness"] for seed, sc in per_seed.items() for n, r in sc.items()}
     base = {(n, seed): no_dec[seed][n] for seed, sc in per_seed.items() for n in sc}

@@ -17,19 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from eval.stats import paired_bootstrap_ci
+from experiments.known_light.scene_groups import METAL_SCENES, NO_METAL_SCENES, PARTS_SCENES, iou_mean
 from experiments.known_light.shipping_rule import shipping_rule_table
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 STAGE2_SCORES = HERE.parent / "view_dependence" / "log" / "retraining_shipped" / "exact_whole_xv_nbhd_s0.json"
-# scenes of the held-out pool (parts pool [224:256]) by what they are made of (their scene.json's
-# generator): the `metal` class and the objects of several parts, each its own material
-METAL_SCENES = tuple(f"p{i:04d}" for i in range(224, 231))
-PARTS_SCENES = tuple(f"p{i:04d}" for i in (224, 225, 226, 229, 230, 231, 233, 235, 238, 242, 243, 245, 246,
-                                             247, 249, 250, 252, 253))
-# the held-out scenes with no metallic point at all in their GT (gt_points.npz): exact zeros score up to the
-# protocol's 60 dB cap there, so these 6 scenes weigh on the mean metallic PSNR as much as the other 26
-NO_METAL_SCENES = ("p0239", "p0240", "p0241", "p0244", "p0254", "p0255")
 FULL_SCORES = HERE.parents[1] / "results" / "table2" / "cpu" / "full_s0" / "scores.json"  # the shipped Full, s0
 # results/<ablation>_s0_step<N>_exact: run.sh's light-aware Stage II at checkpoint step N (a learning curve)
 LEARNED = {
@@ -61,11 +54,6 @@ CONDITIONS = {  # results/<folder>: its caption
     "fast_true": "Stage 0 `recon=fast` assets' lattice renders, the capture light known (GT normals)",
     "fast_true_surfel": "Stage 0 `recon=fast` assets' lattice renders, the capture light known, the asset's surfel normals",
 }
-
-
-def iou_mean(ious: dict, prefixes: tuple[str, ...]) -> float:
-    vals = [v for k, v in ious.items() if k[:5] in prefixes and v is not None]
-    return float(np.mean(vals)) if vals else float("nan")
 
 
 def row(label: str, scores: dict, method: str) -> str:
