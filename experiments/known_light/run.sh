@@ -113,6 +113,11 @@ done
 for SEED in 0 1; do
   asset_prior light_residual_gated_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" stage2.data.light_metal_min_evidence=1.1
 done
+# ... its seed 0 with 4 DDIM samples averaged per point: how much of its gap to its condition is sampling noise
+M=light_residual_gated_asset_s0_step5000_fast_4samples
+[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$WORK/runs/train_light_residual_gated_asset_s0/checkpoint.pt" \
+  data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 points_measure.num_samples=4 && \
+  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

@@ -46,6 +46,9 @@ FAST_ROWS = {
                                           "the gated asset-trained rows are given)",
     "light_residual_s0_step5000_fast": "Stage II `light_residual` trained on exact renders (step 5000), its condition on "
                                        "the GT cloud in the assets' renders",
+    "light_residual_gated_asset_s0_step5000_fast_4samples": "Stage II `light_residual` given the gated condition, seed 0, "
+                                                            "step 5000, 4 DDIM samples averaged per point "
+                                                            "(`points_measure.num_samples=4`: another measure hash)",
 }
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
