@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.known_light.stage1_read import read_or_table
+from experiments.known_light.stage1_read import paired_channel_diffs, read_or_table
 
 log = logging.getLogger(__name__)
 CHANNELS = ("albedo", "roughness", "metallic")
@@ -85,8 +85,6 @@ def best_threshold(rows: dict) -> float:
 
 
 def table(train_path: Path, heldout_path: Path) -> str:
-    from eval.stats import paired_bootstrap_ci
-
     train = json.loads(train_path.read_text())["scenes"]
     heldout = json.loads(heldout_path.read_text())["scenes"]
     threshold = best_threshold(train)
@@ -107,12 +105,10 @@ def table(train_path: Path, heldout_path: Path) -> str:
             lines.append(f"| {label} | {read_label} | " + " | ".join(f"{mean_psnr(reads, c):.2f}" for c in (*CHANNELS, "avg"))
                          + f" | {m_none:.2f} ({len(none)}) | {iou:.2f} ({len(rows) - len(none)}) | {len(shut)} ({len(shut - none)}) |")
     base, test = gated(heldout, -np.inf), gated(heldout, threshold)
-    diffs = []
-    for c in (*CHANNELS, "avg"):
-        d = paired_bootstrap_ci({n: r["scores"][c]["psnr"] for n, r in test.items()},
-                                {n: r["scores"][c]["psnr"] for n, r in base.items()})
-        diffs.append(f"{c} {d[0]:+.2f} [{d[1]:+.2f}, {d[2]:+.2f}]")
-    lines += ["", "Held-out, the test minus today's read (paired over scenes, 95 % bootstrap CI): " + ", ".join(diffs) + ".",
+    channels = (*CHANNELS, "avg")
+    diffs = paired_channel_diffs({n: {c: r["scores"][c]["psnr"] for c in channels} for n, r in test.items()},
+                                 {n: {c: r["scores"][c]["psnr"] for c in channels} for n, r in base.items()}, channels)
+    lines += ["", f"Held-out, the test minus today's read (paired over scenes, 95 % bootstrap CI): {diffs}.",
               "", "| held-out scene | evidence | GT metal fraction | gated |", "|---|---|---|---|"]
     lines += [f"| {n} | {r['evidence']:.3f} | {r['gt_metal_fraction']:.3f} | {'yes' if r['evidence'] < threshold else ''} |"
               for n, r in sorted(heldout.items())]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.known_light.stage1_read import read_or_table
+from experiments.known_light.stage1_read import paired_channel_diffs, read_or_table
 
 log = logging.getLogger(__name__)
 CHANNELS = ("albedo", "roughness", "metallic")
@@ -58,7 +58,7 @@ def psnr_scores(points, pbr: np.ndarray, scene_dir: Path) -> dict[str, float]:
 def read_scenes(args) -> None:
     from experiments.known_light.stage1_read import asset_stage1, pending_scenes
     from gspi.gaussians.ply import read_ply
-    from gspi.light.readout import metal_evidence, metal_ruled_out, pool_neighbours
+    from gspi.light.readout import metal_ruled_out, pool_neighbours
     from gspi.stage2.light_condition import candidate_lights
     from gspi.stage2.light_fit import LightFitConfig, read_light
 
@@ -74,8 +74,7 @@ def read_scenes(args) -> None:
         row = {"light": read.light.env, "settings": {}}
         for k in NEIGHBOURS:
             read.pooled = pool_neighbours(read.grid, read.obs.xyz, k=k)
-            metal = not metal_ruled_out(metal_evidence(read.pooled, read.grid.metallic, read.grid.views > 0),
-                                        cfg.metal_min_evidence)
+            metal = not metal_ruled_out(read.metal_evidence, cfg.metal_min_evidence)
             for temperature in TEMPERATURES:
                 pbr = read.pbr(points, temperature, metal=metal)
                 row["settings"][setting(k, temperature)] = psnr_scores(points, pbr, args.data / name)
@@ -97,8 +96,6 @@ def best_setting(rows: dict) -> str:
 
 
 def table(train_path: Path, heldout_path: Path) -> str:
-    from eval.stats import paired_bootstrap_ci
-
     train = json.loads(train_path.read_text())["scenes"]
     heldout = json.loads(heldout_path.read_text())["scenes"]
     chosen = best_setting(train)
@@ -113,12 +110,9 @@ def table(train_path: Path, heldout_path: Path) -> str:
         mark = " (shipped)" if key == SHIPPED else " (chosen)" if key == chosen else ""
         lines.append(f"| {key}{mark} | " + " | ".join(f"{mean_over(rows, key, c):.2f}" for rows in (train, heldout)
                                                      for c in (*CHANNELS, "avg")) + " |")
-    diffs = []
-    for c in (*CHANNELS, "avg"):
-        d = paired_bootstrap_ci({n: r["settings"][chosen][c] for n, r in heldout.items()},
-                                {n: r["settings"][SHIPPED][c] for n, r in heldout.items()})
-        diffs.append(f"{c} {d[0]:+.2f} [{d[1]:+.2f}, {d[2]:+.2f}]")
-    lines += ["", f"Held-out, {chosen} minus {SHIPPED} (paired over scenes, 95 % bootstrap CI): " + ", ".join(diffs) + "."]
+    diffs = paired_channel_diffs({n: r["settings"][chosen] for n, r in heldout.items()},
+                                 {n: r["settings"][SHIPPED] for n, r in heldout.items()}, (*CHANNELS, "avg"))
+    lines += ["", f"Held-out, {chosen} minus {SHIPPED} (paired over scenes, 95 % bootstrap CI): {diffs}."]
     return "\n".join(lines) + "\n"
 
 

@@ -18,7 +18,9 @@ Written by ``python -m experiments.known_light.tables`` from committed scores on
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from eval.stats import paired_bootstrap_ci
 from experiments.known_light.scene_groups import METAL_SCENES, PARTS_SCENES, iou_mean
@@ -34,37 +36,69 @@ PAIRS = ROOT / "results" / "controlled_pairs" / "cpu" / "{run}.json"
 LIGHT_FIT_BUDGET = "per_gaussian_2"  # method=light_fit's default read (light_budget.py)
 
 
+FULL_SEEDS = (0, 1, 2)
+LEARNED = {  # results/<prefix>_s<seed>_step5000_fast: the asset-trained priors
+    "light_residual_asset": "Stage II `light_residual`, asset-trained",
+    "light_residual_gated_asset": "Stage II `light_residual`, asset-trained, its condition gated by the scene-level "
+                                  "metal test",
+}
+GATED_CONDITION = RESULTS / "condition_readout_fast_asset_gated" / "scores.json"
+
+
+class Measured(NamedTuple):
+    """One measured run on the 32 held-out scenes."""
+
+    psnr: dict              # {scene: {channel: PSNR}}
+    no_dec_roughness: dict  # {scene: no decomposition's roughness PSNR on the same cloud}
+    metal_iou: dict         # {scene: metal IoU, or None where neither reads metal}
+
+
+@dataclass(frozen=True)
+class Candidate:
+    label: str
+    seeds: dict  # {seed: Measured}; a training-free read-out pairs with each of Full's seeds
+    training_free: bool = False
+    pairs_run: str | None = None  # its controlled-pairs record, or None
+
+
+def read_stage2(path: Path) -> Measured:
+    """A gspi-points-eval scores.json (Table 2's measure on the GT cloud)."""
+    data = json.loads(Path(path).read_text())
+    per = data["per_scene"]
+    return Measured({s: {c: v[c]["psnr"] for c in CHANNELS} for s, v in per["stage2"].items()},
+                    {s: v["roughness"]["psnr"] for s, v in per["no_decomposition"].items()},
+                    data["metal_iou"]["stage2"])
+
+
+def read_light_fit() -> Measured:
+    """light_fit's default read (light_budget.json) on Stage I's cloud, no decomposition on that cloud
+    from stage1_read.json."""
+    budget = json.loads((RESULTS / "light_budget.json").read_text())["scenes"]
+    stage1 = json.loads((RESULTS / "stage1_read.json").read_text())["scenes"]
+    return Measured({n: {c: r[LIGHT_FIT_BUDGET]["scores"][c]["psnr"] for c in CHANNELS} for n, r in budget.items()},
+                    {n: stage1[n]["no_decomposition"]["scores"]["roughness"]["psnr"] for n in budget},
+                    {n: r[LIGHT_FIT_BUDGET]["metal_iou"] for n, r in budget.items()})
+
+
 def full_scores(seed: int) -> dict:
     """{scene: {channel: PSNR}} of the default at ``seed``."""
-    per = json.loads(Path(str(FULL).format(seed=seed)).read_text())["per_scene"]["stage2"]
-    return {s: {c: v[c]["psnr"] for c in CHANNELS} for s, v in per.items()}
+    return read_stage2(Path(str(FULL).format(seed=seed))).psnr
 
 
-def stage2_scores(folder: str) -> dict:
-    per = json.loads((RESULTS / folder / "scores.json").read_text())["per_scene"]["stage2"]
-    return {s: {c: v[c]["psnr"] for c in CHANNELS} for s, v in per.items()}
-
-
-def light_fit_scores() -> dict:
-    scenes = json.loads((RESULTS / "light_budget.json").read_text())["scenes"]
-    return {s: {c: v[LIGHT_FIT_BUDGET]["scores"][c]["psnr"] for c in CHANNELS} for s, v in scenes.items()}
-
-
-def candidates() -> list[tuple[str, dict[int, dict], str | None]]:
-    """(label, {seed: per-scene scores}, its controlled-pairs run or None) of each measured candidate."""
-    out = [("`method=light_fit` (training-free read-out, 2 points per Gaussian; on Stage I's cloud)",
-            {seed: light_fit_scores() for seed in (0, 1, 2)}, "light_fit_recon_fast_18")]
-    if (RESULTS / "condition_readout_fast_asset_gated" / "scores.json").is_file():  # the same read-out, as Full is scored
-        gated = stage2_scores("condition_readout_fast_asset_gated")
-        out.append(("the gated read-out as Stage II's condition carries it (5 000 points, 1-NN; on the GT cloud, as Full)",
-                    {seed: gated for seed in (0, 1, 2)}, None))
-    for name, label in (("light_residual_asset", "Stage II `light_residual`, asset-trained"),
-                        ("light_residual_gated_asset", "Stage II `light_residual`, asset-trained, its condition "
-                                                       "gated by the scene-level metal test")):
-        seeds = {seed: stage2_scores(f"{name}_s{seed}_step5000_fast") for seed in (0, 1)
-                 if (RESULTS / f"{name}_s{seed}_step5000_fast" / "scores.json").is_file()}
+def candidates() -> list[Candidate]:
+    """Each measured candidate: light_fit, the gated read-out scored as Full is, the asset-trained priors."""
+    fit = read_light_fit()
+    out = [Candidate("`method=light_fit` (training-free read-out, 2 points per Gaussian; on Stage I's cloud)",
+                     {seed: fit for seed in FULL_SEEDS}, training_free=True, pairs_run="light_fit_recon_fast_18")]
+    if GATED_CONDITION.is_file():  # the same read-out, scored as Full is
+        gated = read_stage2(GATED_CONDITION)
+        out.append(Candidate("the gated read-out as Stage II's condition carries it (5 000 points, 1-NN; on the GT "
+                             "cloud, as Full)", {seed: gated for seed in FULL_SEEDS}, training_free=True))
+    for name, label in LEARNED.items():
+        paths = {seed: RESULTS / f"{name}_s{seed}_step5000_fast" / "scores.json" for seed in (0, 1)}
+        seeds = {seed: read_stage2(path) for seed, path in paths.items() if path.is_file()}
         if seeds:
-            out.append((label, seeds, None))
+            out.append(Candidate(label, seeds))
     return out
 
 
@@ -118,35 +152,16 @@ def target_cells(per_seed: dict[int, dict], no_dec: dict[int, dict], ious: dict[
 
 
 def targets_rows() -> list[str]:
-    """Each candidate and the default against issue 66's held-out targets."""
-    def stage2(path: Path):
-        data = json.loads(path.read_text())
-        return ({s: {c: v[c]["psnr"] for c in CHANNELS} for s, v in data["per_scene"]["stage2"].items()},
-                {s: v["roughness"]["psnr"] for s, v in data["per_scene"]["no_decomposition"].items()},
-                data["metal_iou"]["stage2"])
-
+    """The default and each candidate against issue 66's held-out targets (a training-free read-out
+    counted once, not once per Full seed)."""
+    default = Candidate("the default (Full, `stage2_pool224_pixel_5k`)",
+                        {seed: read_stage2(Path(str(FULL).format(seed=seed))) for seed in FULL_SEEDS})
     rows = []
-    full = {seed: stage2(Path(str(FULL).format(seed=seed))) for seed in (0, 1, 2)}
-    budget = json.loads((RESULTS / "light_budget.json").read_text())["scenes"]
-    stage1 = json.loads((RESULTS / "stage1_read.json").read_text())["scenes"]
-    light = ({n: {c: r[LIGHT_FIT_BUDGET]["scores"][c]["psnr"] for c in CHANNELS} for n, r in budget.items()},
-             {n: stage1[n]["no_decomposition"]["scores"]["roughness"]["psnr"] for n in budget},
-             {n: r[LIGHT_FIT_BUDGET]["metal_iou"] for n, r in budget.items()})
-    runs = {"the default (Full, `stage2_pool224_pixel_5k`)": full,
-            "`method=light_fit` (on Stage I's cloud)": {0: light}}
-    if (RESULTS / "condition_readout_fast_asset_gated" / "scores.json").is_file():
-        runs["the gated read-out as the condition carries it (on the GT cloud)"] = {
-            0: stage2(RESULTS / "condition_readout_fast_asset_gated" / "scores.json")}
-    for name, label in (("light_residual_asset", "Stage II `light_residual`, asset-trained"),
-                        ("light_residual_gated_asset", "Stage II `light_residual`, asset-trained, gated condition")):
-        seeds = {seed: stage2(RESULTS / f"{name}_s{seed}_step5000_fast" / "scores.json") for seed in (0, 1)
-                 if (RESULTS / f"{name}_s{seed}_step5000_fast" / "scores.json").is_file()}
-        if seeds:
-            runs[label] = seeds
-    for label, seeds in runs.items():
-        cells = target_cells({s: v[0] for s, v in seeds.items()}, {s: v[1] for s, v in seeds.items()},
-                             {s: v[2] for s, v in seeds.items()})
-        rows.append(f"| {label} | {len(seeds)} | " + " | ".join(cells) + " |")
+    for cand in [default, *candidates()]:
+        seeds = {0: cand.seeds[FULL_SEEDS[0]]} if cand.training_free else cand.seeds
+        cells = target_cells({s: m.psnr for s, m in seeds.items()}, {s: m.no_dec_roughness for s, m in seeds.items()},
+                             {s: m.metal_iou for s, m in seeds.items()})
+        rows.append(f"| {cand.label} | {len(seeds)} | " + " | ".join(cells) + " |")
     return rows
 
 
@@ -159,7 +174,7 @@ def shipping_rule_table() -> str:
              "Generated by `python -m experiments.known_light.tables` (`shipping_rule.py`).", "",
              "| candidate | pairs (scene, seed) | avg | albedo | roughness | metallic | glossy/matte ordered | "
              "metal/dielectric separated | passes |", "|---|---|---|---|---|---|---|---|---|"]
-    lines += [rule_row(*c) for c in candidates()]
+    lines += [rule_row(c.label, {seed: m.psnr for seed, m in c.seeds.items()}, c.pairs_run) for c in candidates()]
     lines += ["", "## Against issue 66's held-out targets", "",
               "Same scenes and measure; roughness paired over (scene, seed) against no decomposition on the same "
               "cloud; metal class: the 7 `metal` scenes; multi-material: the `parts` scenes with metal "

@@ -67,6 +67,18 @@ def gt_metal_fraction(scene_dir: Path) -> float:
         return float((npz["metallic"] > 0.5).mean())
 
 
+def paired_channel_diffs(variant: dict, reference: dict, channels) -> str:
+    """``"albedo +0.14 [+0.06, +0.22], ..."``: per channel the mean paired difference (variant -
+    reference, each {scene: {channel: PSNR}}) over scenes with its 95 % bootstrap CI."""
+    from eval.stats import paired_bootstrap_ci
+
+    parts = []
+    for c in channels:
+        d, lo, hi = paired_bootstrap_ci({n: r[c] for n, r in variant.items()}, {n: r[c] for n, r in reference.items()})
+        parts.append(f"{c} {d:+.2f} [{lo:+.2f}, {hi:+.2f}]")
+    return ", ".join(parts)
+
+
 def read_or_table(doc: str, argv: list[str] | None, read_scenes, table, table_md: Path, *,
                   table_files: tuple[str, ...] = ("TRAIN", "HELDOUT"), every: bool = True) -> None:
     """The door of a resumable per-scene read (``SCENES ASSETS OUT --baseline SCORES.json``, and

@@ -330,18 +330,18 @@ PAIRS_RUNS = {  # run -> what it is (each results/controlled_pairs/cpu/<run>.jso
 }
 
 
-def committed_pairs_runs() -> list[tuple[str, str, Path]]:
-    """(run, what it is, its scores) of each committed controlled-pairs run, in PAIRS_RUNS's order."""
+def committed_pairs_runs() -> list[tuple[str, Path]]:
+    """(what it is, its scores) of each committed controlled-pairs run, in PAIRS_RUNS's order."""
     unknown = sorted(p.stem for p in PAIRS.glob("*.json") if p.stem not in PAIRS_RUNS)
     if unknown:
         raise ValueError(f"{PAIRS}: {unknown} not in gspi.publish.docs.PAIRS_RUNS (say what each run is)")
-    return [(run, label, PAIRS / f"{run}.json") for run, label in PAIRS_RUNS.items() if (PAIRS / f"{run}.json").is_file()]
+    return [(label, PAIRS / f"{run}.json") for run, label in PAIRS_RUNS.items() if (PAIRS / f"{run}.json").is_file()]
 
 
 def controlled_pairs_file() -> str:
     """docs/results/controlled_pairs.md: one table per committed run, pair by pair, with its command."""
     parts = []
-    for _, label, path in committed_pairs_runs():
+    for label, path in committed_pairs_runs():
         scores = read_json(path)
         command = " ".join(o for o in scores.get("overrides") or [] if not o.startswith(("out=", "data_dir=")))
         parts.append(f"### {label}\n\n`{path.relative_to(ROOT)}`; gspi-run {command}\n\n{pairs_table(scores)}\n")
@@ -353,7 +353,7 @@ def controlled_pairs_block() -> str:
     """docs/STAGE2.md's controlled-pairs summary: a row per committed run (its pairs: docs/results/controlled_pairs.md)."""
     lines = ["| run | glossy/matte pairs | ordered | ordered with a gap >= 0.3 | metal/dielectric pairs | separated at 0.5 |",
              "|---|---|---|---|---|---|"]
-    for _, label, path in committed_pairs_runs():
+    for label, path in committed_pairs_runs():
         scores = read_json(path)
         rough, metal = scores["roughness"], scores["metal"]
         lines.append(f"| {label} | {rough['pairs']} | {percent(rough['ordered'])} | {percent(rough['ordered_with_gap'])} "
