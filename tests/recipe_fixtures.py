@@ -20,7 +20,7 @@ ADDED_OFF = {("data", "cross_view_radiance"): False, ("data", "cross_view_neighb
              ("data", "light_normal_profile"): 1, ("data", "light_metal_min_evidence"): None,
              ("data", "subset"): "local", ("inference", "patch_points"): None, ("inference", "patch_coverage"): 2.0,
              ("inference", "light_views"): "photos",  # light_views: read only by a light_readout model
-             ("inference", "points_per_gaussian"): None}
+             ("inference", "points_per_gaussian"): None, ("diffusion", "readout_metal_gate"): False}
 
 
 def composed_stage2(*overrides: str, study_conf: Path | None = None) -> dict:

@@ -126,13 +126,14 @@ def test_cloud_normals_are_the_surface_plane_facing_the_camera():
     assert np.all((n_back * back).sum(1) > 0.99)
 
 
-def tiny_readout_model(light: PointDataConfig):
+def tiny_readout_model(light: PointDataConfig, metal_gate: bool = False):
     from gspi.stage2.model import RCWConfig, RCWDenoiser
 
     torch.manual_seed(0)
     return RCWDenoiser(RCWConfig(num_latents=4, latent_dim=16, point_dim=16, num_blocks=1, num_compute_layers=1,
                                  num_heads=2, local_cond_dim=light.condition_width(0), global_token_dim=0,
-                                 prediction="x0_readout", readout_column=light.light_readout_column()))
+                                 prediction="x0_readout", readout_column=light.light_readout_column(),
+                                 readout_metal_gate=metal_gate))
 
 
 def test_an_untrained_x0_readout_model_samples_the_readout(lit):
@@ -151,6 +152,30 @@ def test_an_untrained_x0_readout_model_samples_the_readout(lit):
         model.out.bias.fill_(0.2)  # a correction moves every channel (metallic 1 clamps)
     moved = predict_point_pbr(model, scene.xyz[idx], cond, None, num_steps=5).numpy()
     assert np.all((moved > readout + 0.05) | (readout > 0.85))
+
+
+def test_the_metal_gate_adds_no_metal_where_the_readout_rules_it_out(lit):
+    """readout_metal_gate: a correction that adds metal everywhere moves only the points whose
+    read-out has some; the other channels move everywhere, as without the gate."""
+    from gspi.stage2.sampler import predict_point_pbr
+
+    scene, _ = lit
+    idx = np.arange(0, scene.num_points, 7)
+    cond = local_condition(scene, idx, scene.xyz[idx], "top_rgb_onehot", light=LIGHT)
+    cond[::2, 36] = 0.0  # every other point: metal ruled out (the scene-level test zeroes them all)
+    cond[1::2, 36] = 0.25
+    readout = cond[:, [37, 38, 39, 35, 36]].clip(0, 1)
+    gated, plain = tiny_readout_model(LIGHT, metal_gate=True), tiny_readout_model(LIGHT)
+    with torch.no_grad():
+        for model in (gated, plain):
+            model.out.bias.fill_(0.2)
+    pbr = predict_point_pbr(gated, scene.xyz[idx], cond, None, num_steps=5).numpy()
+    np.testing.assert_allclose(pbr[::2, 4], 0.0, atol=1e-6)  # the DDIM eps round trip
+    assert np.all(pbr[1::2, 4] > 0.3)  # 0.25 + 0.2 / 2 (model space spans [-1, 1])
+    np.testing.assert_allclose(pbr[:, :4], predict_point_pbr(plain, scene.xyz[idx], cond, None, num_steps=5).numpy()[:, :4])
+    with pytest.raises(ValueError, match="needs stage2.diffusion.prediction=x0_readout"):
+        from gspi.stage2.config import complete_stage2
+        complete_stage2({"diffusion": {"readout_metal_gate": True}})
 
 
 def test_an_x0_readout_model_learns_a_correction(lit):

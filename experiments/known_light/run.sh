@@ -38,16 +38,24 @@ TRAIN_KEYS="$KEYS data.parts.matte_finish=0.5"
 [ -f "$WORK/train_pool/p0063_sphere_painted_metal/complete.json" ] || \
   .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $TRAIN_KEYS
 [ -d "$WORK/train_view" ] || $PY -m gspi.data.pool.split "$WORK/train_pool" "$WORK/train_view" --train 0:64
+# measure DATA LABEL CHECKPOINT NAME [points_measure overrides]: Table 2's measure of a Stage II
+# checkpoint on DATA's held-out scenes, its scores committed as results/NAME (an override is another
+# measure hash); held_out_measure: on the held-out scenes behind their recon=fast assets
+measure() {
+  local data=$1 label=$2 ckpt=$3 m=$4; shift 4
+  [ -f "$RES/$m/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$ckpt" \
+    data="$data" out="$WORK/runs/$m" baseline="$BASE" points_measure=table2 "$@" && \
+    $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$m/scores.json'), Path('$RES/$m/scores.json'), data_label='$label', roots={'<work>': Path('$WORK')})"; }
+}
+held_out_measure() { measure "$WORK/rheldout_fast" "parts_pool[224:256]/recon=fast" "$@"; }
 RUN="$WORK/runs/train_light_full_s0"
 KEPT=experiments/known_light/resume/light_full_s0/checkpoint.pt   # the training's state at the last session's stop
 if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
 .venv/bin/gspi-train data="$WORK/train_view" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_full seed=0 \
   stage2.train.stop_after_minutes=50 stage2.train.run_log=null
 STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
-M="light_full_s0_step${STEP}_exact"   # one measure per checkpoint step: a learning curve
-[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
-  data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
+# one measure per checkpoint step: a learning curve
+measure "$WORK/heldout_test" "parts_pool[224:256] (exact renders)" "$RUN/checkpoint.pt" "light_full_s0_step${STEP}_exact"
 # the state travels in git while the training is under way, and leaves when it ends
 if [ "$STEP" -lt 5000 ]; then cp "$RUN/checkpoint.pt" "$KEPT"; else rm -f "$KEPT"; fi
 # What the learned rows are given: the condition's own read-out scored as the prediction.
@@ -61,10 +69,7 @@ if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "
 .venv/bin/gspi-train data="$WORK/train_view" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=0 \
   stage2.train.stop_after_minutes=50 stage2.train.run_log=null
 STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
-M="light_residual_s0_step${STEP}_exact"
-[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
-  data="$WORK/heldout_test" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256] (exact renders)', roots={'<work>': Path('$WORK')})"; }
+measure "$WORK/heldout_test" "parts_pool[224:256] (exact renders)" "$RUN/checkpoint.pt" "light_residual_s0_step${STEP}_exact"
 if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -f "$KEPT"; fi
 # Behind the held-out scenes' recon=fast assets (Table 2's measure on the reconstructed pool): the
 # exact-render light_residual and the read-out it is given, read on the GT cloud in the assets' renders
@@ -75,10 +80,7 @@ for G in "" _asset; do
     "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast$G" --baseline "$BASE" \
     --results "$RES/condition_readout_fast$G" --label "parts_pool[224:256]/recon=fast" ${G:+--asset}
 done
-M="light_residual_s0_step${STEP}_fast"
-[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$RUN/checkpoint.pt" \
-  data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
+held_out_measure "$RUN/checkpoint.pt" "light_residual_s0_step${STEP}_fast"
 # Under the conditions users' assets have (issue 66, item 5): light_residual trained on the 64
 # training scenes' recon=fast assets, its read-out read as a run reads it (light_geometry=asset,
 # normals searched), in 40-minute chunks (rerun to resume), measured behind the held-out assets.
@@ -98,10 +100,7 @@ asset_prior() {
   [ -f "$RES/$condition/scores.json" ] || $PY -m experiments.known_light.condition \
     "$run/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/$condition" --baseline "$BASE" \
     --results "$RES/$condition" --label "parts_pool[224:256]/recon=fast"   # what it is given
-  local m="${name}_s${SEED}_step${step}_fast"
-  [ -f "$RES/$m/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$run/checkpoint.pt" \
-    data="$WORK/rheldout_fast" out="$WORK/runs/$m" baseline="$BASE" points_measure=table2 && \
-    $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$m/scores.json'), Path('$RES/$m/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
+  held_out_measure "$run/checkpoint.pt" "${name}_s${SEED}_step${step}_fast"
   if [ "$step" -lt 5000 ]; then mkdir -p "$(dirname "$kept")" && cp "$run/checkpoint.pt" "$kept"; else rm -rf "$(dirname "$kept")"; fi
 }
 AS_A_RUN=(stage2.data.light_geometry=asset 'stage2.data.light_normal_search_deg=[4,8]' stage2.data.light_normal_profile=3)
@@ -114,10 +113,18 @@ for SEED in 0 1; do
   asset_prior light_residual_gated_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" stage2.data.light_metal_min_evidence=1.1
 done
 # ... its seed 0 with 4 DDIM samples averaged per point: how much of its gap to its condition is sampling noise
-M=light_residual_gated_asset_s0_step5000_fast_4samples
-[ -f "$RES/$M/scores.json" ] || { .venv/bin/gspi-points-eval checkpoint="$WORK/runs/train_light_residual_gated_asset_s0/checkpoint.pt" \
-  data="$WORK/rheldout_fast" out="$WORK/runs/$M" baseline="$BASE" points_measure=table2 points_measure.num_samples=4 && \
-  $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$M/scores.json'), Path('$RES/$M/scores.json'), data_label='parts_pool[224:256]/recon=fast', roots={'<work>': Path('$WORK')})"; }
+held_out_measure "$WORK/runs/train_light_residual_gated_asset_s0/checkpoint.pt" \
+  light_residual_gated_asset_s0_step5000_fast_4samples points_measure.num_samples=4
+# ... read as its posterior mean (one DDIM step), and with the metal gate switched on after
+# training (gate_checkpoint.py), both seeds; the shipped Full read the same way (finding 28)
+for SEED in 0 1; do
+  run="$WORK/runs/train_light_residual_gated_asset_s$SEED/checkpoint.pt" gated="$WORK/runs/gated_asset_s${SEED}_step5000_metalgate.pt"
+  [ -f "$gated" ] || $PY -m experiments.known_light.gate_checkpoint "$run" "$gated"
+  held_out_measure "$run" "light_residual_gated_asset_s${SEED}_step5000_fast_1step" points_measure.num_steps=1
+  held_out_measure "$gated" "light_residual_gated_asset_s${SEED}_step5000_fast_metalgate"
+  held_out_measure "$gated" "light_residual_gated_asset_s${SEED}_step5000_fast_metalgate_1step" points_measure.num_steps=1
+done
+held_out_measure checkpoints/stage2_pool224_pixel_5k.pt full_s0_fast_1step points_measure.num_steps=1
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

@@ -50,6 +50,15 @@ FAST_ROWS = {
                                                             "step 5000, 4 DDIM samples averaged per point "
                                                             "(`points_measure.num_samples=4`: another measure hash)",
 }
+READS = {  # results/light_residual_gated_asset_s<seed>_step5000_fast<suffix>: how the prior was read (finding 28)
+    "_1step": "read as its posterior mean (one DDIM step: `points_measure.num_steps=1`, another measure hash)",
+    "_metalgate": "the metal gate on after training (`readout_metal_gate`, `gate_checkpoint.py`)",
+    "_metalgate_1step": "the metal gate on after training, read as its posterior mean (one DDIM step)",
+}
+FAST_ROWS.update({f"light_residual_gated_asset_s{seed}_step5000_fast{suffix}":
+                  f"Stage II `light_residual` given the gated condition, seed {seed}, step 5000, {how}"
+                  for suffix, how in READS.items() for seed in (0, 1)})
+FAST_ROWS["full_s0_fast_1step"] = "Stage II Full (shipped recipe, s0) read as its posterior mean (one DDIM step)"
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
     "exact_rotated90": "exact renders, the capture light turned 90 degrees (a wrong light)",

@@ -32,7 +32,7 @@ from gspi.strict_config import dataclass_from_dict
 # RCWConfig fields that the rest of the config decides (rcw_config in gspi/stage2/train.py)
 DERIVED_MODEL_KEYS = ("feature_dim", "local_cond_dim", "use_view_onehot", "global_token_dim",
                       "global_grid_cells", "num_lattice_views", "prediction", "readout_column",
-                      "num_train_timesteps")
+                      "readout_metal_gate", "num_train_timesteps")
 MODEL_KEYS = tuple(f.name for f in fields(RCWConfig) if f.name not in DERIVED_MODEL_KEYS)
 
 
@@ -43,12 +43,16 @@ class DiffusionConfig:
     min_snr_floor: float = 0.0        # x0-space weight floor: 0 = Min-SNR (paper), 1 = truncated SNR
     self_condition_prob: float = 0.5  # batches that take the self-conditioning pass
     prediction: str = "eps"           # output head: eps (paper) | x0 (read as eps; docs/STAGE2.md) | x0_readout (docs/LIGHT.md)
+    readout_metal_gate: bool = False  # x0_readout: no metal added where the read-out's metallic is 0 (docs/LIGHT.md)
 
     RANGES: ClassVar[dict] = {"num_train_timesteps": (2, None), "min_snr_gamma": (0.0, None),
                               "min_snr_floor": (0.0, None), "self_condition_prob": (0.0, 1.0)}
     CHOICES: ClassVar[dict] = {"prediction": PREDICTIONS}
 
     def __post_init__(self) -> None:
+        if self.readout_metal_gate and self.prediction != "x0_readout":
+            raise ValueError("stage2.diffusion.readout_metal_gate gates the x0_readout head's metallic correction: "
+                             f"it needs stage2.diffusion.prediction=x0_readout, got {self.prediction}")
         if self.min_snr_floor > self.min_snr_gamma:
             raise ValueError(f"stage2.diffusion.min_snr_floor={self.min_snr_floor} exceeds "
                              f"min_snr_gamma={self.min_snr_gamma}: the weight is clamp(SNR, floor, gamma)")

@@ -16,7 +16,10 @@ the paper): x0 as a correction to the light read-out's material carried in the l
 ``x0 = pbr_to_model(read-out) + Linear(LN(x))``, with that last layer zero at init, so an
 untrained model samples the read-out itself and training learns only where to depart from it.
 The offset is read from the condition before the classifier-free drop (the read-out is the
-starting point, not a condition to guide).
+starting point, not a condition to guide). With ``readout_metal_gate`` the head adds no metal
+where the read-out rules it out (its metallic exactly 0: every point of a scene that fails the
+read-out's scene-level metal test, ``stage2.data.light_metal_min_evidence``), so the prior cannot
+undo that test.
 
 Classifier-free guidance: ``cond_keep`` [B] multiplies the local condition and the global
 tokens by 0 for dropped samples (PointInfinity: the null condition is the learned embedding
@@ -39,6 +42,7 @@ from gspi.stage2.schedule import cosine_alphas_cumprod, eps_from_f0
 
 PREDICTIONS = ("eps", "x0", "x0_readout")  # what the output head predicts (RCWDenoiser.forward)
 READOUT_MATERIAL = len(READOUT_PBR_COLUMNS)
+METALLIC = 4  # the metallic channel of the diffused features (albedo RGB, roughness, metallic)
 VIEW_ONEHOT_DIM = 32  # V = 32 lattice views (paper Sec. "Learned View-Direction Conditioning")
 
 
@@ -70,6 +74,7 @@ class RCWConfig:
     cond_drop_prob: float = 0.1  # training probability of the null condition (CFG)
     prediction: str = "eps"  # what the output head predicts: "eps" (paper), "x0" or "x0_readout" (see forward)
     readout_column: Optional[int] = None  # x0_readout: where the light read-out's columns start in local_cond
+    readout_metal_gate: bool = False  # x0_readout: no metallic correction where the read-out's metallic is 0
     num_train_timesteps: int = 1000  # cosine schedule length (the x0 -> eps conversion uses it)
 
     def __post_init__(self) -> None:
@@ -84,6 +89,9 @@ class RCWConfig:
         if (self.prediction == "x0_readout") != (self.readout_column is not None):
             raise ValueError("prediction 'x0_readout' and readout_column go together (the column where the light "
                              f"read-out starts in the local condition), got {self.prediction!r} and {self.readout_column}")
+        if self.readout_metal_gate and self.prediction != "x0_readout":
+            raise ValueError("readout_metal_gate gates the x0_readout head's metallic correction; it needs "
+                             f"prediction 'x0_readout', got {self.prediction!r}")
         if self.readout_column is not None and not 0 <= self.readout_column <= self.local_cond_dim - READOUT_MATERIAL:
             raise ValueError(f"readout_column={self.readout_column} leaves no {READOUT_MATERIAL} read-out columns in a "
                              f"{self.local_cond_dim}-dim local condition")
@@ -184,7 +192,10 @@ class RCWDenoiser(nn.Module):
             return head
         c = int(self.config.readout_column)
         columns = [c + k for k in READOUT_PBR_COLUMNS]
-        return pbr_to_model(inputs.local_cond[..., columns].to(head.dtype).clamp(0.0, 1.0)) + head
+        readout = inputs.local_cond[..., columns].to(head.dtype).clamp(0.0, 1.0)
+        if self.config.readout_metal_gate:  # no metal added where the read-out rules it out
+            head = torch.cat([head[..., :METALLIC], head[..., METALLIC:] * (readout[..., METALLIC:] > 0)], dim=-1)
+        return pbr_to_model(readout) + head
 
     def head(self, f_t: Tensor, t: Tensor, inputs: Stage2Inputs, *, prev_latents: Optional[Tensor] = None,
              cond_keep: Optional[Tensor] = None, write_chunk: Optional[int] = None) -> tuple[Tensor, Tensor]:
