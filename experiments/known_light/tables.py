@@ -18,6 +18,7 @@ import numpy as np
 
 from eval.stats import paired_bootstrap_ci
 from experiments.known_light.scene_groups import METAL_SCENES, NO_METAL_SCENES, PARTS_SCENES, iou_mean
+from experiments.known_light.end_to_end import table as end_to_end_table
 from experiments.known_light.shipping_rule import shipping_rule_table
 
 HERE = Path(__file__).resolve().parent
@@ -267,7 +268,7 @@ def stage1_table() -> str | None:
 
 def tables() -> dict[Path, str]:
     out = {RESULTS / "known_light.md": read_table(), RESULTS / "metallic_split.md": metallic_split_table(),
-           RESULTS / "shipping_rule.md": shipping_rule_table()}
+           RESULTS / "shipping_rule.md": shipping_rule_table(), RESULTS / "end_to_end.md": end_to_end_table()}
     stage1 = stage1_table()
     if stage1:
         out[RESULTS / "stage1_read.md"] = stage1

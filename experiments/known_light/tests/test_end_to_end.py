@@ -1,0 +1,32 @@
+import json
+
+import pytest
+
+from experiments.known_light import end_to_end as e2e
+
+
+def test_lead_counts_the_scenes_both_have():
+    a = {"s1": {"albedo": 20.0}, "s2": {"albedo": 10.0}, "s3": {"albedo": 30.0}}
+    b = {"s1": {"albedo": 18.0}, "s2": {"albedo": 13.0}}
+    assert e2e.lead(a, b, "albedo") == (pytest.approx(-0.5), 1, 2)
+
+
+def test_collect_copies_each_method_with_portable_paths(tmp_path, monkeypatch):
+    monkeypatch.setattr(e2e, "OUT", tmp_path / "out")
+    runs = tmp_path / "work" / "runs"
+    meta = {"data": str(tmp_path / "work" / "data"), "per_scene": {"s1": {c: {"psnr": 12.0} for c in e2e.CHANNELS}}}
+    for method in ("light_fit", "no_decomposition"):
+        (runs / f"method={method}" / "eval").mkdir(parents=True)
+        (runs / f"method={method}" / "eval" / "eval_meta.json").write_text(json.dumps(meta))
+        (runs / f"method={method}" / "eval" / "summary.json").write_text(json.dumps({"metallic": {"iou": 0.5}}))
+    written = e2e.collect("pathtraced", runs)
+    assert len(written) == 4
+    copied = json.loads((tmp_path / "out" / "pathtraced" / "method=light_fit" / "eval" / "eval_meta.json").read_text())
+    assert copied["data"] == "<work>/data"
+    assert e2e.per_scene("pathtraced", "light_fit") == {"s1": {c: 12.0 for c in e2e.CHANNELS}}
+    assert e2e.per_scene("pathtraced", "gspi") is None
+
+
+def test_collect_names_a_folder_without_runs(tmp_path):
+    with pytest.raises(SystemExit, match="no method=<name>/eval/eval_meta.json"):
+        e2e.collect("pathtraced", tmp_path)
