@@ -9,15 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from eval.relight import prefilter_environment, split_sum
+from eval.relight import prefilter_environment
 from gspi.data.environments import make_environment
 from gspi.light.estimate import estimate_light
 from gspi.light.observations import PointViews
 from gspi.light.readout import (ROUGHNESS_GRID, MaterialGrid, fit_grid, metal_evidence, pool_neighbours, posterior,
                                 read_best, read_posterior, without_metal)
 from gspi.light.shading import affine_coefficients, rotate_latlong, view_terms
-
-H = 32  # small maps keep the prefilter fast
+from tests.light_fixtures import H, shade, toy_scene, toy_views, unit
 
 
 @pytest.fixture(scope="module")
@@ -28,25 +27,6 @@ def envs():
 @pytest.fixture(scope="module")
 def pre(envs):
     return {name: prefilter_environment(env) for name, env in envs.items()}
-
-
-def unit(x):
-    return torch.nn.functional.normalize(torch.as_tensor(x, dtype=torch.float32), dim=-1)
-
-
-def toy_views(num_points: int, views: int, seed: int = 0):
-    """Normals on the upper sphere and ``views`` directions per point within 80 degrees of it."""
-    g = torch.Generator().manual_seed(seed)
-    normal = unit(torch.randn(num_points, 3, generator=g))
-    point = torch.arange(num_points).repeat_interleave(views)
-    n = normal[point]
-    d = unit(n + 0.9 * unit(torch.randn(len(point), 3, generator=g)))
-    d = torch.where((d * n).sum(-1, keepdim=True) > 0.15, d, n)
-    return point, d, normal
-
-
-def shade(albedo, rough, metal, normal, view_dir, env):
-    return split_sum(albedo, rough[:, None], metal[:, None], normal, view_dir, env)
 
 
 def test_affine_identity_equals_the_shader(pre):
@@ -76,21 +56,6 @@ def test_turned_directions_equal_a_rolled_map(envs):
     rolled = view_terms(prefilter_environment(rotate_latlong(env, cols)), n, view_dir, rough)
     torch.testing.assert_close(turned.specular, rolled.specular, rtol=1e-4, atol=1e-5)
     torch.testing.assert_close(turned.diffuse, rolled.diffuse, rtol=1e-4, atol=1e-5)
-
-
-def toy_scene(p_env, num_points=300, views=8, seed=0, gain=1.0, rotation_deg=0.0):
-    """Points whose materials lie on the grid, shaded by the shader itself."""
-    g = torch.Generator().manual_seed(seed)
-    point, view_dir, normal = toy_views(num_points, views, seed)
-    rough = torch.as_tensor(ROUGHNESS_GRID)[torch.randint(len(ROUGHNESS_GRID), (num_points,), generator=g)]
-    metal = torch.randint(2, (num_points,), generator=g).float()
-    albedo = 0.1 + 0.8 * torch.rand(num_points, 3, generator=g)
-    from gspi.light.shading import turn_directions
-    colour = gain * shade(albedo[point], rough[point], metal[point], turn_directions(normal[point], rotation_deg),
-                          turn_directions(view_dir, rotation_deg), p_env)
-    xyz = normal.clone()  # points on the unit sphere
-    obs = PointViews(point=point, colour=colour, view_dir=view_dir, normal=normal, xyz=xyz)
-    return obs, albedo, rough, metal
 
 
 def test_grid_fit_recovers_a_toy_exactly(pre):

@@ -34,7 +34,8 @@ def test_light_fit_runs_end_to_end_and_names_the_light(micro_dataset, tmp_path):
 def test_scene_level_metal_test_rules_out_metal_everywhere(micro_dataset, tmp_path):
     """method.metal_min_evidence above any evidence: every point is read dielectric (metallic exactly
     0 in the points Stage II hands Stage III), and the record says so. With method.points_per_gaussian
-    the points read are sized to the run's asset."""
+    the points read are sized to the run's asset. With method.light_refine the light is refined from
+    the best candidate and the record says how (never explaining the views worse than it)."""
     import numpy as np
 
     from gspi.run.runner import run_job
@@ -42,7 +43,8 @@ def test_scene_level_metal_test_rules_out_metal_everywhere(micro_dataset, tmp_pa
     out = tmp_path / "run"
     result = run_job(run_config(micro_dataset, out, ["method=light_fit", "method.identify_points=500",
                                                      "method.metal_min_evidence=1e9",
-                                                     "method.points_per_gaussian=0.5"]))
+                                                     "method.points_per_gaussian=0.5",
+                                                     "method.light_refine=true"]))
     assert result["status"] == "complete", result
     test_scene = json.loads((micro_dataset / "splits.json").read_text())["test"][0]
     meta = json.loads((out / "predictions" / test_scene / "meta.json").read_text())
@@ -51,3 +53,5 @@ def test_scene_level_metal_test_rules_out_metal_everywhere(micro_dataset, tmp_pa
     assert meta["stats"]["stage2"]["points_read"] == min(20000, round(0.5 * gaussians))
     pbr = np.load(out / "work" / test_scene / "points_pbr.npz")["pbr"]
     assert pbr.shape[1] == 5 and np.all(pbr[:, 4] == 0.0)
+    refined = meta["stats"]["stage2"]["refined"]
+    assert 0.0 <= refined["candidate_share"] <= 1.0 and refined["score"] <= refined["start_score"]

@@ -146,7 +146,7 @@ small_variant() {  # NAME DATA_OVERRIDES...
   [ -f "$dir/data_done" ] || { rm -rf "$dir/data" && .venv/bin/gspi-data preset=small out="$dir/data" seed=0 \
     'data.only_splits=[test]' "$@" && touch "$dir/data_done"; }
   [ -d "$RES/end_to_end/$name" ] || { .venv/bin/gspi-run -m data="$dir/data" out="$dir/runs" +experiment=demo \
-    assets=null logger=none hydra.sweeper.params.method=gspi,no_decomposition,light_fit && \
+    assets=null logger=none method=gspi,no_decomposition,light_fit && \
     $PY -m experiments.known_light.end_to_end collect "$name" "$dir/runs"; }
 }
 small_variant pathtraced data.renderer=pathtraced
@@ -154,6 +154,6 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
 [ -f "$WORK/real/data_done" ] || { rm -rf "$WORK/real/data" && .venv/bin/gspi-data \
   import.glb=../shared/data/real-objects out="$WORK/real/data" preset=small && touch "$WORK/real/data_done"; }
 [ -d "$RES/end_to_end/real_objects" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real/runs" \
-  +experiment=real_objects logger=none hydra.sweeper.params.method=light_fit,no_decomposition && \
+  +experiment=real_objects logger=none method=light_fit,no_decomposition && \
   $PY -m experiments.known_light.end_to_end collect real_objects "$WORK/real/runs"; }
 $PY -m experiments.known_light.tables

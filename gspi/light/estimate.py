@@ -103,15 +103,11 @@ def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironm
     seeded subset of that many of them and the refinement all ``max_points``."""
     if not candidates:
         raise ValueError("estimate_light needs at least one candidate environment")
-    seen = np.flatnonzero(obs.views_per_point().numpy() > 0)
-    if len(seen) == 0:
-        raise ValueError("no view sees any point: the light cannot be read")
-    if len(seen) > max_points:
-        seen = np.sort(np.random.default_rng(seed).choice(seen, max_points, replace=False))
-    sub = obs.subset(seen)
+    sub = seen_subset(obs, max_points, seed)
     coarse_sub = sub
-    if coarse_points is not None and coarse_points < len(seen):
-        coarse_sub = sub.subset(np.sort(np.random.default_rng(seed + 1).choice(len(seen), coarse_points, replace=False)))
+    if coarse_points is not None and coarse_points < sub.num_points:
+        coarse_sub = sub.subset(np.sort(np.random.default_rng(seed + 1).choice(sub.num_points, coarse_points,
+                                                                               replace=False)))
     turns = {name: _ranked(coarse_sub, name, pre, rotations, gains, COARSE_ROUGHNESS)
              for name, pre in candidates.items()}
     coarse = sorted((ranked[0] for ranked in turns.values()), key=lambda h: h.score)
@@ -122,6 +118,17 @@ def estimate_light(obs: PointViews, candidates: Mapping[str, PrefilteredEnvironm
     away = [h.score for h in turns[best.env] if _turn_distance(h.rotation_deg, best.rotation_deg) >= TURN_APART]
     turn_margin = min(away) / max(best.score, 1e-12) if away else float("inf")
     return LightEstimate(best=best, margin=margin, ranking=ranking, turn_margin=turn_margin)
+
+
+def seen_subset(obs: PointViews, max_points: int, seed: int = 0) -> PointViews:
+    """The observations of a seeded subset of ``max_points`` of the points some view sees (all of
+    them when fewer): the points the light is read on."""
+    seen = np.flatnonzero(obs.views_per_point().numpy() > 0)
+    if len(seen) == 0:
+        raise ValueError("no view sees any point: the light cannot be read")
+    if len(seen) > max_points:
+        seen = np.sort(np.random.default_rng(seed).choice(seen, max_points, replace=False))
+    return obs.subset(seen)
 
 
 def _turn_distance(a: float, b: float) -> float:

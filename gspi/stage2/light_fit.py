@@ -19,7 +19,8 @@ import torch
 
 from eval.common.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
-from gspi.light.estimate import estimate_light
+from gspi.light.estimate import estimate_light, seen_subset
+from gspi.light.refine import refine_light
 from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,
                                 metal_ruled_out, pool_neighbours, read_posterior, without_metal)
 from gspi.point_cloud import PointCloud, nearest_fill
@@ -48,6 +49,8 @@ class LightFitConfig:
     normal_profile: int = 1          # the searched normals each grid cell takes the best of (1: the single best)
     metal_min_evidence: float | None = None  # no metal anywhere unless allowing it explains the object this many
     #                                          times better (gspi.light.readout.metal_evidence); None: per point only
+    light_refine: bool = False       # refine the best candidate by a coarse map fitted to the views (a light in
+    #                                  no candidate set: gspi.light.refine), on the identify_points
     seed: int = 0
 
     @classmethod
@@ -105,6 +108,7 @@ class LightRead:
     grid: Any   # gspi.light.readout.MaterialGrid
     pooled: torch.Tensor
     seconds: dict
+    refined: Any = None  # gspi.light.refine.RefinedLight with method.light_refine, else None
 
     @property
     def metal_evidence(self) -> float:
@@ -130,15 +134,19 @@ def read_light(points: PointCloud, renders, cfg: LightFitConfig, candidates: dic
     t_obs = time.perf_counter()
     light = estimate_light(obs, candidates, max_points=cfg.identify_points, coarse_points=cfg.identify_coarse_points,
                            seed=cfg.seed)
+    pre, rotation, gain, refined = candidates[light.env], light.rotation_deg, light.gain, None
+    if cfg.light_refine:
+        refined = refine_light(seen_subset(obs, cfg.identify_points, cfg.seed), pre, rotation, gain)
+        pre, gain = refined.pre, 1.0
     t_light = time.perf_counter()
     if cfg.normal_search_deg:
-        grid = fit_grid_normal_search(obs, candidates[light.env], rings_deg=cfg.normal_search_deg,
-                                      profile=cfg.normal_profile, rotation_deg=light.rotation_deg, gain=light.gain)
+        grid = fit_grid_normal_search(obs, pre, rings_deg=cfg.normal_search_deg, profile=cfg.normal_profile,
+                                      rotation_deg=rotation, gain=gain)
     else:
-        grid = fit_grid(obs, candidates[light.env], rotation_deg=light.rotation_deg, gain=light.gain)
+        grid = fit_grid(obs, pre, rotation_deg=rotation, gain=gain)
     pooled = pool_neighbours(grid, obs.xyz, k=cfg.neighbours)
     return LightRead(obs, sub, light, grid, pooled, {"observe": round(t_obs - t0, 2), "light": round(t_light - t_obs, 2),
-                                                     "grid": round(time.perf_counter() - t_light, 2)})
+                                                     "grid": round(time.perf_counter() - t_light, 2)}, refined)
 
 
 def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
@@ -156,6 +164,9 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
                        "score": light.best.score, "margin": round(light.margin, 3),
                        "ranking": [[h.env, round(h.score, 6)] for h in light.ranking]},
              "metal": {"evidence": round(evidence, 4), "gated": gated},
+             **({"refined": {"candidate_share": round(read.refined.candidate_share, 4),
+                             "score": read.refined.score, "start_score": read.refined.start_score}}
+                if read.refined is not None else {}),
              "points": len(points), "points_read": len(points) if read.sub is None else len(read.sub),
              "median_views_per_point": float(np.median(read.obs.views_per_point().numpy())),
              "seconds": {"observe": read.seconds["observe"], "light": read.seconds["light"],
