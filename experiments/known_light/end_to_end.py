@@ -10,6 +10,8 @@ reconstructing every asset from that variant's photos, scored by gspi-eval's def
 - ``pathtraced``: the same scenes path-traced (`data.renderer=pathtraced`: shadows, interreflection);
 - ``polyhaven_capture``: the same scenes captured under real HDRIs (`data.capture_envs=polyhaven`),
   none of which is among light_fit's candidates (`method.candidates: procedural`);
+- ``polyhaven_capture_refined``: light_fit alone on the same runs' data with `method.light_refine=true`
+  (``gspi.light.refine``), against the others of ``polyhaven_capture``;
 - ``real_objects``: the 19 real glTF objects (`small`; light_fit and no decomposition; GS-PI's
   default from its card, `checkpoints/stage2_pool224_pixel_5k.json`).
 
@@ -31,23 +33,28 @@ ROOT = HERE.parents[1]
 OUT = HERE / "results" / "end_to_end"
 TABLE1 = ROOT / "results" / "table1" / "cpu"  # the split-sum variant: README Table 1's committed runs
 METHODS = ("gspi", "no_decomposition", "light_fit")
+REFERENCE = {"polyhaven_capture_refined": "polyhaven_capture"}  # a variant's missing methods: from this one
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 VARIANTS = {
     "splitsum": "the demo's 4 `small` test scenes, split-sum photos (README Table 1)",
     "pathtraced": "the same scenes path-traced (`data.renderer=pathtraced`), assets reconstructed from them",
     "polyhaven_capture": "the same scenes captured under real HDRIs in no candidate set (`data.capture_envs=polyhaven`)",
+    "polyhaven_capture_refined": "the same, light_fit refining the light (`method.light_refine=true`)",
     "real_objects": "the 19 real glTF objects (`small`, split-sum photos)",
 }
 
 
 def collect(variant: str, runs: Path) -> list[Path]:
     """Copies each method's eval/summary.json and eval/eval_meta.json of a `gspi-run -m` folder
-    (``runs/method=<name>/eval``) under results/end_to_end/<variant>/, paths made portable."""
+    (its job folder named by its overrides, ``method=<name>`` among them: ``runs/<job>/eval``) under
+    results/end_to_end/<variant>/method=<name>/, paths made portable."""
     written = []
+    jobs = [d for d in Path(runs).iterdir() if d.is_dir()] if Path(runs).is_dir() else []
     for method in METHODS:
-        src = Path(runs) / f"method={method}" / "eval"
-        if not (src / "eval_meta.json").is_file():
+        found = [d / "eval" for d in jobs if f"method={method}" in d.name.split(",")]
+        if len(found) != 1 or not (found[0] / "eval_meta.json").is_file():
             continue
+        src = found[0]
         for name in ("summary.json", "eval_meta.json"):
             data = portable(json.loads((src / name).read_text()), {"<work>": Path(runs).parent})
             dst = OUT / variant / f"method={method}" / "eval" / name
@@ -110,10 +117,14 @@ def table() -> str:
             iou = metal_iou(variant, method)
             lines.append(f"| {caption} ({len(rows)} scenes) | {method} | " + " | ".join(f"{v:.2f}" for v in means) +
                          f" | {'' if iou is None else f'{iou:.2f}'} |")
-        for other in ("gspi", "no_decomposition"):
-            if scores[other] is None:
+        others = {m: scores[m] for m in ("gspi", "no_decomposition")}
+        if variant in REFERENCE:
+            others = {m: per_scene(REFERENCE[variant], m) for m in METHODS}
+            others = {(f"light_fit of {REFERENCE[variant]}" if m == "light_fit" else m): v for m, v in others.items()}
+        for other, rows in others.items():
+            if rows is None:
                 continue
-            cells = [lead(scores["light_fit"], scores[other], c) for c in CHANNELS]
+            cells = [lead(scores["light_fit"], rows, c) for c in CHANNELS]
             leads.append(f"| {variant} | {other} | " + " | ".join(f"{d:+.2f} ({k}/{n})" for d, k, n in cells) + " |")
     return "\n".join(lines + leads) + "\n"
 
