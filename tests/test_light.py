@@ -221,3 +221,11 @@ def test_normal_profile_takes_each_cells_best_normal(pre):
     torch.testing.assert_close(min_over_normals([single]).error, single.error)
     with pytest.raises(ValueError, match="profile=0"):
         fit_grid_normal_search(tilted, p_env, rings_deg=(6.0,), profile=0)
+
+
+def test_a_light_is_told_when_it_stands_out_from_the_next():
+    from gspi.light.estimate import TOLD_MARGIN, Hypothesis, LightEstimate
+
+    best = Hypothesis("sunset", 0.0, 1.0, 0.1)
+    assert LightEstimate(best=best, margin=TOLD_MARGIN).told and LightEstimate(best=best, margin=float("inf")).told
+    assert not LightEstimate(best=best, margin=1.01).told

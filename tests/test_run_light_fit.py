@@ -24,6 +24,9 @@ def test_light_fit_runs_end_to_end_and_names_the_light(micro_dataset, tmp_path):
     ranking = light["ranking"]
     assert light["env"] in CAPTURE_ENVS and light["margin"] >= 1.0 and len(ranking) == len(CAPTURE_ENVS)
     assert ranking[0][0] == light["env"] and [s for _, s in ranking] == sorted(s for _, s in ranking)
+    from gspi.light.estimate import TOLD_MARGIN
+
+    assert light["told"] is (light["margin"] >= TOLD_MARGIN)  # below it the run log warns
     summary = json.loads((out / "eval" / "summary.json").read_text())
     assert set(summary) == {"albedo", "roughness", "metallic", "relight"}
     metal, threshold = meta["stats"]["stage2"]["metal"], meta["stats"]["stage2"]["config"]["metal_min_evidence"]

@@ -12,6 +12,8 @@ reconstructing every asset from that variant's photos, scored by gspi-eval's def
   none of which is among light_fit's candidates (`method.candidates: procedural`);
 - ``polyhaven_capture_refined``: light_fit alone on the same runs' data with `method.light_refine=true`
   (``gspi.light.refine``), against the others of ``polyhaven_capture``;
+- ``polyhaven_capture_in_set``: the same with the lights in the candidate set (`method.candidates=polyhaven`,
+  whose capture HDRIs lit them): what the candidate set costs;
 - ``real_objects``: the 19 real glTF objects (`small`; light_fit and no decomposition; GS-PI's
   default from its card, `checkpoints/stage2_pool224_pixel_5k.json`).
 
@@ -33,13 +35,14 @@ ROOT = HERE.parents[1]
 OUT = HERE / "results" / "end_to_end"
 TABLE1 = ROOT / "results" / "table1" / "cpu"  # the split-sum variant: README Table 1's committed runs
 METHODS = ("gspi", "no_decomposition", "light_fit")
-REFERENCE = {"polyhaven_capture_refined": "polyhaven_capture"}  # a variant's missing methods: from this one
+REFERENCE = {"polyhaven_capture_refined": "polyhaven_capture", "polyhaven_capture_in_set": "polyhaven_capture"}  # a variant's missing methods: from this one
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 VARIANTS = {
     "splitsum": "the demo's 4 `small` test scenes, split-sum photos (README Table 1)",
     "pathtraced": "the same scenes path-traced (`data.renderer=pathtraced`), assets reconstructed from them",
     "polyhaven_capture": "the same scenes captured under real HDRIs in no candidate set (`data.capture_envs=polyhaven`)",
     "polyhaven_capture_refined": "the same, light_fit refining the light (`method.light_refine=true`)",
+    "polyhaven_capture_in_set": "the same, light_fit's candidates the real HDRIs' set (`method.candidates=polyhaven`)",
     "real_objects": "the 19 real glTF objects (`small`, split-sum photos)",
 }
 

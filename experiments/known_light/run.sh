@@ -155,6 +155,10 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
   out="$WORK/polyhaven_capture/runs_refined" +experiment=demo assets=null logger=none method=light_fit \
   method.light_refine=true && $PY -m experiments.known_light.end_to_end collect polyhaven_capture_refined \
   "$WORK/polyhaven_capture/runs_refined"; }
+[ -d "$RES/end_to_end/polyhaven_capture_in_set" ] || { .venv/bin/gspi-run -m data="$WORK/polyhaven_capture/data" \
+  out="$WORK/polyhaven_capture/runs_in_set" +experiment=demo assets=null logger=none method=light_fit \
+  method.candidates=polyhaven && $PY -m experiments.known_light.end_to_end collect polyhaven_capture_in_set \
+  "$WORK/polyhaven_capture/runs_in_set"; }
 [ -f "$WORK/real/data_done" ] || { rm -rf "$WORK/real/data" && .venv/bin/gspi-data \
   import.glb=../shared/data/real-objects out="$WORK/real/data" preset=small && touch "$WORK/real/data_done"; }
 [ -d "$RES/end_to_end/real_objects" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real/runs" \

@@ -9,6 +9,7 @@ sRGB, roughness, metallic; stats), so the pipeline's Stage III takes either.
 """
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 from dataclasses import asdict, dataclass, replace
@@ -19,7 +20,7 @@ import torch
 
 from eval.common.colorspace import linear_to_srgb
 from eval.relight import PrefilteredEnvironment
-from gspi.light.estimate import estimate_light, seen_subset
+from gspi.light.estimate import TOLD_MARGIN, estimate_light, seen_subset
 from gspi.light.refine import refine_light
 from gspi.light.readout import (NEIGHBOURS, POSTERIOR_TEMPERATURE, fit_grid, fit_grid_normal_search, metal_evidence,
                                 metal_ruled_out, pool_neighbours, read_posterior, without_metal)
@@ -29,6 +30,7 @@ from gspi.stage2.lattice_cameras import LatticeCameras
 from gspi.stage2.light_condition import candidate_lights, cloud_normals
 from gspi.stage2.light_views import LIGHT_VIEWS, LatticePhotos, observe_points, views_to_read
 
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -160,8 +162,12 @@ def predict_light_fit(points: PointCloud, renders, cfg: LightFitConfig,
     gated = metal_ruled_out(evidence, cfg.metal_min_evidence)
     pbr = read.pbr(points, cfg.temperature, metal=not gated)
     light = read.light
+    if not light.told:
+        log.warning("light_fit: the light is not told apart from the other candidates (margin %.3f < %.2f): it may be "
+                    "in no candidate set, and the read-out then reads materials worse than Stage II does; give its "
+                    "capture environment as method.candidates=[<env.exr>] (docs/LIGHT.md)", light.margin, TOLD_MARGIN)
     stats = {"light": {"env": light.env, "rotation_deg": round(light.rotation_deg, 2), "gain": round(light.gain, 4),
-                       "score": light.best.score, "margin": round(light.margin, 3),
+                       "score": light.best.score, "margin": round(light.margin, 3), "told": light.told,
                        "ranking": [[h.env, round(h.score, 6)] for h in light.ranking]},
              "metal": {"evidence": round(evidence, 4), "gated": gated},
              **({"refined": {"candidate_share": round(read.refined.candidate_share, 4),
