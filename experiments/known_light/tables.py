@@ -59,6 +59,9 @@ READS = {  # results/light_residual_gated_asset_s<seed>_step5000_fast<suffix>: h
 FAST_ROWS.update({f"light_residual_gated_asset_s{seed}_step5000_fast{suffix}":
                   f"Stage II `light_residual` given the gated condition, seed {seed}, step 5000, {how}"
                   for suffix, how in READS.items() for seed in (0, 1)})
+FAST_ROWS["light_residual_gated_asset_s0_step2737_fast_metalgate_1step"] = (
+    "Stage II `light_residual` given the gated condition, seed 0, step 2737 (of 5000), the metal gate on after "
+    "training, read as its posterior mean (one DDIM step)")
 FAST_ROWS["full_s0_fast_1step"] = "Stage II Full (shipped recipe, s0) read as its posterior mean (one DDIM step)"
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
