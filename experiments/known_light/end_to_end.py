@@ -124,6 +124,10 @@ def table() -> str:
         if variant in REFERENCE:
             others = {m: per_scene(REFERENCE[variant], m) for m in METHODS}
             others = {(f"light_fit of {REFERENCE[variant]}" if m == "light_fit" else m): v for m, v in others.items()}
+        if variant == "real_objects":  # GS-PI from its card: means only
+            mine, card = [statistics.fmean(r[c] for r in scores["light_fit"].values()) for c in CHANNELS], card_row()
+            leads.append(f"| {variant} | gspi (its card, seed 0; means only) | " +
+                         " | ".join(f"{m - card[c]:+.2f}" for m, c in zip(mine, CHANNELS)) + " |")
         for other, rows in others.items():
             if rows is None:
                 continue

@@ -125,6 +125,15 @@ for SEED in 0 1; do
   held_out_measure "$gated" "light_residual_gated_asset_s${SEED}_step5000_fast_metalgate_1step" points_measure.num_steps=1
 done
 held_out_measure checkpoints/stage2_pool224_pixel_5k.pt full_s0_fast_1step points_measure.num_steps=1
+# The next recipe (finding 28): the same prior trained with the metal gate (a prior that cannot undo the
+# scene-level test), two seeds in 40-minute chunks; read as its posterior mean at the end.
+for SEED in 0 1; do
+  asset_prior light_residual_metalgate_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" \
+    stage2.data.light_metal_min_evidence=1.1 stage2.diffusion.readout_metal_gate=true
+  run="$WORK/runs/train_light_residual_metalgate_asset_s$SEED/checkpoint.pt"
+  [ ! -f "$run" ] || [ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || \
+    held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step" points_measure.num_steps=1
+done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

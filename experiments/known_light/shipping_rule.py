@@ -45,6 +45,8 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
     ("light_residual_gated_asset", "_metalgate"): GATED + ", the metal gate on after training",
     ("light_residual_gated_asset", "_metalgate_1step"): GATED + ", the metal gate on after training, read as its "
                                                         "posterior mean (one DDIM step)",
+    ("light_residual_metalgate_asset", "_1step"): GATED + ", trained with the metal gate, read as its posterior mean "
+                                                          "(one DDIM step)",
 }
 FULL_ONE_STEP = RESULTS / "full_s0_fast_1step" / "scores.json"  # the default read as its posterior mean, seed 0
 GATED_CONDITION = RESULTS / "condition_readout_fast_asset_gated" / "scores.json"

@@ -87,6 +87,8 @@ ASSET_TRAINED = {  # results/<prefix>_s<seed>_step<N>_fast: its caption
     "light_residual_asset": "Stage II `light_residual` trained behind the training scenes' assets, read as a run reads it",
     "light_residual_gated_asset": "Stage II `light_residual` trained behind the training scenes' assets, its condition "
                                   "gated by the scene-level metal test (`light_metal_min_evidence=1.1`)",
+    "light_residual_metalgate_asset": "the same trained with the metal gate (`readout_metal_gate=true`; finding 28's "
+                                      "next recipe)",
 }
 
 
