@@ -34,7 +34,7 @@ MAX_POINTS = 600
 TURN_APART = 30.0  # turn_margin: the best turn at least this far from the chosen one
 # Below this margin the light is not told apart from the next candidate: end to end on the demo's
 # scenes, lights in the set gave 1.13-2.29 (a highlight-free fabric 1.00-1.01), real HDRIs in no
-# candidate set 1.01-1.03 (experiments/known_light finding 29; 8 scenes: a first threshold).
+# candidate set 1.01-1.03 (docs/LIGHT.md; 8 scenes: a first threshold).
 TOLD_MARGIN = 1.05
 
 
