@@ -7,8 +7,9 @@ import torch
 from eval.relight import prefilter_environment
 from gspi.data.environments import make_environment
 from gspi.light.readout import fit_grid, read_best
-from gspi.light.refine import cell_maps, refine_light
-from tests.light_fixtures import H, toy_scene
+from gspi.light.refine import cell_maps, design, refine_light
+from gspi.light.shading import turn_directions
+from tests.light_fixtures import H, shade, toy_scene
 
 
 @pytest.fixture(scope="module")
@@ -23,6 +24,18 @@ def test_the_prefiltered_environment_is_linear_in_the_map(envs):
     torch.testing.assert_close(mix.irradiance, 0.3 * px.irradiance + 2.0 * py.irradiance, rtol=1e-4, atol=1e-5)
     for level, (m, a, b) in enumerate(zip(mix.specular, px.specular, py.specular)):
         torch.testing.assert_close(m, 0.3 * a + 2.0 * b, rtol=1e-4, atol=1e-5, msg=f"level {level}")
+
+
+def test_the_design_is_the_shader_under_each_basis_map(envs):
+    """A column of the design is split_sum itself under that map, turned, at each point's material."""
+    x, y = prefilter_environment(envs["sunset"]), prefilter_environment(envs["window_room"])
+    obs, albedo, rough, metal = toy_scene(x, num_points=60, views=5, seed=5)
+    phi = design(obs, [x, y], albedo, rough, metal, rotation_deg=30.0)
+    p = obs.point
+    for k, env in enumerate((x, y)):
+        want = shade(albedo[p], rough[p], metal[p], turn_directions(obs.normal[p], 30.0),
+                     turn_directions(obs.view_dir, 30.0), env)
+        torch.testing.assert_close(phi[:, k], want, rtol=2e-5, atol=1e-5)
 
 
 def test_cells_tile_the_sphere_once():
