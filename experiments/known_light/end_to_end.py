@@ -69,10 +69,14 @@ def collect(variant: str, runs: Path) -> list[Path]:
     return written
 
 
+def eval_dir(variant: str, method: str) -> Path:
+    """Where a method's committed eval files of a variant lie (the split-sum variant: README Table 1's)."""
+    return (TABLE1 if variant == "splitsum" else OUT / variant) / f"method={method}" / "eval"
+
+
 def per_scene(variant: str, method: str) -> dict | None:
     """{scene: {channel: PSNR}} of a method in a variant, or None where it was not run."""
-    base = TABLE1 if variant == "splitsum" else OUT / variant
-    path = base / f"method={method}" / "eval" / "eval_meta.json"
+    path = eval_dir(variant, method) / "eval_meta.json"
     if not path.is_file():
         return None
     return {scene: {c: row[c]["psnr"] for c in CHANNELS if c in row}
@@ -80,8 +84,7 @@ def per_scene(variant: str, method: str) -> dict | None:
 
 
 def metal_iou(variant: str, method: str) -> float | None:
-    base = TABLE1 if variant == "splitsum" else OUT / variant
-    path = base / f"method={method}" / "eval" / "summary.json"
+    path = eval_dir(variant, method) / "summary.json"
     return json.loads(path.read_text())["metallic"].get("iou") if path.is_file() else None
 
 

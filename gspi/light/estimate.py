@@ -81,8 +81,7 @@ def score(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gai
     rough = torch.as_tensor(roughness, dtype=torch.float32)
     terms = view_terms(pre, obs.normal[obs.point], obs.view_dir, rough, rotation_deg=rotation_deg, dfg=dfg)
     sums = grid_sums(obs, terms, rough)
-    seen = obs.views_per_point() > 0
-    return [float(grid_at_gain(sums, g).best_error()[seen].mean()) for g in gains]
+    return [grid_at_gain(sums, g).mean_best_error() for g in gains]
 
 
 def _ranked(obs: PointViews, name: str, pre: PrefilteredEnvironment, rotations, gains,

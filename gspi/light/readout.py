@@ -51,6 +51,11 @@ class MaterialGrid:
         """[n] each point's smallest relative residual over the grid."""
         return self.error.flatten(1).min(dim=1).values
 
+    def mean_best_error(self) -> float:
+        """The mean of ``best_error`` over the points some view sees: how well the light explains the
+        views (``gspi.light.estimate``'s score)."""
+        return float(self.best_error()[self.views > 0].mean())
+
 
 def fit_grid(obs: PointViews, pre: PrefilteredEnvironment, *, roughness=ROUGHNESS_GRID,
              metallic=METALLIC_GRID, rotation_deg: float = 0.0, gain: float = 1.0) -> MaterialGrid:

@@ -94,12 +94,6 @@ def fit_weights(phi: Tensor, colour: Tensor) -> np.ndarray:
     return np.stack([nnls(phi64[:, :, ch], c64[:, ch], maxiter=50 * phi64.shape[1])[0] for ch in range(3)], axis=1)
 
 
-def mean_best_error(obs: PointViews, pre: PrefilteredEnvironment, rotation_deg: float, gain: float = 1.0) -> float:
-    grid = fit_grid(obs, pre, rotation_deg=rotation_deg, gain=gain)
-    seen = grid.views > 0
-    return float(grid.best_error()[seen].mean())
-
-
 def refine_light(obs: PointViews, candidate: PrefilteredEnvironment, rotation_deg: float, gain: float, *,
                  rows: int = BASIS_ROWS, rounds: int = ROUNDS) -> RefinedLight:
     """The candidate ``candidate`` (turned by ``rotation_deg``, scaled by ``gain``, as
@@ -112,27 +106,27 @@ def refine_light(obs: PointViews, candidate: PrefilteredEnvironment, rotation_de
         raise ValueError("no view sees any point: the light cannot be refined")
     start = candidate_map(candidate, gain)
     height, width = start.shape[:2]
-    basis_maps = [start, *cell_maps(height, width, rows)]
-    basis = [candidate if k == 0 else prefilter_environment(m) for k, m in enumerate(basis_maps)]
-    start_score = mean_best_error(obs, candidate, rotation_deg, gain)
+    basis_maps = torch.stack([start, *cell_maps(height, width, rows)])              # [K, H, W, 3]
+    basis = [candidate, *(prefilter_environment(m) for m in basis_maps[1:])]
+    grid = fit_grid(obs, candidate, rotation_deg=rotation_deg, gain=gain)          # the materials each round reads
+    start_score = grid.mean_best_error()
     pre, envmap, score, share = candidate, start, start_score, 1.0
-    current, current_gain = candidate, gain
     for _ in range(rounds):
-        albedo, rough, metal = read_best(fit_grid(obs, current, rotation_deg=rotation_deg, gain=current_gain))
+        albedo, rough, metal = read_best(grid)
         phi = design(obs, basis, albedo, rough, metal, rotation_deg)
         phi[:, 0] *= float(gain)   # the candidate's column at its estimated gain (basis[0] is unscaled)
         weights = torch.from_numpy(fit_weights(phi, obs.colour)).float()   # [K, 3]
-        stacked = torch.stack(basis_maps)                                   # [K, H, W, 3]
-        new_map = (stacked * weights[:, None, None, :]).sum(0)
+        new_map = (basis_maps * weights[:, None, None, :]).sum(0)
         if not bool((new_map > 0).any()):
             break
         new_pre = prefilter_environment(new_map)
-        new_score = mean_best_error(obs, new_pre, rotation_deg)
+        new_grid = fit_grid(obs, new_pre, rotation_deg=rotation_deg)
+        new_score = new_grid.mean_best_error()
         if new_score >= score:
             break
-        cand_part = (stacked[0] * weights[0][None, None, :]).mean()
+        cand_part = (basis_maps[0] * weights[0][None, None, :]).mean()
         pre, envmap, score, share = new_pre, new_map, new_score, float(cand_part / new_map.mean().clamp_min(1e-12))
-        current, current_gain = new_pre, 1.0
+        grid = new_grid
     return RefinedLight(pre=pre, envmap=envmap, rotation_deg=rotation_deg, candidate_share=share, score=score,
                         start_score=start_score)
 

@@ -48,7 +48,7 @@ def rcw_config(stage2, global_token_dim: int) -> RCWConfig:
                      use_view_onehot=local == "top_rgb_onehot", global_token_dim=global_token_dim,
                      prediction=diffusion.prediction, num_train_timesteps=diffusion.num_train_timesteps,
                      readout_column=stage2.data.light_readout_column() if diffusion.prediction == "x0_readout" else None,
-                     readout_metal_gate=bool(getattr(diffusion, "readout_metal_gate", False)))
+                     readout_metal_gate=diffusion.readout_metal_gate)
 
 
 def learning_rate(step: int, train: TrainConfig) -> float:
