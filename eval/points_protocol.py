@@ -26,9 +26,17 @@ MEASURE_DEFAULTS: dict[str, Any] = {
     "guidance_scale": 1.0,    # classifier-free guidance (1 = off)
     "patch_points": None,     # k-NN patches of this many points; None = the whole cloud
     "patch_coverage": 2.0,    # patches per point on average
+    "told_light": "estimated",  # the light a light-aware model is told: one of TOLD_LIGHTS
 }
 _TYPES = {"split": str, "num_steps": int, "max_points": int, "seed": int, "num_samples": int,
-          "guidance_scale": float, "patch_points": int, "patch_coverage": float}
+          "guidance_scale": float, "patch_points": int, "patch_coverage": float, "told_light": str}
+# What a model that reads the light (stage2.data.light_readout) is told in the measure: the light
+# estimated among its candidates (as a run), or, deliberately wrong (issue 66's guard rail), that
+# estimate turned 90 degrees about +z, or another of the candidates at the estimate's turn and gain.
+TOLD_LIGHTS = ("estimated", "turned90", "other")
+# knobs added after scores were committed: hashed only when set off their default, so that every
+# earlier measure keeps its hash
+ADDED_KNOBS = ("told_light",)
 
 
 class MeasureError(StatedError, ValueError):
@@ -54,12 +62,16 @@ def measure_knobs(measure: Mapping[str, Any]) -> dict[str, Any]:
         elif default is not None:
             raise MeasureError(f"points_measure.{key}: null (only max_points and patch_points may be)")
         knobs[key] = value
+    if knobs["told_light"] not in TOLD_LIGHTS:
+        raise MeasureError(f"points_measure.told_light={knobs['told_light']!r}: one of {', '.join(TOLD_LIGHTS)}")
     return knobs
 
 
 def measure_hash(measure: Mapping[str, Any]) -> str:
-    """The measure's identity: ``protocol_hash`` (Table 1's) of its checked knobs."""
-    return protocol_hash(measure_knobs(measure))
+    """The measure's identity: ``protocol_hash`` (Table 1's) of its checked knobs (an
+    ``ADDED_KNOBS`` knob only when off its default)."""
+    knobs = measure_knobs(measure)
+    return protocol_hash({k: v for k, v in knobs.items() if k not in ADDED_KNOBS or v != MEASURE_DEFAULTS[k]})
 
 
 def measure_record(name: str | None, measure: Mapping[str, Any]) -> dict[str, Any]:

@@ -7,14 +7,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from eval.points_protocol import (MEASURE_DEFAULTS, MeasureError, measure_hash, measure_knobs, measure_record,
+from eval.points_protocol import (ADDED_KNOBS, MEASURE_DEFAULTS, MeasureError, measure_hash, measure_knobs, measure_record,
                                   recorded_measure_hash)
 from eval.protocol_id import HASH_CHARS, protocol_hash
 
 ROOT = Path(__file__).resolve().parents[1]
 TABLE2 = yaml.safe_load((ROOT / "conf" / "points_measure" / "table2.yaml").read_text())
 OTHER = {"split": "val", "num_steps": 11, "max_points": 20001, "seed": 1, "num_samples": 2,
-         "guidance_scale": 1.5, "patch_points": 512, "patch_coverage": 3.0}
+         "guidance_scale": 1.5, "patch_points": 512, "patch_coverage": 3.0, "told_light": "turned90"}
 
 
 def test_table2_is_the_measure_the_committed_scores_were_taken_with():
@@ -27,7 +27,8 @@ def test_table2_is_the_measure_the_committed_scores_were_taken_with():
 
 def test_the_hash_is_table1s_hasher_stable_and_blind_to_spelling_and_name():
     h = measure_hash(TABLE2)
-    assert len(h) == HASH_CHARS and h == protocol_hash(measure_knobs(TABLE2)) == measure_hash(dict(TABLE2))
+    knobs = {k: v for k, v in measure_knobs(TABLE2).items() if k not in ADDED_KNOBS}  # at their defaults here
+    assert len(h) == HASH_CHARS and h == protocol_hash(knobs) == measure_hash(dict(TABLE2))
     assert h == "a43f7578f7d9"  # pinned: a change here splits every committed Table 2 from new measures
     assert measure_hash({**TABLE2, "name": "renamed", "guidance_scale": 1, "num_steps": 10.0}) == h
     assert measure_record("table2", TABLE2) == {"name": "table2", "hash": h}
@@ -46,6 +47,16 @@ def test_an_unknown_key_or_a_bad_value_is_refused():
         measure_knobs({**TABLE2, "num_steps": "ten"})
     with pytest.raises(MeasureError, match="points_measure.seed: null"):
         measure_knobs({**TABLE2, "seed": None})
+    with pytest.raises(MeasureError, match="told_light='rotated'.*estimated, turned90, other"):
+        measure_knobs({**TABLE2, "told_light": "rotated"})
+
+
+def test_a_knob_added_later_keeps_every_earlier_hash_at_its_default():
+    """told_light came after the committed scores: absent or at its default, the hash is the pinned
+    one; set off it, another measure (and the two wrong lights are two measures)."""
+    before = {k: v for k, v in TABLE2.items() if k != "told_light"}
+    assert measure_hash(before) == measure_hash(TABLE2) == "a43f7578f7d9"
+    assert len({measure_hash({**TABLE2, "told_light": t}) for t in ("estimated", "turned90", "other")}) == 3
 
 
 def test_a_recorded_hash_is_read_and_an_absent_one_computed_from_the_knobs():

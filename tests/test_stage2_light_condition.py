@@ -11,8 +11,8 @@ import torch
 from gspi.stage1.extract import unproject_renders
 from gspi.stage2.data import PointDataConfig, load_scene_points, local_condition
 from gspi.stage2.infer import point_conditions
-from gspi.stage2.light_condition import (LIGHT_READOUT_WIDTH, ToldLight, cloud_normals_of, readout_table,
-                                         training_light)
+from gspi.stage2.light_condition import (LIGHT_READOUT_WIDTH, ToldLight, cloud_normals_of, mistold_light,
+                                         readout_table, training_light)
 from gspi.stage2.light_condition import capture_light
 from gspi.stage2.normalize import pbr_from_model
 from tests.stage2_fixtures import gt_views_as_renders, make_lattice_scene
@@ -101,6 +101,37 @@ def test_the_measure_estimates_the_light_among_the_candidates(lit):
     local_condition(scene, np.arange(10), scene.xyz[:10], "top_rgb_onehot", light=LIGHT)
     assert scene.light_info["env"] == ENV and scene.light_info["margin"] > 1.5
     assert min(scene.light_info["rotation_deg"], 360 - scene.light_info["rotation_deg"]) <= 10
+
+
+def test_the_measure_can_tell_a_deliberately_wrong_light(lit):
+    """points_measure.told_light (issue 66's guard rail): the estimate turned 90 degrees, or another
+    candidate at its turn and gain (seeded by the scene's name), recorded and fitting worse."""
+    _, root = lit
+    capture = capture_light(root / "envmaps" / f"{ENV}.exr", 32)
+    estimate = ToldLight(env=ENV, pre=capture, rotation_deg=300.0, gain=1.5)
+    candidates = {ENV: capture, "sunset": capture, "overcast": capture}
+    assert mistold_light(estimate, candidates, "s", "estimated") is estimate
+    turned = mistold_light(estimate, candidates, "s", "turned90")
+    assert (turned.env, turned.rotation_deg, turned.gain, turned.wrong) == (ENV, 30.0, 1.5, True)
+    others = {mistold_light(estimate, candidates, f"s{k}", "other").env for k in range(40)}
+    assert others == {"sunset", "overcast"}
+    assert mistold_light(estimate, candidates, "s7", "other") == mistold_light(estimate, candidates, "s7", "other")
+    with pytest.raises(ValueError, match="needs a second candidate light"):
+        mistold_light(estimate, {ENV: capture}, "s", "other")
+    with pytest.raises(ValueError, match="told_light='rotated': one of estimated, turned90, other"):
+        mistold_light(estimate, candidates, "s", "rotated")
+
+    def residual(told: str) -> tuple[float, dict]:
+        scene = load_scene_points(root, None)
+        scene.light_source, scene.told_light = "estimated", told
+        rows = local_condition(scene, np.arange(10), scene.xyz[:10], "top_rgb_onehot", light=LIGHT)
+        return float(rows[0, 41]), scene.light_info
+
+    right, info = residual("estimated")
+    wrong, wrong_info = residual("turned90")
+    assert "told" not in info and wrong_info["told"]["how"] == "turned90"
+    assert wrong_info["told"]["rotation_deg"] == pytest.approx((info["rotation_deg"] + 90) % 360)
+    assert wrong > right + 0.3  # the scene's log10 residual: twice the right light's at least
 
 
 def test_config_width_and_checks():

@@ -70,6 +70,7 @@ def test_an_empty_validation_split_is_refused(dataset, tmp_path):  # noqa: F811
 def test_evaluate_points_with_max_points_is_the_validation_measure(dataset, runs, tmp_path):  # noqa: F811
     """One prediction path: evaluate_points with --max-points scores best.pt exactly as the
     validation did, and without it predicts every point (another, recorded measure)."""
+    from eval.points_protocol import MeasureError
     from gspi.stage2.evaluate_points import checkpoint_source, evaluate_checkpoint
 
     _, checked, stats = runs
@@ -80,6 +81,8 @@ def test_evaluate_points_with_max_points_is_the_validation_measure(dataset, runs
     assert (sub["max_points"], sub["checkpoint_step"]) == (300, stats["best_validation"]["step"])
     full = evaluate_checkpoint(model, cfg, dataset, tmp_path / "all", split="test", num_steps=2, seed=0)
     assert full["max_points"] is None
+    with pytest.raises(MeasureError, match="told_light=other: this model reads no light"):
+        evaluate_checkpoint(model, cfg, dataset, tmp_path / "wrong", split="test", told_light="other")
     assert full["mean"]["stage2"]["avg"]["psnr"] != pytest.approx(sub["mean"]["stage2"]["avg"]["psnr"], abs=1e-6)
     assert full["mean"]["no_decomposition"] == sub["mean"]["no_decomposition"]
 

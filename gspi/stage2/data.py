@@ -134,6 +134,7 @@ class ScenePoints:
     _linear: Optional[np.ndarray] = field(default=None, repr=False)
     _neighbourhood: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
     light_source: str = "capture"  # the light the read-out is told: capture (training) | estimated (measure)
+    told_light: str = "estimated"  # with estimated: the estimate, or deliberately wrong (points_measure.told_light)
     _light: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
     light_info: Optional[dict] = None  # which light the read-out was told (after light_features)
 
@@ -206,9 +207,12 @@ class ScenePoints:
             candidates = candidate_lights(cfg.light_candidates, cfg.light_env_height)
             light, est = lc.estimate_scene_light(rgb, depth, cams, xyz, normals, candidates,
                                                  tol_pixels=cfg.visibility_tol_pixels)
-            self.light_info = {"env": est.env, "rotation_deg": est.rotation_deg, "gain": est.gain,
-                               "margin": est.margin}
-            return light
+            told = lc.mistold_light(light, candidates, self.name, self.told_light)
+            self.light_info = {"env": est.env, "rotation_deg": float(est.rotation_deg), "gain": float(est.gain),
+                               "margin": float(est.margin),
+                               **({} if told is light else {"told": {"how": self.told_light, "env": told.env,
+                                                                      "rotation_deg": float(told.rotation_deg)}})}
+            return told
         scene = read_scene(self.root)
         capture = capture_light(scene.envmap_path(scene.capture_env), cfg.light_env_height)
         others = {name: (lambda name=name: candidate_lights([name], cfg.light_env_height)[name])

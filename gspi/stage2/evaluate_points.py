@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping
 import torch
 
 from eval.common.layout import LayoutError
-from eval.points_protocol import measure_record
+from eval.points_protocol import MeasureError, measure_record
 from eval.records.points_scores import write_points_scores
 from gspi.stage2.data import ScenePoints
 from gspi.stage2.points_measure import (CHANNELS, PSNR_CAP_DB, PointSampling, baseline_prediction,
@@ -46,18 +46,20 @@ def markdown_table(result: Mapping[str, Any], *, caption: str) -> str:
 
 def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, Any], data_dir: str | Path,
                 split: str, out_dir: str | Path, *, baseline_train: str | Path | None = None,
-                record: Mapping[str, Any]) -> dict[str, Any]:
+                record: Mapping[str, Any], told_light: str = "estimated") -> dict[str, Any]:
     """Table 2's measure of ``predict(scene, index) -> [P, 5]`` on ``split`` of ``data_dir``, with
     the no-decomposition baseline from ``baseline_train``'s train split (default ``data_dir``),
     written as ``<out_dir>/scores.json`` (format "gspi-points-eval": the dataset, split, scenes,
     baseline constants and measure, plus ``record``: what was scored). Returns the scores.
     Stage II models (``evaluate_checkpoint``) and any other point predictor (a study's direct
-    regressors) are scored here."""
+    regressors) are scored here. ``told_light``: the light a light-aware model's condition is told
+    (``points_measure.told_light``: the estimate, or deliberately wrong)."""
     from gspi.stage2.encoders import build_encoder
 
     stage2 = cfg["stage2"]
     encoder = build_encoder(stage2.prior)
-    scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder, light_source="estimated")
+    scenes = load_split({**cfg, "data_dir": str(data_dir)}, split, encoder, light_source="estimated",
+                        told_light=told_light)
     if baseline_train is not None and Path(baseline_train).suffix == ".json":
         rough, metal = recorded_constants(Path(baseline_train))
     else:
@@ -75,6 +77,7 @@ def score_split(predict: Callable[[ScenePoints, int], Any], cfg: Mapping[str, An
                   split=split, scenes=[s.name for s in scenes], baseline_constants={"roughness": rough, "metallic": metal},
                   baseline_train=str(Path(baseline_train or data_dir).resolve()), psnr_cap_db=PSNR_CAP_DB,
                   lpips="AlexNet LPIPS v0.1 (eval.lpips.net), masked_mean", encoder=stage2.prior.encoder,
+                  **({"lights": {s.name: s.light_info for s in scenes}} if any(s.light_info for s in scenes) else {}),
                   **dict(record))
     write_points_scores(out_dir, result)  # eval.records.points_scores: the format's one writer
     return result
@@ -111,7 +114,8 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
                         write_chunk: int | None = 32768, source: Mapping[str, Any] | None = None,
                         max_points: int | None = None, baseline_train: str | Path | None = None,
                         num_samples: int = 1, guidance_scale: float = 1.0, patch_points: int | None = None,
-                        patch_coverage: float = 2.0, measure_name: str | None = None) -> dict[str, Any]:
+                        patch_coverage: float = 2.0, told_light: str = "estimated",
+                        measure_name: str | None = None) -> dict[str, Any]:
     """Runs the evaluation of an (EMA) model with its training config on ``split`` of ``data_dir``.
 
     ``scores.json`` (format "gspi-points-eval") also records the model's ablation and training
@@ -124,26 +128,33 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     ``num_samples``: DDIM samples averaged per point (gspi-run's ``stage2.inference.num_samples``).
     ``guidance_scale``: classifier-free guidance (gspi-run's ``stage2.inference.guidance_scale``).
     ``patch_points`` / ``patch_coverage``: k-NN patch inference (``stage2.inference.patch_points``).
+    ``told_light``: what a light-aware model (``stage2.data.light_readout``) is told: the estimated
+    light, or deliberately wrong, ``turned90`` / ``other`` (issue 66's guard rail).
     ``measure_name``: the conf/points_measure option these knobs came from (gspi-points-eval), recorded
     with the knobs' hash as ``measure_protocol`` (``eval.points_protocol``); None: set by flags.
 
     Writes ``<out_dir>/scores.json`` and ``<out_dir>/table.md``; returns the scores.
     """
     data_cfg = cfg["stage2"].data
+    if told_light != "estimated" and not data_cfg.light_readout:
+        raise MeasureError(f"points_measure.told_light={told_light}: this model reads no light "
+                          "(stage2.data.light_readout is false); a wrong light changes nothing it is given")
     sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed, num_samples=num_samples,
                              guidance_scale=guidance_scale, patch_points=patch_points, patch_coverage=patch_coverage)
 
     def predict(scene: ScenePoints, index: int):
         return subset_prediction(model, scene, index, data_cfg, sampling, write_chunk=write_chunk)
 
-    measure = {"split": split, **{k: getattr(sampling, k) for k in ("num_steps", "max_points", "seed", "num_samples",
-                                                                    "guidance_scale", "patch_points", "patch_coverage")}}
-    result = score_split(predict, cfg, data_dir, split, out_dir, baseline_train=baseline_train,
+    measure = {"split": split, "told_light": told_light,
+               **{k: getattr(sampling, k) for k in ("num_steps", "max_points", "seed", "num_samples",
+                                                    "guidance_scale", "patch_points", "patch_coverage")}}
+    result = score_split(predict, cfg, data_dir, split, out_dir, baseline_train=baseline_train, told_light=told_light,
                          record={"ablation": str(cfg.get("ablation_name", "full")), **dict(source or {}),
                                  "measure_protocol": measure_record(measure_name, measure),
                                  "num_steps": num_steps, "max_points": max_points, "seed": seed,
                                  **({"num_samples": num_samples} if num_samples != 1 else {}),
                                  **({"guidance_scale": guidance_scale} if guidance_scale != 1.0 else {}),
+                                 **({"told_light": told_light} if told_light != "estimated" else {}),
                                  **({"patch_points": patch_points, "patch_coverage": patch_coverage}
                                     if patch_points else {})})
     out_dir = Path(out_dir)
@@ -152,6 +163,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     sampling_note = f", {num_samples} samples averaged" if num_samples != 1 else ""
     sampling_note += f", guidance {guidance_scale:g}" if guidance_scale != 1.0 else ""
     sampling_note += f", {patch_points}-point patches x{patch_coverage:g}" if patch_points else ""
+    sampling_note += f", told a wrong light ({told_light})" if told_light != "estimated" else ""
     caption = (f"Stage II on the GT point clouds of {len(scenes)} {split} scenes of {Path(data_dir).name} "
                f"({num_steps} DDIM steps, seed {seed}{sampling_note}); per-view masked metrics averaged over the 32 lattice "
                f"views and the scenes; PSNR capped at {PSNR_CAP_DB:.0f} dB per view; LPIPS = AlexNet v0.1. "

@@ -20,7 +20,7 @@ I's at inference: ``cloud_normals``).
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from pathlib import Path
 from typing import Any, Callable
@@ -30,6 +30,7 @@ import torch
 
 from eval.common.colorspace import linear_to_srgb
 from eval.envmap import downsample_latlong
+from eval.points_protocol import TOLD_LIGHTS
 from eval.common.imageio import read_exr
 from eval.relight import PrefilteredEnvironment, prefilter_environment
 from gspi.data.env_sets import make_named_environment, resolve_env_set
@@ -62,7 +63,7 @@ class ToldLight:
     pre: PrefilteredEnvironment
     rotation_deg: float = 0.0
     gain: float = 1.0
-    wrong: bool = False  # training only: deliberately not the scene's light
+    wrong: bool = False  # deliberately not the scene's light (training's share; the measure's guard rail)
 
     @classmethod
     def from_estimate(cls, est: LightEstimate, candidates: dict[str, PrefilteredEnvironment]) -> "ToldLight":
@@ -143,6 +144,25 @@ def training_light(name: str, capture_env: str, capture: PrefilteredEnvironment,
         env = pool[int(rng.integers(len(pool)))]
         return ToldLight(env=env, pre=others[env](), wrong=True)
     return ToldLight(env=capture_env, pre=capture, rotation_deg=float(rng.uniform(*WRONG_TURN_DEG)), wrong=True)
+
+
+def mistold_light(estimate: ToldLight, candidates: dict[str, PrefilteredEnvironment], name: str,
+                  told: str) -> ToldLight:
+    """The light the measure tells a scene (``points_measure.told_light``, one of
+    ``eval.points_protocol.TOLD_LIGHTS``): the ``estimate`` itself, or deliberately wrong (issue 66's
+    guard rail): the estimate turned 90 degrees about +z (``turned90``), or another of the
+    ``candidates`` at the estimate's turn and gain, drawn seeded by the scene's ``name`` (``other``)."""
+    if told == "estimated":
+        return estimate
+    if told == "turned90":
+        return replace(estimate, rotation_deg=(estimate.rotation_deg + 90.0) % 360.0, wrong=True)
+    if told == "other":
+        pool = sorted(e for e in candidates if e != estimate.env)
+        if not pool:
+            raise ValueError(f"told_light=other needs a second candidate light; the candidates are {sorted(candidates)}")
+        env = pool[int(np.random.default_rng([zlib.crc32(name.encode()), 67]).integers(len(pool)))]
+        return replace(estimate, env=env, pre=candidates[env], wrong=True)
+    raise ValueError(f"told_light={told!r}: one of {', '.join(TOLD_LIGHTS)}")
 
 
 def cloud_normals(cloud: np.ndarray, xyz: np.ndarray, source_center: np.ndarray, k: int = CLOUD_NEIGHBOURS,

@@ -16,12 +16,14 @@ def cache_dir(cfg: Mapping[str, Any]) -> Path:
 
 
 def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool = True,
-               light_source: str = "capture") -> list[ScenePoints]:
+               light_source: str = "capture", told_light: str = "estimated") -> list[ScenePoints]:
     """ScenePoints (+ cached prior features) of every scene of ``split`` in ``cfg.data``; with
     ``stage2.data.pixel_features`` / ``pixel_feature_spread`` also the encoder's unpooled maps, unless ``conditions`` is
     False (scenes read for their ground truth only, e.g. the no-decomposition baseline's).
     ``light_source``: the light ``stage2.data.light_readout`` is told: ``capture`` (the scene's own,
-    training) or ``estimated`` (among the model's candidates, as at inference: Table 2's measure)."""
+    training) or ``estimated`` (among the model's candidates, as at inference: Table 2's measure);
+    ``told_light``: with ``estimated``, the estimate or a deliberately wrong light
+    (``points_measure.told_light``, ``light_condition.mistold_light``)."""
     from eval.common.layout import read_splits
 
     data_dir = Path(cfg["data_dir"])
@@ -33,5 +35,5 @@ def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool 
                                 scene_feature_maps(data_dir / n, encoder, cache_dir(cfg)) if maps else None)
               for n in names]
     for scene in scenes:
-        scene.light_source = light_source
+        scene.light_source, scene.told_light = light_source, told_light
     return scenes
