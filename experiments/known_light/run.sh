@@ -131,8 +131,12 @@ for SEED in 0 1; do
   asset_prior light_residual_metalgate_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" \
     stage2.data.light_metal_min_evidence=1.1 stage2.diffusion.readout_metal_gate=true
   run="$WORK/runs/train_light_residual_metalgate_asset_s$SEED/checkpoint.pt"
-  [ ! -f "$run" ] || [ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || \
+  [ ! -f "$run" ] || [ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || {
     held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step" points_measure.num_steps=1
+    for T in turned90 other; do  # issue 66's guard rail: told a deliberately wrong light
+      held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step_told_$T" \
+        points_measure.num_steps=1 points_measure.told_light=$T
+    done; }
 done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
