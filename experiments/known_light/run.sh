@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The known-light study end to end, resumable (each step skipped when its output exists):
 #   experiments/known_light/run.sh [WORK]        # WORK defaults to $GSPI_DATA_ROOT/known_light or ~/.cache/gspi/known_light
+#   experiments/known_light/run.sh WORK data     # only the datasets (after a lost WORK folder; then the rest resumes)
 # ~10 min of data, ~40 min of Stage 0 (recon=fast) and ~10 min per fit condition on one thread of the 2-core VM.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -11,13 +12,31 @@ BASE=experiments/view_dependence/log/retraining_shipped/exact_whole_xv_nbhd_s0.j
 KEYS="data.parts.share=0.6 data.parts.metal_f0=wide data.parts.roughness_spread=0.15 data.parts.texture=0.3"
 export OMP_NUM_THREADS=1
 mkdir -p "$WORK"
-# the held-out pool of Table 2 (parts pool [224:256]; its checksums equal Table 2's records) and
-# 12 training-pool scenes [0:12] to choose the read-out's settings on (tune.py)
-[ -f "$WORK/heldout_pool/p0255_capsule_rough_plastic/complete.json" ] || \
-  .venv/bin/gspi-data preset=stage2_pool out="$WORK/heldout_pool" seed=0 'data.pool_indices=[[224,256]]' data.workers=1 $KEYS
-[ -d "$WORK/heldout_test" ] || $PY -m gspi.data.pool.split "$WORK/heldout_pool" "$WORK/heldout_test" --test 224:256
-[ -f "$WORK/tune_pool/p0011_superquadric_glossy_plastic/complete.json" ] || \
-  .venv/bin/gspi-data preset=stage2_pool out="$WORK/tune_pool" seed=0 'data.pool_indices=[[0,12]]' data.workers=1 $KEYS
+TRAIN_KEYS="$KEYS data.parts.matte_finish=0.5"
+# Every dataset the study reads, each step skipped when its output exists (`run.sh WORK data` builds
+# only these, ~40 min on 2 cores, the two pools side by side): the held-out pool of Table 2 (parts
+# pool [224:256]; its checksums equal Table 2's records), 12 training-pool scenes [0:12] to choose
+# the read-out's settings on (tune.py), the 64 training-pool scenes [0:64] (Table 2's training
+# keys), and each pool's `recon=fast` assets with their Stage I clouds (light_geometry=asset).
+heldout_data() {
+  [ -f "$WORK/heldout_pool/p0255_capsule_rough_plastic/complete.json" ] || \
+    .venv/bin/gspi-data preset=stage2_pool out="$WORK/heldout_pool" seed=0 'data.pool_indices=[[224,256]]' data.workers=1 $KEYS
+  [ -d "$WORK/heldout_test" ] || $PY -m gspi.data.pool.split "$WORK/heldout_pool" "$WORK/heldout_test" --test 224:256
+  [ -f "$WORK/tune_pool/p0011_superquadric_glossy_plastic/complete.json" ] || \
+    .venv/bin/gspi-data preset=stage2_pool out="$WORK/tune_pool" seed=0 'data.pool_indices=[[0,12]]' data.workers=1 $KEYS
+  $PY -m gspi.recon.reconstructed_pool "$WORK/heldout_test" "$WORK/rheldout_fast" --recon fast --workers 1
+  $PY -m gspi.stage1.pool_clouds "$WORK/rheldout_fast"
+}
+training_data() {
+  [ -f "$WORK/train_pool/p0063_sphere_painted_metal/complete.json" ] || \
+    .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $TRAIN_KEYS
+  [ -d "$WORK/train_view" ] || $PY -m gspi.data.pool.split "$WORK/train_pool" "$WORK/train_view" --train 0:64
+  $PY -m gspi.recon.reconstructed_pool "$WORK/train_view" "$WORK/rtrain_fast" --recon fast --workers 1
+  $PY -m gspi.stage1.pool_clouds "$WORK/rtrain_fast"
+}
+if [ "${2:-}" = data ]; then heldout_data & training_data; wait; exit 0; fi
+heldout_data
+training_data
 [ -f "$RES/tune.json" ] || $PY -m experiments.known_light.tune "$WORK/tune_pool" --out "$RES/tune.json"
 fit() {  # fit CONDITION VIEWS LIGHT LABEL
   [ -f "$RES/$1/knn_post/scores.json" ] || $PY -m experiments.known_light.fit "$WORK/heldout_test" "$2" \
@@ -27,17 +46,12 @@ fit exact_true "$WORK/heldout_test" true "parts_pool[224:256] (exact renders)"
 [ -f "$RES/identify_exact.json" ] || $PY -m experiments.known_light.identify "$WORK/heldout_test" "$WORK/heldout_test" --out "$RES/identify_exact.json"
 fit exact_rotated90 "$WORK/heldout_test" rotated90 "parts_pool[224:256] (exact renders)"
 fit exact_other "$WORK/heldout_test" other "parts_pool[224:256] (exact renders)"
-$PY -m gspi.recon.reconstructed_pool "$WORK/heldout_test" "$WORK/rheldout_fast" --recon fast --workers 1
 fit fast_true "$WORK/rheldout_fast" true "parts_pool[224:256]/recon=fast"
 [ -f "$RES/identify_fast.json" ] || $PY -m experiments.known_light.identify "$WORK/heldout_test" "$WORK/rheldout_fast" --out "$RES/identify_fast.json"
 # A first light-aware Stage II (ablation=light_full: the read-out as a condition, a fifth of the
 # training scenes told a wrong light) with the shipped recipe on 64 training-pool scenes' exact
 # renders (Table 2's training keys), in 50-minute chunks (rerun to resume), measured on the
 # held-out exact renders under the estimated light (Table 2's measure).
-TRAIN_KEYS="$KEYS data.parts.matte_finish=0.5"
-[ -f "$WORK/train_pool/p0063_sphere_painted_metal/complete.json" ] || \
-  .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $TRAIN_KEYS
-[ -d "$WORK/train_view" ] || $PY -m gspi.data.pool.split "$WORK/train_pool" "$WORK/train_view" --train 0:64
 # measure DATA LABEL CHECKPOINT NAME [points_measure overrides]: Table 2's measure of a Stage II
 # checkpoint on DATA's held-out scenes, its scores committed as results/NAME (an override is another
 # measure hash); held_out_measure: on the held-out scenes behind their recon=fast assets
@@ -74,7 +88,6 @@ if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoi
 # Behind the held-out scenes' recon=fast assets (Table 2's measure on the reconstructed pool): the
 # exact-render light_residual and the read-out it is given, read on the GT cloud in the assets' renders
 # (the condition's default geometry) and as a run reads it (--asset: Stage I's cloud, the photos).
-$PY -m gspi.stage1.pool_clouds "$WORK/rheldout_fast"   # Stage I of each asset, beside it (light_geometry=asset)
 for G in "" _asset; do
   [ -f "$RES/condition_readout_fast$G/scores.json" ] || $PY -m experiments.known_light.condition "$RUN/checkpoint.pt" \
     "$WORK/rheldout_fast" "$WORK/runs/condition_readout_fast$G" --baseline "$BASE" \
@@ -84,8 +97,6 @@ held_out_measure "$RUN/checkpoint.pt" "light_residual_s0_step${STEP}_fast"
 # Under the conditions users' assets have (issue 66, item 5): light_residual trained on the 64
 # training scenes' recon=fast assets, its read-out read as a run reads it (light_geometry=asset,
 # normals searched), in 40-minute chunks (rerun to resume), measured behind the held-out assets.
-$PY -m gspi.recon.reconstructed_pool "$WORK/train_view" "$WORK/rtrain_fast" --recon fast --workers 1
-$PY -m gspi.stage1.pool_clouds "$WORK/rtrain_fast"
 # asset_prior NAME CONDITION OVERRIDES...: one chunk of the asset-trained light_residual NAME_s$SEED
 # (40 minutes; kept state in resume/NAME_s$SEED/ while under way), the condition it is given scored
 # once (results/CONDITION), the prior at the step reached (results/NAME_s$SEED_step<N>_fast).
