@@ -14,6 +14,8 @@ reconstructing every asset from that variant's photos, scored by gspi-eval's def
   (``gspi.light.refine``), against the others of ``polyhaven_capture``;
 - ``polyhaven_capture_in_set``: the same with the lights in the candidate set (`method.candidates=polyhaven`,
   whose capture HDRIs lit them): what the candidate set costs;
+- ``polyhaven_capture_in_set_128``: the same with the candidates' maps at 128 rows, the rows the photos
+  were shaded with (`method.env_height=128`; shipped 64): what the map's resolution costs under real lights;
 - ``real_objects``: the 19 real glTF objects (`small`; light_fit and no decomposition; GS-PI's
   default from its card, `checkpoints/stage2_pool224_pixel_5k.json`).
 
@@ -35,7 +37,8 @@ ROOT = HERE.parents[1]
 OUT = HERE / "results" / "end_to_end"
 TABLE1 = ROOT / "results" / "table1" / "cpu"  # the split-sum variant: README Table 1's committed runs
 METHODS = ("gspi", "no_decomposition", "light_fit")
-REFERENCE = {"polyhaven_capture_refined": "polyhaven_capture", "polyhaven_capture_in_set": "polyhaven_capture"}  # a variant's missing methods: from this one
+REFERENCE = {"polyhaven_capture_refined": "polyhaven_capture", "polyhaven_capture_in_set": "polyhaven_capture",
+             "polyhaven_capture_in_set_128": "polyhaven_capture"}  # a variant's missing methods: from this one
 CHANNELS = ("albedo", "roughness", "metallic", "relight")
 VARIANTS = {
     "splitsum": "the demo's 4 `small` test scenes, split-sum photos (README Table 1)",
@@ -43,6 +46,7 @@ VARIANTS = {
     "polyhaven_capture": "the same scenes captured under real HDRIs in no candidate set (`data.capture_envs=polyhaven`)",
     "polyhaven_capture_refined": "the same, light_fit refining the light (`method.light_refine=true`)",
     "polyhaven_capture_in_set": "the same, light_fit's candidates the real HDRIs' set (`method.candidates=polyhaven`)",
+    "polyhaven_capture_in_set_128": "the same, the candidates' maps at the photos' 128 rows (`method.env_height=128`)",
     "real_objects": "the 19 real glTF objects (`small`, split-sum photos)",
 }
 

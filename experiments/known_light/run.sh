@@ -183,6 +183,11 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
   out="$WORK/polyhaven_capture/runs_in_set" +experiment=demo assets=null logger=none method=light_fit \
   method.candidates=polyhaven && $PY -m experiments.known_light.end_to_end collect polyhaven_capture_in_set \
   "$WORK/polyhaven_capture/runs_in_set"; }
+# ... and with the candidates' maps at the photos' own 128 rows (finding 30: what the map's resolution costs)
+[ -d "$RES/end_to_end/polyhaven_capture_in_set_128" ] || { .venv/bin/gspi-run -m data="$WORK/polyhaven_capture/data" \
+  out="$WORK/polyhaven_capture/runs_in_set_128" +experiment=demo assets=null logger=none method=light_fit \
+  method.candidates=polyhaven method.env_height=128 && $PY -m experiments.known_light.end_to_end collect \
+  polyhaven_capture_in_set_128 "$WORK/polyhaven_capture/runs_in_set_128"; }
 [ -f "$WORK/real/data_done" ] || { rm -rf "$WORK/real/data" && .venv/bin/gspi-data \
   import.glb=../shared/data/real-objects out="$WORK/real/data" preset=small && touch "$WORK/real/data_done"; }
 [ -d "$RES/end_to_end/real_objects" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real/runs" \
