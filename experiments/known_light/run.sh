@@ -144,6 +144,8 @@ for SEED in 0 1; do
   run="$WORK/runs/train_light_residual_metalgate_asset_s$SEED/checkpoint.pt"
   [ ! -f "$run" ] || [ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || {
     held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step" points_measure.num_steps=1
+    held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step_4samples" \
+      points_measure.num_steps=1 points_measure.num_samples=4   # the mean over 4 noise draws
     for T in turned90 other; do  # issue 66's guard rail: told a deliberately wrong light
       held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step_told_$T" \
         points_measure.num_steps=1 points_measure.told_light=$T

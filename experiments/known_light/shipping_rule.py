@@ -47,6 +47,8 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
                                                         "posterior mean (one DDIM step)",
     ("light_residual_metalgate_asset", "_1step"): GATED + ", trained with the metal gate, read as its posterior mean "
                                                           "(one DDIM step)",
+    ("light_residual_metalgate_asset", "_1step_4samples"): GATED + ", trained with the metal gate, its posterior mean "
+                                                                   "averaged over 4 noise draws",
 }
 # issue 66's guard rail: the prior trained with the metal gate, read as its posterior mean, told a
 # deliberately wrong light (points_measure.told_light): results/<GUARDED>_s<seed>_step5000_fast_1step_told_<how>
