@@ -63,6 +63,18 @@ FAST_ROWS["light_residual_gated_asset_s0_step2737_fast_metalgate_1step"] = (
     "Stage II `light_residual` given the gated condition, seed 0, step 2737 (of 5000), the metal gate on after "
     "training, read as its posterior mean (one DDIM step)")
 FAST_ROWS["full_s0_fast_1step"] = "Stage II Full (shipped recipe, s0) read as its posterior mean (one DDIM step)"
+METALGATE_READS = {  # results/light_residual_metalgate_asset_s<seed>_step<N>_fast<suffix> (finding 30)
+    "_1step": "read as its posterior mean (one DDIM step)",
+    "_1step_4samples": "its posterior mean averaged over 4 noise draws (`points_measure.num_samples=4`)",
+    "_1step_told_turned90": "read as its posterior mean, told the estimate turned 90 degrees "
+                            "(`points_measure.told_light=turned90`: the guard rail)",
+    "_1step_told_other": "read as its posterior mean, told another candidate light (`points_measure.told_light=other`)",
+}
+FAST_ROWS.update({f"light_residual_metalgate_asset_s{seed}_step{step}_fast{suffix}":
+                  f"Stage II `light_residual` given the gated condition, trained with the metal gate, seed {seed}, "
+                  f"step {step}, {how}"
+                  for seed, kept in ((0, 4181), (1, 4233)) for step in (kept, 5000)
+                  for suffix, how in METALGATE_READS.items() if step == 5000 or suffix == "_1step"})
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
     "exact_rotated90": "exact renders, the capture light turned 90 degrees (a wrong light)",
