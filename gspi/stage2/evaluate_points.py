@@ -138,7 +138,7 @@ def evaluate_checkpoint(model, cfg: Mapping[str, Any], data_dir: str | Path, out
     data_cfg = cfg["stage2"].data
     if told_light != "estimated" and not data_cfg.light_readout:
         raise MeasureError(f"points_measure.told_light={told_light}: this model reads no light "
-                          "(stage2.data.light_readout is false); a wrong light changes nothing it is given")
+                           "(stage2.data.light_readout is false); a wrong light changes nothing it is given")
     sampling = PointSampling(num_steps=num_steps, max_points=max_points, seed=seed, num_samples=num_samples,
                              guidance_scale=guidance_scale, patch_points=patch_points, patch_coverage=patch_coverage)
 
