@@ -24,3 +24,20 @@ def test_a_channel_loss_beyond_half_a_db_is_named():
 def test_a_candidate_clear_on_every_clause_passes():
     row = rule.rule_row("better", shifted(albedo=1.0, roughness=-0.4, metallic=1.0), "light_fit_recon_fast_18")
     assert "| +0.53 [+0.53, +0.53] |" in row and row.endswith("| 100% of 9 | 100% of 9 | yes (then issue 42's checks) |")
+
+
+def test_the_guard_rail_counts_the_scenes_told_a_wrong_light(tmp_path):
+    """A scene counts only when the light told differs from its estimate as the measure says."""
+    import json
+
+    from experiments.known_light.shipping_rule import told_wrong
+
+    est = {"env": "sunset", "rotation_deg": 10.0}
+    lights = {"a": {**est, "told": {"how": "other", "env": "overcast", "rotation_deg": 10.0}},
+              "b": {**est, "told": {"how": "other", "env": "sunset", "rotation_deg": 10.0}},  # not wrong
+              "c": est}
+    path = tmp_path / "scores.json"
+    path.write_text(json.dumps({"lights": lights}))
+    assert told_wrong([path, tmp_path / "absent.json"], "other") == "1 of 3"
+    assert told_wrong([path], "turned90") == "0 of 3"
+    assert told_wrong([path], "estimated") == "none"
