@@ -147,6 +147,12 @@ def against_condition_rows() -> list[str]:
     return rows
 
 
+def mean_avg(per_seed: dict[int, dict]) -> float:
+    """The mean over (scene, seed) of the average of the three channels' PSNR."""
+    rows = [row for scores in per_seed.values() for row in scores.values()]
+    return sum(sum(row[c] for c in CHANNELS) / len(CHANNELS) for row in rows) / len(rows)
+
+
 def told_wrong(paths, how: str) -> str:
     """How many (scene, seed) the measure told a light other than its estimate (scores.json's
     ``lights``: the estimate and, when wrong, the light told)."""
@@ -169,7 +175,7 @@ def guard_rail_rows() -> list[str]:
         if not seeds:
             continue
         cells = [paired(seeds, channel) for channel in ("avg",) + CHANNELS]
-        avg = sum(sum(r.values()) / 3 for sc in seeds.values() for r in sc.values()) / sum(map(len, seeds.values()))
+        avg = mean_avg(seeds)
         verdict = "yes" if cells[0][0] >= 0 else "no"
         rows.append(f"| {label} | {len(seeds)} | {told_wrong(paths.values(), how)} | {avg:.2f} | " +
                     " | ".join(f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}]" for d, lo, hi in cells) + f" | {verdict} |")
@@ -205,7 +211,7 @@ def rule_row(label: str, candidate: dict[int, dict], pairs_run: str | None) -> s
 def target_cells(per_seed: dict[int, dict], no_dec: dict[int, dict], ious: dict[int, dict]) -> list[str]:
     """avg, roughness minus no decomposition [CI] paired over (scene, seed), metal class IoU (7 scenes)
     and multi-material IoU (parts scenes with metal), each IoU the mean of the seeds' means."""
-    avg = sum(sum(r.values()) / 3 for sc in per_seed.values() for r in sc.values()) / sum(map(len, per_seed.values()))
+    avg = mean_avg(per_seed)
     rough = {(n, seed): r["roughness"] for seed, sc in per_seed.items() for n, r in sc.items()}
     base = {(n, seed): no_dec[seed][n] for seed, sc in per_seed.items() for n in sc}
     d, lo, hi = paired_bootstrap_ci(rough, base)
