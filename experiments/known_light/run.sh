@@ -151,6 +151,41 @@ for SEED in 0 1; do
         points_measure.num_steps=1 points_measure.told_light=$T
     done; }
 done
+# ... and end to end on the controlled pairs (the 6-pair set, `colours=1`): its seed 0 through gspi-run
+# behind recon=fast, read as its posterior mean (finding 31; shipping_rule.py reads the record)
+PAIRS_RUN=light_residual_metalgate_asset_s0_1step
+[ -f "$RES/controlled_pairs/$PAIRS_RUN.json" ] || {
+  [ -f "$WORK/pairs/pairs6/splits.json" ] || .venv/bin/gspi-data data=controlled_pairs out="$WORK/pairs/pairs6" seed=0 \
+    data.controlled_pairs.colours=1
+  .venv/bin/gspi-run data_dir="$WORK/pairs/pairs6" out="$WORK/pairs/$PAIRS_RUN" recon=fast \
+    stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" stage2.inference.num_steps=1 \
+    logger=none progress=false figures=false
+  mkdir -p "$RES/controlled_pairs" && $PY benchmarks/bench_controlled_pairs.py "$WORK/pairs/$PAIRS_RUN" \
+    --data "$WORK/pairs/pairs6" --json "$RES/controlled_pairs/$PAIRS_RUN.json"
+  sed -i "s#$WORK#<work>#g" "$RES/controlled_pairs/$PAIRS_RUN.json"; }
+# The same recipe with both pools behind the early-normal-consistency Stage 0 (finding 12's assets;
+# finding 31): ~30 min of Stage 0 on 2 cores, two seeds of 5 000 steps in 40-minute chunks (kept
+# state in resume/ while under way), measured behind the held-out pool's assets of the same Stage 0.
+NC=(recon.loss.normal_from_iter=150 recon.loss.lambda_normal=0.2)
+for POOL in heldout_test:rheldout_nc train_view:rtrain_nc; do
+  $PY -m gspi.recon.reconstructed_pool "$WORK/${POOL%%:*}" "$WORK/${POOL##*:}" --recon fast --workers 1 "${NC[@]}"
+  $PY -m gspi.stage1.pool_clouds "$WORK/${POOL##*:}"
+done
+nc_measure() { measure "$WORK/rheldout_nc" "parts_pool[224:256]/recon=fast+normal_from_iter=150,lambda_normal=0.2" "$@"; }
+nc_measure checkpoints/stage2_pool224_pixel_5k.pt full_s0_fast_nc   # the default behind the same assets
+for SEED in 0 1; do
+  run="$WORK/runs/train_light_residual_metalgate_nc_s$SEED" kept=experiments/known_light/resume/light_residual_metalgate_nc_s$SEED/checkpoint.pt
+  if [ ! -f "$run/checkpoint.pt" ] && [ -f "$kept" ]; then mkdir -p "$run" && cp "$kept" "$run/checkpoint.pt"; fi
+  .venv/bin/gspi-train data="$WORK/rtrain_nc" out="$run" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
+    stage2.train.stop_after_minutes=40 stage2.train.run_log=null "${AS_A_RUN[@]}" \
+    stage2.data.light_metal_min_evidence=1.1 stage2.diffusion.readout_metal_gate=true
+  step=$($PY -c "import torch; print(torch.load('$run/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+  if [ "$step" -lt 5000 ]; then mkdir -p "$(dirname "$kept")" && cp "$run/checkpoint.pt" "$kept"; continue; fi
+  rm -rf "$(dirname "$kept")"
+  nc_measure "$run/checkpoint.pt" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step" points_measure.num_steps=1
+  nc_measure "$run/checkpoint.pt" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step_4samples" \
+    points_measure.num_steps=1 points_measure.num_samples=4
+done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

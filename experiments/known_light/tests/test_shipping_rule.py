@@ -41,3 +41,16 @@ def test_the_guard_rail_counts_the_scenes_told_a_wrong_light(tmp_path):
     assert told_wrong([path, tmp_path / "absent.json"], "other") == "1 of 3"
     assert told_wrong([path], "turned90") == "0 of 3"
     assert told_wrong([path], "estimated") == "none"
+
+
+def test_a_study_pairs_record_is_read_before_the_products_and_one_in_neither_is_not_measured(tmp_path, monkeypatch):
+    import json
+
+    pairs = {"roughness": {"pairs": 3, "ordered_with_gap": 2 / 3}, "metal": {"pairs": 3, "separated": 1.0}}
+    (tmp_path / "both.json").write_text(json.dumps(pairs))
+    monkeypatch.setattr(rule, "STUDY_PAIRS", tmp_path / "{run}.json")
+    assert rule.pairs_record("both") == tmp_path / "both.json"
+    assert rule.pairs_record("light_fit_recon_fast_18") == rule.ROOT / "results/controlled_pairs/cpu/light_fit_recon_fast_18.json"
+    assert rule.pairs_record("absent") is None and rule.pairs_record(None) is None
+    assert rule.pairs_cells("both") == ("67% of 3", "100% of 3", ["ordered < 90 %"])
+    assert rule.pairs_cells("absent")[2] == ["controlled pairs not measured"]
