@@ -343,6 +343,12 @@ def test_the_light_rows_read_stage1_of_the_pools_assets_planned_before_they_trai
     assert list(map(str, stage1.command))[-2:] == ["gspi.stage1.pool_clouds", str(tmp_path / "reproduce" / "table2_cpu" / "rtrain_fast")]
     train = next(s for s in steps if s.name == "train: light_residual_s0")
     assert "stage2.data.light_geometry=asset" in list(map(str, train.command))
+    # the light rows train the known-light study's best recipe: the scene-level metal test, gated
+    for variant in ("light_residual", "light_residual_a2"):
+        steps, _, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", "seeds=[1]", f"variants=[{variant}]"])
+        train = list(map(str, next(s for s in steps if s.name == f"train: {variant}_s1").command))
+        assert {"stage2.data.light_metal_min_evidence=1.1", "stage2.diffusion.readout_metal_gate=true",
+                f"ablation={variant}"} <= set(train)
     plain, _, _ = cli.plan([f"data_root={tmp_path}", "table=2", "scale=cpu", "seeds=[5]", "variants=[full]"])
     assert not any(s.name.startswith("stage 1:") for s in plain)
 
