@@ -66,6 +66,8 @@ GUARDED = "light_residual_metalgate_asset"
 TOLD_WRONG = {"turned90": "the estimate turned 90 degrees", "other": "another candidate light"}
 FULL_ONE_STEP = RESULTS / "full_s0_fast_1step" / "scores.json"  # the default read as its posterior mean, seed 0
 GATED_CONDITION = RESULTS / "condition_readout_fast_asset_gated" / "scores.json"
+# the gated read-out behind the early-normal-consistency Stage 0: what its priors are given
+GIVEN = {"light_residual_metalgate_nc": RESULTS / "condition_readout_fast_nc_asset_gated" / "scores.json"}
 
 
 class Measured(NamedTuple):
@@ -82,6 +84,7 @@ class Candidate:
     seeds: dict  # {seed: Measured}; a training-free read-out pairs with each of Full's seeds
     training_free: bool = False
     pairs_run: str | None = None  # its controlled-pairs record, or None
+    given: Path | None = None     # the scores of the read-out it is given as its condition, or None
 
 
 def read_stage2(path: Path) -> Measured:
@@ -123,7 +126,8 @@ def candidates() -> list[Candidate]:
         paths = {seed: RESULTS / f"{name}_s{seed}_step5000_fast{suffix}" / "scores.json" for seed in (0, 1)}
         seeds = {seed: read_stage2(path) for seed, path in paths.items() if path.is_file()}
         if seeds:
-            out.append(Candidate(label, seeds, pairs_run=LEARNED_PAIRS.get((name, suffix))))
+            given = GIVEN.get(name, GATED_CONDITION) if label.startswith(GATED) else None
+            out.append(Candidate(label, seeds, pairs_run=LEARNED_PAIRS.get((name, suffix)), given=given))
     return out
 
 
@@ -144,12 +148,10 @@ def paired(candidate: dict[int, dict], channel: str, reference=None) -> tuple[fl
 def against_condition_rows() -> list[str]:
     """Each prior given the gated read-out against that read-out (issue 66: the learned prior must
     beat the training-free read-out it is given), paired over (scene, seed)."""
-    if not GATED_CONDITION.is_file():
-        return []
-    given = read_stage2(GATED_CONDITION).psnr
     rows = []
     for cand in candidates():
-        if cand.label.startswith(GATED):
+        if cand.given is not None and cand.given.is_file():
+            given = read_stage2(cand.given).psnr
             seeds = {seed: m.psnr for seed, m in cand.seeds.items()}
             cells = [paired(seeds, channel, lambda seed: given) for channel in ("avg",) + CHANNELS]
             rows.append(f"| {cand.label.removeprefix(GATED).removeprefix(', ') or 'as Table 2 reads it (10 DDIM steps)'} | "

@@ -82,6 +82,7 @@ FAST_ROWS.update({f"light_residual_metalgate_nc_s{seed}_step5000_fast_nc{suffix}
                   f"the same recipe trained and measured behind {NC_STAGE0}, seed {seed}, step 5000, {how}"
                   for seed in (0, 1) for suffix, how in list(METALGATE_READS.items())[:2]})
 FAST_ROWS["full_s0_fast_nc"] = f"Stage II Full (shipped recipe, s0) behind {NC_STAGE0}"
+FAST_ROWS["condition_readout_fast_nc_asset_gated"] = f"the gated read-out as a run reads it behind {NC_STAGE0} (what its priors are given)"
 CONDITIONS = {  # results/<folder>: its caption
     "exact_true": "exact renders, the capture light known",
     "exact_rotated90": "exact renders, the capture light turned 90 degrees (a wrong light)",
