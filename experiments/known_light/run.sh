@@ -153,16 +153,18 @@ for SEED in 0 1; do
 done
 # ... and end to end on the controlled pairs (the 6-pair set, `colours=1`): its seed 0 through gspi-run
 # behind recon=fast, read as its posterior mean (finding 31; shipping_rule.py reads the record)
-PAIRS_RUN=light_residual_metalgate_asset_s0_1step
-[ -f "$RES/controlled_pairs/$PAIRS_RUN.json" ] || {
+pairs_run() {  # RECORD CHECKPOINT [gspi-run overrides]: results/controlled_pairs/RECORD.json
+  local name=$1 ckpt=$2; shift 2
+  [ -f "$RES/controlled_pairs/$name.json" ] && return
   [ -f "$WORK/pairs/pairs6/splits.json" ] || .venv/bin/gspi-data data=controlled_pairs out="$WORK/pairs/pairs6" seed=0 \
     data.controlled_pairs.colours=1
-  .venv/bin/gspi-run data_dir="$WORK/pairs/pairs6" out="$WORK/pairs/$PAIRS_RUN" recon=fast \
-    stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" stage2.inference.num_steps=1 \
-    logger=none progress=false figures=false
-  mkdir -p "$RES/controlled_pairs" && $PY benchmarks/bench_controlled_pairs.py "$WORK/pairs/$PAIRS_RUN" \
-    --data "$WORK/pairs/pairs6" --json "$RES/controlled_pairs/$PAIRS_RUN.json"
-  sed -i "s#$WORK#<work>#g" "$RES/controlled_pairs/$PAIRS_RUN.json"; }
+  .venv/bin/gspi-run data_dir="$WORK/pairs/pairs6" out="$WORK/pairs/$name" stage2.checkpoint="$ckpt" \
+    stage2.inference.num_steps=1 logger=none progress=false figures=false "$@"
+  mkdir -p "$RES/controlled_pairs" && $PY benchmarks/bench_controlled_pairs.py "$WORK/pairs/$name" \
+    --data "$WORK/pairs/pairs6" --json "$RES/controlled_pairs/$name.json"
+  sed -i "s#$WORK#<work>#g" "$RES/controlled_pairs/$name.json"
+}
+pairs_run light_residual_metalgate_asset_s0_1step "$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" recon=fast
 # The same recipe with both pools behind the early-normal-consistency Stage 0 (finding 12's assets;
 # finding 31): ~30 min of Stage 0 on 2 cores, two seeds of 5 000 steps in 40-minute chunks (kept
 # state in resume/ while under way), measured behind the held-out pool's assets of the same Stage 0.
@@ -186,6 +188,10 @@ for SEED in 0 1; do
   nc_measure "$run/checkpoint.pt" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step_4samples" \
     points_measure.num_steps=1 points_measure.num_samples=4
 done
+# ... its seed 0 on the controlled pairs behind the same Stage 0
+run="$WORK/runs/train_light_residual_metalgate_nc_s0/checkpoint.pt"
+[ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || \
+  pairs_run light_residual_metalgate_nc_s0_1step "$run" recon=fast "${NC[@]}"
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

@@ -59,7 +59,8 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
 }
 # a learned candidate's controlled-pairs record in the study (results/controlled_pairs/<run>.json: its
 # seed-0 checkpoint end to end through gspi-run, read as the candidate is read)
-LEARNED_PAIRS = {("light_residual_metalgate_asset", "_1step"): "light_residual_metalgate_asset_s0_1step"}
+LEARNED_PAIRS = {("light_residual_metalgate_asset", "_1step"): "light_residual_metalgate_asset_s0_1step",
+                 ("light_residual_metalgate_nc", "_nc_1step"): "light_residual_metalgate_nc_s0_1step"}
 # issue 66's guard rail: the prior trained with the metal gate, read as its posterior mean, told a
 # deliberately wrong light (points_measure.told_light): results/<GUARDED>_s<seed>_step5000_fast_1step_told_<how>
 GUARDED = "light_residual_metalgate_asset"
