@@ -78,9 +78,10 @@ FAST_ROWS.update({f"light_residual_metalgate_asset_s{seed}_step{step}_fast{suffi
 # the same recipe trained and measured behind the early-normal-consistency Stage 0 (finding 12's
 # assets of both pools): results/light_residual_metalgate_nc_s<seed>_step5000_fast_nc<suffix> (finding 31)
 NC_STAGE0 = "Stage 0 `recon=fast recon.loss.normal_from_iter=150 recon.loss.lambda_normal=0.2`"
-FAST_ROWS.update({f"light_residual_metalgate_nc_s{seed}_step5000_fast_nc{suffix}":
-                  f"the same recipe trained and measured behind {NC_STAGE0}, seed {seed}, step 5000, {how}"
-                  for seed in (0, 1) for suffix, how in list(METALGATE_READS.items())[:2]})
+FAST_ROWS.update({f"light_residual_metalgate_nc_s{seed}_step{step}_fast_nc{suffix}":
+                  f"the same recipe trained and measured behind {NC_STAGE0}, seed {seed}, step {step}, {how}"
+                  for seed, kept in ((0, 4207), (1, 4231)) for step in (kept, 5000)
+                  for suffix, how in list(METALGATE_READS.items())[:2] if step == 5000 or suffix == "_1step"})
 FAST_ROWS["full_s0_fast_nc"] = f"Stage II Full (shipped recipe, s0) behind {NC_STAGE0}"
 FAST_ROWS["condition_readout_fast_nc_asset_gated"] = f"the gated read-out as a run reads it behind {NC_STAGE0} (what its priors are given)"
 CONDITIONS = {  # results/<folder>: its caption
