@@ -62,12 +62,13 @@ measure() {
     $PY -c "from pathlib import Path; from eval.portable import write_portable_scores as w; w(Path('$WORK/runs/$m/scores.json'), Path('$RES/$m/scores.json'), data_label='$label', roots={'<work>': Path('$WORK')})"; }
 }
 held_out_measure() { measure "$WORK/rheldout_fast" "parts_pool[224:256]/recon=fast" "$@"; }
+ckpt_step() { $PY -c "import torch; print(torch.load('$1', map_location='cpu', weights_only=True, mmap=True)['step'])"; }
 RUN="$WORK/runs/train_light_full_s0"
 KEPT=experiments/known_light/resume/light_full_s0/checkpoint.pt   # the training's state at the last session's stop
 if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
 .venv/bin/gspi-train data="$WORK/train_view" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_full seed=0 \
   stage2.train.stop_after_minutes=50 stage2.train.run_log=null
-STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+STEP=$(ckpt_step "$RUN/checkpoint.pt")
 # one measure per checkpoint step: a learning curve
 measure "$WORK/heldout_test" "parts_pool[224:256] (exact renders)" "$RUN/checkpoint.pt" "light_full_s0_step${STEP}_exact"
 # the state travels in git while the training is under way, and leaves when it ends
@@ -82,7 +83,7 @@ KEPT=experiments/known_light/resume/light_residual_s0/checkpoint.pt
 if [ ! -f "$RUN/checkpoint.pt" ] && [ -f "$KEPT" ]; then mkdir -p "$RUN" && cp "$KEPT" "$RUN/checkpoint.pt"; fi
 .venv/bin/gspi-train data="$WORK/train_view" out="$RUN" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=0 \
   stage2.train.stop_after_minutes=50 stage2.train.run_log=null
-STEP=$($PY -c "import torch; print(torch.load('$RUN/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+STEP=$(ckpt_step "$RUN/checkpoint.pt")
 measure "$WORK/heldout_test" "parts_pool[224:256] (exact renders)" "$RUN/checkpoint.pt" "light_residual_s0_step${STEP}_exact"
 if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$KEPT")" && cp "$RUN/checkpoint.pt" "$KEPT"; else rm -f "$KEPT"; fi
 # Behind the held-out scenes' recon=fast assets (Table 2's measure on the reconstructed pool): the
@@ -100,21 +101,29 @@ held_out_measure "$RUN/checkpoint.pt" "light_residual_s0_step${STEP}_fast"
 # asset_prior NAME CONDITION OVERRIDES...: one chunk of the asset-trained light_residual NAME_s$SEED
 # (40 minutes; kept state in resume/NAME_s$SEED/ while under way), the condition it is given scored
 # once (results/CONDITION), the prior at the step reached (results/NAME_s$SEED_step<N>_fast).
-asset_prior() {
-  local name=$1 condition=$2; shift 2
+# train_chunk NAME DATA OVERRIDES...: one 40-minute chunk of light_residual NAME_s$SEED trained on DATA,
+# resumed from its kept state in resume/NAME_s$SEED/ (kept there while under way, removed at 5000);
+# STEP: the step reached (the recipe's stop_after_cpu_minutes=60 also ends a call at ~4200: rerun)
+train_chunk() {
+  local name=$1 data=$2; shift 2
   local run="$WORK/runs/train_${name}_s$SEED" kept=experiments/known_light/resume/${name}_s$SEED/checkpoint.pt
   if [ ! -f "$run/checkpoint.pt" ] && [ -f "$kept" ]; then mkdir -p "$run" && cp "$kept" "$run/checkpoint.pt"; fi
-  .venv/bin/gspi-train data="$WORK/rtrain_fast" out="$run" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
+  .venv/bin/gspi-train data="$data" out="$run" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
     stage2.train.stop_after_minutes=40 stage2.train.run_log=null "$@"
-  local step
-  step=$($PY -c "import torch; print(torch.load('$run/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
+  STEP=$(ckpt_step "$run/checkpoint.pt")
+  if [ "$STEP" -lt 5000 ]; then mkdir -p "$(dirname "$kept")" && cp "$run/checkpoint.pt" "$kept"; else rm -rf "$(dirname "$kept")"; fi
+}
+asset_prior() {
+  local name=$1 condition=$2; shift 2
+  train_chunk "$name" "$WORK/rtrain_fast" "$@"
+  local run="$WORK/runs/train_${name}_s$SEED/checkpoint.pt"
   [ -f "$RES/$condition/scores.json" ] || $PY -m experiments.known_light.condition \
-    "$run/checkpoint.pt" "$WORK/rheldout_fast" "$WORK/runs/$condition" --baseline "$BASE" \
+    "$run" "$WORK/rheldout_fast" "$WORK/runs/$condition" --baseline "$BASE" \
     --results "$RES/$condition" --label "parts_pool[224:256]/recon=fast"   # what it is given
-  held_out_measure "$run/checkpoint.pt" "${name}_s${SEED}_step${step}_fast"
-  if [ "$step" -lt 5000 ]; then mkdir -p "$(dirname "$kept")" && cp "$run/checkpoint.pt" "$kept"; else rm -rf "$(dirname "$kept")"; fi
+  held_out_measure "$run" "${name}_s${SEED}_step${STEP}_fast"
 }
 AS_A_RUN=(stage2.data.light_geometry=asset 'stage2.data.light_normal_search_deg=[4,8]' stage2.data.light_normal_profile=3)
+METAL_GATE=(stage2.data.light_metal_min_evidence=1.1 stage2.diffusion.readout_metal_gate=true)   # finding 28's recipe
 for SEED in 0 1; do   # two seeds (the issue's); each resumes from its kept state
   asset_prior light_residual_asset condition_readout_fast_asset_profile "${AS_A_RUN[@]}"
 done
@@ -139,10 +148,9 @@ held_out_measure checkpoints/stage2_pool224_pixel_5k.pt full_s0_fast_1step point
 # The next recipe (finding 28): the same prior trained with the metal gate (a prior that cannot undo the
 # scene-level test), two seeds in 40-minute chunks; read as its posterior mean at the end.
 for SEED in 0 1; do
-  asset_prior light_residual_metalgate_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" \
-    stage2.data.light_metal_min_evidence=1.1 stage2.diffusion.readout_metal_gate=true
+  asset_prior light_residual_metalgate_asset condition_readout_fast_asset_gated "${AS_A_RUN[@]}" "${METAL_GATE[@]}"
   run="$WORK/runs/train_light_residual_metalgate_asset_s$SEED/checkpoint.pt"
-  [ ! -f "$run" ] || [ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || {
+  [ ! -f "$run" ] || [ "$(ckpt_step "$run")" -lt 5000 ] || {
     held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step" points_measure.num_steps=1
     held_out_measure "$run" "light_residual_metalgate_asset_s${SEED}_step5000_fast_1step_4samples" \
       points_measure.num_steps=1 points_measure.num_samples=4   # the mean over 4 noise draws
@@ -166,7 +174,7 @@ pairs_run() {  # RECORD CHECKPOINT [gspi-run overrides]: results/controlled_pair
 }
 pairs_run light_residual_metalgate_asset_s0_1step "$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" recon=fast
 # The same recipe with both pools behind the early-normal-consistency Stage 0 (finding 12's assets;
-# finding 31): ~30 min of Stage 0 on 2 cores, two seeds of 5 000 steps in 40-minute chunks (kept
+# finding 32): ~30 min of Stage 0 on 2 cores, two seeds of 5 000 steps in 40-minute chunks (kept
 # state in resume/ while under way), measured behind the held-out pool's assets of the same Stage 0.
 NC=(recon.loss.normal_from_iter=150 recon.loss.lambda_normal=0.2)
 for POOL in heldout_test:rheldout_nc train_view:rtrain_nc; do
@@ -176,22 +184,16 @@ done
 nc_measure() { measure "$WORK/rheldout_nc" "parts_pool[224:256]/recon=fast+normal_from_iter=150,lambda_normal=0.2" "$@"; }
 nc_measure checkpoints/stage2_pool224_pixel_5k.pt full_s0_fast_nc   # the default behind the same assets
 for SEED in 0 1; do
-  run="$WORK/runs/train_light_residual_metalgate_nc_s$SEED" kept=experiments/known_light/resume/light_residual_metalgate_nc_s$SEED/checkpoint.pt
-  if [ ! -f "$run/checkpoint.pt" ] && [ -f "$kept" ]; then mkdir -p "$run" && cp "$kept" "$run/checkpoint.pt"; fi
-  .venv/bin/gspi-train data="$WORK/rtrain_nc" out="$run" stage2=cpu_pool224_pixel_5k ablation=light_residual seed=$SEED \
-    stage2.train.stop_after_minutes=40 stage2.train.run_log=null "${AS_A_RUN[@]}" \
-    stage2.data.light_metal_min_evidence=1.1 stage2.diffusion.readout_metal_gate=true
-  step=$($PY -c "import torch; print(torch.load('$run/checkpoint.pt', map_location='cpu', weights_only=True, mmap=True)['step'])")
-  if [ "$step" -lt 5000 ]; then mkdir -p "$(dirname "$kept")" && cp "$run/checkpoint.pt" "$kept"; continue; fi
-  rm -rf "$(dirname "$kept")"
-  nc_measure "$run/checkpoint.pt" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step" points_measure.num_steps=1
-  nc_measure "$run/checkpoint.pt" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step_4samples" \
+  train_chunk light_residual_metalgate_nc "$WORK/rtrain_nc" "${AS_A_RUN[@]}" "${METAL_GATE[@]}"
+  [ "$STEP" -ge 5000 ] || continue
+  run="$WORK/runs/train_light_residual_metalgate_nc_s$SEED/checkpoint.pt"
+  nc_measure "$run" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step" points_measure.num_steps=1
+  nc_measure "$run" "light_residual_metalgate_nc_s${SEED}_step5000_fast_nc_1step_4samples" \
     points_measure.num_steps=1 points_measure.num_samples=4
 done
 # ... its seed 0 on the controlled pairs behind the same Stage 0
 run="$WORK/runs/train_light_residual_metalgate_nc_s0/checkpoint.pt"
-[ "$($PY -c "import torch; print(torch.load('$run', map_location='cpu', weights_only=True, mmap=True)['step'])")" -lt 5000 ] || \
-  pairs_run light_residual_metalgate_nc_s0_1step "$run" recon=fast "${NC[@]}"
+[ "$(ckpt_step "$run")" -lt 5000 ] || pairs_run light_residual_metalgate_nc_s0_1step "$run" recon=fast "${NC[@]}"
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

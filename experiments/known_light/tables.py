@@ -70,18 +70,25 @@ METALGATE_READS = {  # results/light_residual_metalgate_asset_s<seed>_step<N>_fa
                             "(`points_measure.told_light=turned90`: the guard rail)",
     "_1step_told_other": "read as its posterior mean, told another candidate light (`points_measure.told_light=other`)",
 }
-FAST_ROWS.update({f"light_residual_metalgate_asset_s{seed}_step{step}_fast{suffix}":
-                  f"Stage II `light_residual` given the gated condition, trained with the metal gate, seed {seed}, "
-                  f"step {step}, {how}"
-                  for seed, kept in ((0, 4181), (1, 4233)) for step in (kept, 5000)
-                  for suffix, how in METALGATE_READS.items() if step == 5000 or suffix == "_1step"})
+
+
+def curve_rows(prefix: str, behind: str, caption: str, stops: dict[int, int], reads: dict[str, str]) -> dict[str, str]:
+    """{results folder: caption} of a two-seed prior measured behind ``behind``'s assets: at the step its
+    first call stopped at ({seed: step}; read `_1step` only) and at 5000 (every read):
+    results/<prefix>_s<seed>_step<N>_<behind><read>."""
+    return {f"{prefix}_s{seed}_step{step}_{behind}{suffix}": f"{caption}, seed {seed}, step {step}, {how}"
+            for seed, stop in stops.items() for step in (stop, 5000)
+            for suffix, how in reads.items() if step == 5000 or suffix == "_1step"}
+
+
+FAST_ROWS.update(curve_rows("light_residual_metalgate_asset", "fast", "Stage II `light_residual` given the gated "
+                            "condition, trained with the metal gate", {0: 4181, 1: 4233}, METALGATE_READS))
 # the same recipe trained and measured behind the early-normal-consistency Stage 0 (finding 12's
-# assets of both pools): results/light_residual_metalgate_nc_s<seed>_step5000_fast_nc<suffix> (finding 31)
+# assets of both pools): results/light_residual_metalgate_nc_s<seed>_step<N>_fast_nc<read> (finding 32)
 NC_STAGE0 = "Stage 0 `recon=fast recon.loss.normal_from_iter=150 recon.loss.lambda_normal=0.2`"
-FAST_ROWS.update({f"light_residual_metalgate_nc_s{seed}_step{step}_fast_nc{suffix}":
-                  f"the same recipe trained and measured behind {NC_STAGE0}, seed {seed}, step {step}, {how}"
-                  for seed, kept in ((0, 4207), (1, 4231)) for step in (kept, 5000)
-                  for suffix, how in list(METALGATE_READS.items())[:2] if step == 5000 or suffix == "_1step"})
+FAST_ROWS.update(curve_rows("light_residual_metalgate_nc", "fast_nc", f"the same recipe trained and measured behind "
+                            f"{NC_STAGE0}", {0: 4207, 1: 4231},
+                            {read: METALGATE_READS[read] for read in ("_1step", "_1step_4samples")}))
 FAST_ROWS["full_s0_fast_nc"] = f"Stage II Full (shipped recipe, s0) behind {NC_STAGE0}"
 FAST_ROWS["condition_readout_fast_nc_asset_gated"] = f"the gated read-out as a run reads it behind {NC_STAGE0} (what its priors are given)"
 CONDITIONS = {  # results/<folder>: its caption
