@@ -194,6 +194,25 @@ done
 # ... its seed 0 on the controlled pairs behind the same Stage 0
 run="$WORK/runs/train_light_residual_metalgate_nc_s0/checkpoint.pt"
 [ "$(ckpt_step "$run")" -lt 5000 ] || pairs_run light_residual_metalgate_nc_s0_1step "$run" recon=fast "${NC[@]}"
+# The same recipe trained on 64 training scenes drawn with the held-out pool's keys (no
+# `matte_finish`; the parts pool [0:64], the scenes Table 2's constants come from, never its test
+# scenes [224:256]): is the prior's matte lean (finding 31) its training scenes'? ~10 min of data and
+# ~30 min of Stage 0 on one thread, then two seeds in 40-minute chunks, each measure at the step reached.
+[ -f "$WORK/train_pool_hk/p0063_sphere_painted_metal/complete.json" ] || \
+  .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool_hk" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $KEYS
+[ -d "$WORK/train_view_hk" ] || $PY -m gspi.data.pool.split "$WORK/train_pool_hk" "$WORK/train_view_hk" --train 0:64
+$PY -m gspi.recon.reconstructed_pool "$WORK/train_view_hk" "$WORK/rtrain_hk_fast" --recon fast --workers 1
+$PY -m gspi.stage1.pool_clouds "$WORK/rtrain_hk_fast"
+[ -f "$RES/pool_roughness.json" ] || $PY -m experiments.known_light.pool_roughness \
+  "training, Table 2's keys (matte_finish=0.5) [0:64]=$WORK/train_view" "training, the held-out keys [0:64]=$WORK/train_view_hk" \
+  "held-out [224:256]=$WORK/heldout_test" --out "$RES/pool_roughness.json"   # each pool's dielectric roughness
+for SEED in 0 1; do
+  train_chunk light_residual_metalgate_hk "$WORK/rtrain_hk_fast" "${AS_A_RUN[@]}" "${METAL_GATE[@]}"
+  held_out_measure "$WORK/runs/train_light_residual_metalgate_hk_s$SEED/checkpoint.pt" \
+    "light_residual_metalgate_hk_s${SEED}_step${STEP}_fast_1step" points_measure.num_steps=1
+done
+run="$WORK/runs/train_light_residual_metalgate_hk_s0/checkpoint.pt"
+[ "$(ckpt_step "$run")" -lt 5000 ] || pairs_run light_residual_metalgate_hk_s0_1step "$run" recon=fast
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2
@@ -233,6 +252,15 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
   out="$WORK/polyhaven_capture/runs_in_set_128" +experiment=demo assets=null logger=none method=light_fit \
   method.candidates=polyhaven method.env_height=128 && $PY -m experiments.known_light.end_to_end collect \
   polyhaven_capture_in_set_128 "$WORK/polyhaven_capture/runs_in_set_128"; }
+# ... and the study's learned candidate on the same inputs (end_to_end.py's PRIORS; finding 33): GS-PI with
+# finding 30's metal-gate prior (seed 0, step 5000, one DDIM step), its job folder named as the others'
+prior_variant() {  # NAME DATA: results/end_to_end/NAME/method=gspi
+  [ -d "$RES/end_to_end/$1" ] || { .venv/bin/gspi-run -m data="$2" out="$WORK/$1/runs" +experiment=demo assets=null \
+    logger=none method=gspi stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" \
+    stage2.inference.num_steps=1 hydra.sweep.subdir=method=gspi && \
+    $PY -m experiments.known_light.end_to_end collect "$1" "$WORK/$1/runs"; }
+}
+prior_variant polyhaven_capture_prior "$WORK/polyhaven_capture/data"
 [ -f "$WORK/real/data_done" ] || { rm -rf "$WORK/real/data" && .venv/bin/gspi-data \
   import.glb=../shared/data/real-objects out="$WORK/real/data" preset=small && touch "$WORK/real/data_done"; }
 [ -d "$RES/end_to_end/real_objects" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real/runs" \

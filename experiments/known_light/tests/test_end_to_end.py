@@ -30,3 +30,28 @@ def test_collect_copies_each_method_with_portable_paths(tmp_path, monkeypatch):
 def test_collect_names_a_folder_without_runs(tmp_path):
     with pytest.raises(SystemExit, match="no method=<name>/eval/eval_meta.json"):
         e2e.collect("pathtraced", tmp_path)
+
+
+def test_prior_rows_lead_over_the_methods_of_the_variant_they_repeat(tmp_path, monkeypatch):
+    monkeypatch.setattr(e2e, "OUT", tmp_path)
+
+    def write(variant, method, psnr):
+        folder = tmp_path / variant / f"method={method}" / "eval"
+        folder.mkdir(parents=True)
+        per_scene = {s: {c: {"psnr": psnr + i} for c in e2e.CHANNELS} for i, s in enumerate(("s1", "s2"))}
+        (folder / "eval_meta.json").write_text(json.dumps({"per_scene": per_scene}))
+        (folder / "summary.json").write_text(json.dumps({"metallic": {"iou": 0.25}}))
+
+    write("polyhaven_capture_prior", "gspi", 15.0)
+    write("polyhaven_capture", "gspi", 14.0)
+    write("polyhaven_capture", "light_fit", 16.5)
+    rows = e2e.prior_table()
+    assert f"| {e2e.VARIANTS['polyhaven_capture']} (2 scenes) | {e2e.PRIOR} | 15.50 | 15.50 | 15.50 | 15.50 | 0.25 |" in rows
+    assert "| polyhaven_capture_prior | GS-PI's default | +1.00 (2/2) | +1.00 (2/2) | +1.00 (2/2) | +1.00 (2/2) |" in rows
+    assert "| polyhaven_capture_prior | light_fit | -1.50 (0/2) | -1.50 (0/2) | -1.50 (0/2) | -1.50 (0/2) |" in rows
+    assert not any("no_decomposition" in r for r in rows)
+
+
+def test_no_prior_run_no_prior_table(tmp_path, monkeypatch):
+    monkeypatch.setattr(e2e, "OUT", tmp_path)
+    assert e2e.prior_table() == []
