@@ -23,7 +23,8 @@ The learned candidate on the same inputs (``PRIORS``: a variant whose `method=gs
 with the study's best prior, finding 30's metal-gate recipe behind the shipped assets, seed 0 at
 step 5000, read as its posterior mean; the other methods from the variant it repeats):
 
-- ``polyhaven_capture_prior``: the real-HDRI capture (`polyhaven_capture`'s data and assets).
+- ``polyhaven_capture_prior``: the real-HDRI capture (`polyhaven_capture`'s data and assets);
+- ``pathtraced_prior``: the path-traced photos (`pathtraced`'s data, its assets reconstructed again).
 
     python -m experiments.known_light.end_to_end collect VARIANT RUNS   # copy a run's scores here
     python -m experiments.known_light.end_to_end                        # print the table
@@ -56,7 +57,7 @@ VARIANTS = {
     "real_objects": "the 19 real glTF objects (`small`, split-sum photos)",
 }
 PRIOR = "metal-gate prior (seed 0)"   # how a PRIORS variant's method=gspi run is named in the tables
-PRIORS = {"polyhaven_capture_prior": "polyhaven_capture"}   # variant: the variant whose data it repeats
+PRIORS = {"polyhaven_capture_prior": "polyhaven_capture", "pathtraced_prior": "pathtraced"}   # variant: the variant whose data it repeats
 
 
 def collect(variant: str, runs: Path) -> list[Path]:

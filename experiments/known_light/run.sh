@@ -257,10 +257,11 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
 prior_variant() {  # NAME DATA: results/end_to_end/NAME/method=gspi
   [ -d "$RES/end_to_end/$1" ] || { .venv/bin/gspi-run -m data="$2" out="$WORK/$1/runs" +experiment=demo assets=null \
     logger=none method=gspi stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" \
-    stage2.inference.num_steps=1 hydra.sweep.subdir=method=gspi && \
+    stage2.inference.num_steps=1 "hydra.sweep.subdir='method=gspi'" && \
     $PY -m experiments.known_light.end_to_end collect "$1" "$WORK/$1/runs"; }
 }
 prior_variant polyhaven_capture_prior "$WORK/polyhaven_capture/data"
+prior_variant pathtraced_prior "$WORK/pathtraced/data"
 [ -f "$WORK/real/data_done" ] || { rm -rf "$WORK/real/data" && .venv/bin/gspi-data \
   import.glb=../shared/data/real-objects out="$WORK/real/data" preset=small && touch "$WORK/real/data_done"; }
 [ -d "$RES/end_to_end/real_objects" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real/runs" \

@@ -56,11 +56,15 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
     ("light_residual_metalgate_nc", "_nc_1step_4samples"): GATED + ", trained with the metal gate, both pools behind the "
                                                             "early-normal-consistency Stage 0, its posterior mean "
                                                             "averaged over 4 noise draws",
+    ("light_residual_metalgate_hk", "_1step"): GATED + ", trained with the metal gate on 64 training scenes drawn with "
+                                                "the held-out pool's keys (no `matte_finish`; finding 33), read as its "
+                                                "posterior mean (one DDIM step)",
 }
 # a learned candidate's controlled-pairs record in the study (results/controlled_pairs/<run>.json: its
 # seed-0 checkpoint end to end through gspi-run, read as the candidate is read)
 LEARNED_PAIRS = {("light_residual_metalgate_asset", "_1step"): "light_residual_metalgate_asset_s0_1step",
-                 ("light_residual_metalgate_nc", "_nc_1step"): "light_residual_metalgate_nc_s0_1step"}
+                 ("light_residual_metalgate_nc", "_nc_1step"): "light_residual_metalgate_nc_s0_1step",
+                 ("light_residual_metalgate_hk", "_1step"): "light_residual_metalgate_hk_s0_1step"}
 # issue 66's guard rail: the prior trained with the metal gate, read as its posterior mean, told a
 # deliberately wrong light (points_measure.told_light): results/<GUARDED>_s<seed>_step5000_fast_1step_told_<how>
 GUARDED = "light_residual_metalgate_asset"
