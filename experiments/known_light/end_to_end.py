@@ -24,7 +24,9 @@ with the study's best prior, finding 30's metal-gate recipe behind the shipped a
 step 5000, read as its posterior mean; the other methods from the variant it repeats):
 
 - ``polyhaven_capture_prior``: the real-HDRI capture (`polyhaven_capture`'s data and assets);
-- ``pathtraced_prior``: the path-traced photos (`pathtraced`'s data, its assets reconstructed again).
+- ``pathtraced_prior``: the path-traced photos (`pathtraced`'s data, its assets reconstructed again);
+- ``real_objects_prior``: the 19 real objects (`+experiment=real_objects`'s budgets; GS-PI's default
+  from its card, means only).
 
     python -m experiments.known_light.end_to_end collect VARIANT RUNS   # copy a run's scores here
     python -m experiments.known_light.end_to_end                        # print the table
@@ -57,7 +59,8 @@ VARIANTS = {
     "real_objects": "the 19 real glTF objects (`small`, split-sum photos)",
 }
 PRIOR = "metal-gate prior (seed 0)"   # how a PRIORS variant's method=gspi run is named in the tables
-PRIORS = {"polyhaven_capture_prior": "polyhaven_capture", "pathtraced_prior": "pathtraced"}   # variant: the variant whose data it repeats
+PRIORS = {"polyhaven_capture_prior": "polyhaven_capture", "pathtraced_prior": "pathtraced",
+          "real_objects_prior": "real_objects"}   # variant: the variant whose data it repeats
 
 
 def collect(variant: str, runs: Path) -> list[Path]:
@@ -168,6 +171,10 @@ def prior_table() -> list[str]:
         iou = metal_iou(variant, "gspi")
         lines.append(f"| {VARIANTS[reference]} ({len(mine)} scenes) | {PRIOR} | " +
                      " | ".join(f"{v:.2f}" for v in means) + f" | {'' if iou is None else f'{iou:.2f}'} |")
+        if reference == "real_objects":  # GS-PI's default from its card: means only
+            card = card_row()
+            leads.append(f"| {variant} | GS-PI's default (its card, seed 0; means only) | " +
+                         " | ".join(f"{m - card[c]:+.2f}" for m, c in zip(means, CHANNELS)) + " |")
         for other in METHODS:
             rows = per_scene(reference, other)
             if rows is None:

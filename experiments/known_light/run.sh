@@ -254,8 +254,8 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
   polyhaven_capture_in_set_128 "$WORK/polyhaven_capture/runs_in_set_128"; }
 # ... and the study's learned candidate on the same inputs (end_to_end.py's PRIORS; finding 33): GS-PI with
 # finding 30's metal-gate prior (seed 0, step 5000, one DDIM step), its job folder named as the others'
-prior_variant() {  # NAME DATA: results/end_to_end/NAME/method=gspi
-  [ -d "$RES/end_to_end/$1" ] || { .venv/bin/gspi-run -m data="$2" out="$WORK/$1/runs" +experiment=demo assets=null \
+prior_variant() {  # NAME DATA [EXPERIMENT]: results/end_to_end/NAME/method=gspi (EXPERIMENT: demo)
+  [ -d "$RES/end_to_end/$1" ] || { .venv/bin/gspi-run -m data="$2" out="$WORK/$1/runs" +experiment="${3:-demo}" assets=null \
     logger=none method=gspi stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" \
     stage2.inference.num_steps=1 "hydra.sweep.subdir='method=gspi'" && \
     $PY -m experiments.known_light.end_to_end collect "$1" "$WORK/$1/runs"; }
@@ -267,4 +267,5 @@ prior_variant pathtraced_prior "$WORK/pathtraced/data"
 [ -d "$RES/end_to_end/real_objects" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real/runs" \
   +experiment=real_objects logger=none method=light_fit,no_decomposition && \
   $PY -m experiments.known_light.end_to_end collect real_objects "$WORK/real/runs"; }
+prior_variant real_objects_prior "$WORK/real/data" real_objects
 $PY -m experiments.known_light.tables

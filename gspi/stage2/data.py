@@ -137,6 +137,7 @@ class ScenePoints:
     told_light: str = "estimated"  # with estimated: the estimate, or deliberately wrong (points_measure.told_light)
     _light: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
     light_info: Optional[dict] = None  # which light the read-out was told (after light_features)
+    light_cache: Optional[Path] = None  # where its read-out table is kept between processes (light_table_cache)
 
     @property
     def num_points(self) -> int:
@@ -183,19 +184,44 @@ class ScenePoints:
         from gspi.stage2 import light_condition as lc
 
         if self._light is None:
-            if cfg.light_geometry == "asset":  # as a run reads it: Stage I's cloud of the asset, the photos
-                seen = lc.asset_views(self.root)
-                rgb, depth, cams, xyz = seen.images, seen.depth, seen.cams, seen.xyz
-                normals = lc.cloud_normals_of(seen.xyz, seen.view, seen.cams)
-            else:
-                rgb, depth, cams, xyz = self.lattice_linear(), self.lattice_views()[1], self.cameras, self.xyz
-                normals = lc.cloud_normals_of(self.xyz, self.view, self.cameras)
-            light = self._told_light(cfg, rgb, depth, cams, xyz, normals)
-            self._light = lc.readout_table(rgb, depth, cams, xyz, normals, light, tol_pixels=cfg.visibility_tol_pixels,
-                                           normal_search_deg=cfg.light_normal_search_deg,
-                                           normal_profile=cfg.light_normal_profile,
-                                           metal_min_evidence=cfg.light_metal_min_evidence)
+            self._light = self._cached_light_table(cfg)
         return lc.readout_lookup(self._light, self.xyz[idx])
+
+    def _cached_light_table(self, cfg: "PointDataConfig") -> tuple[np.ndarray, np.ndarray]:
+        """The read-out table from ``light_cache`` where it holds this scene's under this config and
+        light (``light_table_cache``), else read and kept there."""
+        from gspi.stage2 import light_table_cache as cache
+        from gspi.stage2.light_condition import photo_source
+
+        path = None
+        if self.light_cache is not None:
+            key = cache.table_key(cfg, self.light_source, self.told_light, self.name,
+                                  [self.root, photo_source(self.root)])
+            path = cache.table_path(self.light_cache, self.name, key)
+            hit = cache.load_table(path)
+            if hit is not None:
+                table, self.light_info = hit
+                return table
+        table = self._light_table(cfg)
+        if path is not None:
+            cache.save_table(path, table, self.light_info)
+        return table
+
+    def _light_table(self, cfg: "PointDataConfig") -> tuple[np.ndarray, np.ndarray]:
+        """(subset xyz, rows) of the read-out: this scene read against the light it is told."""
+        from gspi.stage2 import light_condition as lc
+
+        if cfg.light_geometry == "asset":  # as a run reads it: Stage I's cloud of the asset, the photos
+            seen = lc.asset_views(self.root)
+            rgb, depth, cams, xyz = seen.images, seen.depth, seen.cams, seen.xyz
+            normals = lc.cloud_normals_of(seen.xyz, seen.view, seen.cams)
+        else:
+            rgb, depth, cams, xyz = self.lattice_linear(), self.lattice_views()[1], self.cameras, self.xyz
+            normals = lc.cloud_normals_of(self.xyz, self.view, self.cameras)
+        light = self._told_light(cfg, rgb, depth, cams, xyz, normals)
+        return lc.readout_table(rgb, depth, cams, xyz, normals, light, tol_pixels=cfg.visibility_tol_pixels,
+                                normal_search_deg=cfg.light_normal_search_deg, normal_profile=cfg.light_normal_profile,
+                                metal_min_evidence=cfg.light_metal_min_evidence)
 
     def _told_light(self, cfg: "PointDataConfig", rgb: np.ndarray, depth: np.ndarray, cams: LatticeCameras,
                     xyz: np.ndarray, normals):

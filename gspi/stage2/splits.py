@@ -36,4 +36,5 @@ def load_split(cfg: Mapping[str, Any], split: str, encoder, *, conditions: bool 
               for n in names]
     for scene in scenes:
         scene.light_source, scene.told_light = light_source, told_light
+        scene.light_cache = cache_dir(cfg)  # the read-out's table kept beside the prior's features
     return scenes

@@ -55,3 +55,15 @@ def test_prior_rows_lead_over_the_methods_of_the_variant_they_repeat(tmp_path, m
 def test_no_prior_run_no_prior_table(tmp_path, monkeypatch):
     monkeypatch.setattr(e2e, "OUT", tmp_path)
     assert e2e.prior_table() == []
+
+
+def test_prior_on_the_real_objects_leads_over_the_default_s_card_means(tmp_path, monkeypatch):
+    monkeypatch.setattr(e2e, "OUT", tmp_path)
+    monkeypatch.setattr(e2e, "card_row", lambda: {c: 10.0 for c in e2e.CHANNELS})
+    folder = tmp_path / "real_objects_prior" / "method=gspi" / "eval"
+    folder.mkdir(parents=True)
+    per_scene = {"a": {c: {"psnr": 12.0} for c in e2e.CHANNELS}, "b": {c: {"psnr": 13.0} for c in e2e.CHANNELS}}
+    (folder / "eval_meta.json").write_text(json.dumps({"per_scene": per_scene}))
+    rows = e2e.prior_table()
+    assert ("| real_objects_prior | GS-PI's default (its card, seed 0; means only) | +2.50 | +2.50 | +2.50 | +2.50 |"
+            in rows)
