@@ -4,9 +4,10 @@ scene and key:
     <cache_dir>/<scene>/light-<key>.npz   {"xyz": [m, 3], "rows": [m, W], "info": the light told, JSON}
 
 Reading a scene against its light (observing ~5 000 points in 32 views, the light estimate, the
-grid fit) costs seconds to a minute a scene; a training resumed in chunks paid it again for every
-scene in every call (~8 of a 40-minute chunk on the 64-scene pool, two trainings side by side),
-and every measure of the same held-out scenes did too. The key hashes everything the table is a
+grid fit) costs seconds a scene (7-8 s behind a pool scene's asset, beside two trainings); a
+training resumed in chunks paid it again for every scene in every call (its first step 2.5 min
+late on the 64-scene pool, 6-14 s with the tables kept), and every measure of the same held-out
+scenes did too. The key hashes everything the table is a
 function of: the whole ``stage2.data`` config, the light it is told (capture or estimated, and
 how), the scene's name, the name, size and mtime of every file under the scene's folder and its
 photos' folder, and the bytes of the gspi and eval sources that compute it. An edit to any of
