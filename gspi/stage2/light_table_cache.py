@@ -35,11 +35,10 @@ log = logging.getLogger(__name__)
 def source_fingerprint() -> str:
     """sha256 of every .py file of the gspi and eval packages this process runs (name and bytes):
     the table's code. Any edit is a miss, so no rule has to list which modules the read-out calls."""
-    import eval
-    import gspi
+    from gspi.repo import REPO
 
     digest = hashlib.sha256()
-    for package in (Path(gspi.__file__).parent, Path(eval.__file__).parent):
+    for package in (REPO / "gspi", REPO / "eval"):
         for path in sorted(package.rglob("*.py")):
             digest.update(str(path.relative_to(package.parent)).encode())
             digest.update(path.read_bytes())
