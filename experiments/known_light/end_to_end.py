@@ -162,13 +162,14 @@ def prior_table() -> list[str]:
              "(scenes ahead / scenes).", "",
              "| variant | method | albedo | roughness | metallic | relight | metal IoU |",
              "|---|---|---|---|---|---|---|"]
-    leads = ["", f"| variant | {PRIOR} minus | albedo | roughness | metallic | relight |", "|---|---|---|---|---|---|"]
+    leads, measured = ["", f"| variant | {PRIOR} minus | albedo | roughness | metallic | relight |", "|---|---|---|---|---|---|"], []
     for variant, reference in PRIORS.items():
         mine = per_scene(variant, "gspi")
         if mine is None:
             continue
         means = [statistics.fmean(r[c] for r in mine.values()) for c in CHANNELS]
         iou = metal_iou(variant, "gspi")
+        measured.append(variant)
         lines.append(f"| {VARIANTS[reference]} ({len(mine)} scenes) | {PRIOR} | " +
                      " | ".join(f"{v:.2f}" for v in means) + f" | {'' if iou is None else f'{iou:.2f}'} |")
         if reference == "real_objects":  # GS-PI's default from its card: means only
@@ -182,7 +183,7 @@ def prior_table() -> list[str]:
             cells = [lead(mine, rows, c) for c in CHANNELS]
             name = "GS-PI's default" if other == "gspi" else other
             leads.append(f"| {variant} | {name} | " + " | ".join(f"{d:+.2f} ({k}/{n})" for d, k, n in cells) + " |")
-    return lines + leads if len(lines) > 5 else []
+    return lines + leads if measured else []
 
 
 

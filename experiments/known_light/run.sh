@@ -27,12 +27,13 @@ heldout_data() {
   $PY -m gspi.recon.reconstructed_pool "$WORK/heldout_test" "$WORK/rheldout_fast" --recon fast --workers 1
   $PY -m gspi.stage1.pool_clouds "$WORK/rheldout_fast"
 }
-training_data() {
-  [ -f "$WORK/train_pool/p0063_sphere_painted_metal/complete.json" ] || \
-    .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $TRAIN_KEYS
-  [ -d "$WORK/train_view" ] || $PY -m gspi.data.pool.split "$WORK/train_pool" "$WORK/train_view" --train 0:64
-  $PY -m gspi.recon.reconstructed_pool "$WORK/train_view" "$WORK/rtrain_fast" --recon fast --workers 1
-  $PY -m gspi.stage1.pool_clouds "$WORK/rtrain_fast"
+training_data() {  # [SUFFIX KEYS]: train_pool<SUFFIX>, train_view<SUFFIX>, rtrain<SUFFIX>_fast drawn with KEYS
+  local s=${1:-} keys=${2:-$TRAIN_KEYS}
+  [ -f "$WORK/train_pool$s/p0063_sphere_painted_metal/complete.json" ] || \
+    .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool$s" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $keys
+  [ -d "$WORK/train_view$s" ] || $PY -m gspi.data.pool.split "$WORK/train_pool$s" "$WORK/train_view$s" --train 0:64
+  $PY -m gspi.recon.reconstructed_pool "$WORK/train_view$s" "$WORK/rtrain${s}_fast" --recon fast --workers 1
+  $PY -m gspi.stage1.pool_clouds "$WORK/rtrain${s}_fast"
 }
 if [ "${2:-}" = data ]; then heldout_data & training_data; wait; exit 0; fi
 heldout_data
@@ -198,11 +199,7 @@ run="$WORK/runs/train_light_residual_metalgate_nc_s0/checkpoint.pt"
 # `matte_finish`; the parts pool [0:64], the scenes Table 2's constants come from, never its test
 # scenes [224:256]): is the prior's matte lean (finding 31) its training scenes'? ~10 min of data and
 # ~30 min of Stage 0 on one thread, then two seeds in 40-minute chunks, each measure at the step reached.
-[ -f "$WORK/train_pool_hk/p0063_sphere_painted_metal/complete.json" ] || \
-  .venv/bin/gspi-data preset=stage2_pool out="$WORK/train_pool_hk" seed=0 'data.pool_indices=[[0,64]]' data.workers=1 $KEYS
-[ -d "$WORK/train_view_hk" ] || $PY -m gspi.data.pool.split "$WORK/train_pool_hk" "$WORK/train_view_hk" --train 0:64
-$PY -m gspi.recon.reconstructed_pool "$WORK/train_view_hk" "$WORK/rtrain_hk_fast" --recon fast --workers 1
-$PY -m gspi.stage1.pool_clouds "$WORK/rtrain_hk_fast"
+training_data _hk "$KEYS"
 [ -f "$RES/pool_roughness.json" ] || $PY -m experiments.known_light.pool_roughness \
   "training, Table 2's keys (matte_finish=0.5) [0:64]=$WORK/train_view" "training, the held-out keys [0:64]=$WORK/train_view_hk" \
   "held-out [224:256]=$WORK/heldout_test" --out "$RES/pool_roughness.json"   # each pool's dielectric roughness

@@ -57,7 +57,7 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
                                                             "early-normal-consistency Stage 0, its posterior mean "
                                                             "averaged over 4 noise draws",
     ("light_residual_metalgate_hk", "_1step"): GATED + ", trained with the metal gate on 64 training scenes drawn with "
-                                                "the held-out pool's keys (no `matte_finish`; finding 33), read as its "
+                                                "the held-out pool's keys (no `matte_finish`; finding 34), read as its "
                                                 "posterior mean (one DDIM step)",
 }
 # a learned candidate's controlled-pairs record in the study (results/controlled_pairs/<run>.json: its

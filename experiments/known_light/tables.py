@@ -90,7 +90,7 @@ FAST_ROWS.update(curve_rows("light_residual_metalgate_nc", "fast_nc", f"the same
                             f"{NC_STAGE0}", {0: 4207, 1: 4231},
                             {read: METALGATE_READS[read] for read in ("_1step", "_1step_4samples")}))
 # the same recipe trained on 64 training scenes drawn with the held-out pool's keys (no matte_finish;
-# finding 33): results/light_residual_metalgate_hk_s<seed>_step5000_fast_1step
+# finding 34): results/light_residual_metalgate_hk_s<seed>_step5000_fast_1step
 FAST_ROWS.update({f"light_residual_metalgate_hk_s{seed}_step5000_fast_1step":
                   f"the same recipe trained on the parts pool [0:64] drawn with the held-out keys (no `matte_finish`), "
                   f"seed {seed}, step 5000, {METALGATE_READS['_1step']}" for seed in (0, 1)})
