@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -125,6 +126,8 @@ def test_ctrl_c_is_one_line_and_exit_130(tiny_gt, tmp_path):
     assert "Traceback" not in text, text[-3000:]
     lines = [line for line in text.splitlines() if "interrupted" in line]
     assert len(lines) == 1 and "kept" in lines[0] and "same command" in lines[0], text[-2000:]
+    if "did not stop within" in lines[0]:  # the watchdog ended a hung clean-up: promise kept, cause shown
+        warnings.warn(f"gspi-run's clean-up after Ctrl-C hung; where it stood:\n{text[-6000:]}")
 
 
 def test_run_command_turns_stated_errors_and_ctrl_c_into_one_line(capsys):
