@@ -210,6 +210,17 @@ for SEED in 0 1; do
 done
 run="$WORK/runs/train_light_residual_metalgate_hk_s0/checkpoint.pt"
 [ "$(ckpt_step "$run")" -lt 5000 ] || pairs_run light_residual_metalgate_hk_s0_1step "$run" recon=fast
+# The same priors with their x0 head's roughness correction scaled after training (finding 35;
+# shrink_checkpoint.py): x0 = read-out + S * correction, S 0 the read-out, 1 the prior; each S
+# measured held out and on the controlled pairs, no retraining.
+shrunk_prior() {  # SEED S
+  local src="$WORK/runs/train_light_residual_metalgate_hk_s$1/checkpoint.pt" ck="$WORK/runs/hk_s$1_step5000_rough_x$2.pt"
+  [ -f "$src" ] && [ "$(ckpt_step "$src")" -ge 5000 ] || return 0
+  [ -f "$ck" ] || $PY -m experiments.known_light.shrink_checkpoint "$src" "$ck" --scale "$2"
+  held_out_measure "$ck" "light_residual_metalgate_hk_s$1_step5000_fast_1step_rough_x$2" points_measure.num_steps=1
+  pairs_run "light_residual_metalgate_hk_s$1_1step_rough_x$2" "$ck" recon=fast
+}
+for S in 0.25 0.5 0.75; do shrunk_prior 0 $S; done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2

@@ -59,16 +59,23 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
     ("light_residual_metalgate_hk", "_1step"): GATED + ", trained with the metal gate on 64 training scenes drawn with "
                                                 "the held-out pool's keys (no `matte_finish`; finding 34), read as its "
                                                 "posterior mean (one DDIM step)",
+    ("light_residual_metalgate_hk", "_1step_rough_x0.5"): GATED + ", trained with the metal gate on the held-out "
+                                                           "keys' scenes (finding 34), its roughness correction "
+                                                           "halved after training (finding 35), read as its "
+                                                           "posterior mean (one DDIM step)",
 }
 # a learned candidate's controlled-pairs record in the study (results/controlled_pairs/<run>.json: its
 # seed-0 checkpoint end to end through gspi-run, read as the candidate is read)
 LEARNED_PAIRS = {("light_residual_metalgate_asset", "_1step"): "light_residual_metalgate_asset_s0_1step",
                  ("light_residual_metalgate_nc", "_nc_1step"): "light_residual_metalgate_nc_s0_1step",
-                 ("light_residual_metalgate_hk", "_1step"): "light_residual_metalgate_hk_s0_1step"}
+                 ("light_residual_metalgate_hk", "_1step"): "light_residual_metalgate_hk_s0_1step",
+                 ("light_residual_metalgate_hk", "_1step_rough_x0.5"): "light_residual_metalgate_hk_s0_1step_rough_x0.5"}
 # issue 66's guard rail: the prior trained with the metal gate, read as its posterior mean, told a
-# deliberately wrong light (points_measure.told_light): results/<GUARDED>_s<seed>_step5000_fast_1step_told_<how>
-GUARDED = {"light_residual_metalgate_asset": "Table 2's training keys",   # prefix: the pool it was trained on
-           "light_residual_metalgate_hk": "the held-out keys (finding 34)"}
+# deliberately wrong light (points_measure.told_light): results/<prefix>_s<seed>_step5000_fast<read>_told_<how>
+GUARDED = {("light_residual_metalgate_asset", "_1step"): "Table 2's training keys",   # the pool it was trained on
+           ("light_residual_metalgate_hk", "_1step"): "the held-out keys (finding 34)",
+           ("light_residual_metalgate_hk", "_1step_rough_x0.5"): "the held-out keys, roughness correction x 0.5 "
+                                                                 "(finding 35)"}
 TOLD_WRONG = {"turned90": "the estimate turned 90 degrees", "other": "another candidate light"}
 FULL_ONE_STEP = RESULTS / "full_s0_fast_1step" / "scores.json"  # the default read as its posterior mean, seed 0
 GATED_CONDITION = RESULTS / "condition_readout_fast_asset_gated" / "scores.json"
@@ -186,16 +193,16 @@ def guard_rail_rows() -> list[str]:
     """The guarded prior told its estimated light and each deliberately wrong one, against the default
     paired over (scene, seed): issue 66 asks it to stay at or above Full on the average."""
     rows = []
-    for prefix, pool in GUARDED.items():
+    for (prefix, read), pool in GUARDED.items():
         told = {how: label for how, label in TOLD_WRONG.items()
-                if any(RESULTS.glob(f"{prefix}_s*_step5000_fast_1step_told_{how}/scores.json"))}
+                if any(RESULTS.glob(f"{prefix}_s*_step5000_fast{read}_told_{how}/scores.json"))}
         told_seeds = [seed for seed in (0, 1)  # the estimated light's row on the seeds told a wrong one: like for like
-                      if any(RESULTS.glob(f"{prefix}_s{seed}_step5000_fast_1step_told_*/scores.json"))]
+                      if any(RESULTS.glob(f"{prefix}_s{seed}_step5000_fast{read}_told_*/scores.json"))]
         if not told:
             continue
         for how, label in {"estimated": "the estimated light (as Table 2 measures it)", **told}.items():
             suffix = "" if how == "estimated" else f"_told_{how}"
-            paths = {seed: RESULTS / f"{prefix}_s{seed}_step5000_fast_1step{suffix}" / "scores.json" for seed in told_seeds}
+            paths = {seed: RESULTS / f"{prefix}_s{seed}_step5000_fast{read}{suffix}" / "scores.json" for seed in told_seeds}
             seeds = {seed: read_stage2(path).psnr for seed, path in paths.items() if path.is_file()}
             if not seeds:
                 continue

@@ -94,6 +94,11 @@ FAST_ROWS.update(curve_rows("light_residual_metalgate_nc", "fast_nc", f"the same
 FAST_ROWS.update({f"light_residual_metalgate_hk_s{seed}_step5000_fast_1step":
                   f"the same recipe trained on the parts pool [0:64] drawn with the held-out keys (no `matte_finish`), "
                   f"seed {seed}, step 5000, {METALGATE_READS['_1step']}" for seed in (0, 1)})
+# ... with its x0 head's roughness correction times S after training (finding 35; shrink_checkpoint.py):
+# results/light_residual_metalgate_hk_s<seed>_step5000_fast_1step_rough_x<S>
+FAST_ROWS.update({f"light_residual_metalgate_hk_s{seed}_step5000_fast_1step_rough_x{scale}":
+                  f"the same prior (held-out keys), seed {seed}, its roughness correction times {scale} after "
+                  f"training, {METALGATE_READS['_1step']}" for seed in (0, 1) for scale in ("0.25", "0.5", "0.75")})
 FAST_ROWS["full_s0_fast_nc"] = f"Stage II Full (shipped recipe, s0) behind {NC_STAGE0}"
 FAST_ROWS["condition_readout_fast_nc_asset_gated"] = f"the gated read-out as a run reads it behind {NC_STAGE0} (what its priors are given)"
 CONDITIONS = {  # results/<folder>: its caption
