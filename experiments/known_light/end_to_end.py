@@ -19,14 +19,18 @@ reconstructing every asset from that variant's photos, scored by gspi-eval's def
 - ``real_objects``: the 19 real glTF objects (`small`; light_fit and no decomposition; GS-PI's
   default from its card, `checkpoints/stage2_pool224_pixel_5k.json`).
 
-The learned candidate on the same inputs (``PRIORS``: a variant whose `method=gspi` run is GS-PI
-with the study's best prior, finding 30's metal-gate recipe behind the shipped assets, seed 0 at
-step 5000, read as its posterior mean; the other methods from the variant it repeats):
+The learned candidates on the same inputs (``PRIORS``: a variant whose `method=gspi` run is GS-PI
+with one of the study's priors at step 5000, read as its posterior mean; the other methods from the
+variant it repeats). Finding 30's metal-gate recipe behind the shipped assets, seed 0:
 
 - ``polyhaven_capture_prior``: the real-HDRI capture (`polyhaven_capture`'s data and assets);
 - ``pathtraced_prior``: the path-traced photos (`pathtraced`'s data, its assets reconstructed again);
 - ``real_objects_prior``: the 19 real objects (`+experiment=real_objects`'s budgets; GS-PI's default
   from its card, means only).
+
+Finding 35's candidate (the held-out-keys prior of finding 34, its roughness correction halved):
+``real_objects_hk_x05`` (seed 0) and ``splitsum_hk_x05_s<seed>`` (the demo's 4 scenes and assets,
+README Table 1's other runs): issue 42's end-to-end checks.
 
     python -m experiments.known_light.end_to_end collect VARIANT RUNS   # copy a run's scores here
     python -m experiments.known_light.end_to_end                        # print the table
@@ -58,9 +62,15 @@ VARIANTS = {
     "polyhaven_capture_in_set_128": "the same, the candidates' maps at the photos' 128 rows (`method.env_height=128`)",
     "real_objects": "the 19 real glTF objects (`small`, split-sum photos)",
 }
-PRIOR = "metal-gate prior (seed 0)"   # how a PRIORS variant's method=gspi run is named in the tables
-PRIORS = {"polyhaven_capture_prior": "polyhaven_capture", "pathtraced_prior": "pathtraced",
-          "real_objects_prior": "real_objects"}   # variant: the variant whose data it repeats
+PRIOR = "metal-gate prior (seed 0)"   # finding 30's prior, as its PRIORS variants' method=gspi run is named
+CANDIDATE = "finding 35's candidate (seed {seed})"  # the held-out-keys prior, roughness correction x 0.5
+PRIORS = {  # variant: (the variant whose data it repeats, how its method=gspi run is named)
+    "polyhaven_capture_prior": ("polyhaven_capture", PRIOR), "pathtraced_prior": ("pathtraced", PRIOR),
+    "real_objects_prior": ("real_objects", PRIOR),
+    "real_objects_hk_x05": ("real_objects", CANDIDATE.format(seed=0)),
+    "splitsum_hk_x05_s0": ("splitsum", CANDIDATE.format(seed=0)),
+    "splitsum_hk_x05_s1": ("splitsum", CANDIDATE.format(seed=1)),
+}
 
 
 def collect(variant: str, runs: Path) -> list[Path]:
@@ -157,20 +167,20 @@ def table() -> str:
 
 def prior_table() -> list[str]:
     """The learned candidate's rows (PRIORS) and its lead over the others on the same data."""
-    lines = ["", "The study's learned candidate (GS-PI with finding 30's metal-gate prior, seed 0, step 5000, one "
-             "DDIM step) on the same data and assets. Lead: the prior minus the other, mean over scenes "
-             "(scenes ahead / scenes).", "",
+    lines = ["", "The study's learned candidates (GS-PI with finding 30's metal-gate prior, or finding 35's "
+             "candidate: step 5000, one DDIM step) on the same data and assets. Lead: the prior minus the other, "
+             "mean over scenes (scenes ahead / scenes).", "",
              "| variant | method | albedo | roughness | metallic | relight | metal IoU |",
              "|---|---|---|---|---|---|---|"]
-    leads, measured = ["", f"| variant | {PRIOR} minus | albedo | roughness | metallic | relight |", "|---|---|---|---|---|---|"], []
-    for variant, reference in PRIORS.items():
+    leads, measured = ["", "| variant | the prior minus | albedo | roughness | metallic | relight |", "|---|---|---|---|---|---|"], []
+    for variant, (reference, name_of_prior) in PRIORS.items():
         mine = per_scene(variant, "gspi")
         if mine is None:
             continue
         means = [statistics.fmean(r[c] for r in mine.values()) for c in CHANNELS]
         iou = metal_iou(variant, "gspi")
         measured.append(variant)
-        lines.append(f"| {VARIANTS[reference]} ({len(mine)} scenes) | {PRIOR} | " +
+        lines.append(f"| {VARIANTS[reference]} ({len(mine)} scenes) | {name_of_prior} | " +
                      " | ".join(f"{v:.2f}" for v in means) + f" | {'' if iou is None else f'{iou:.2f}'} |")
         if reference == "real_objects":  # GS-PI's default from its card: means only
             card = card_row()
