@@ -218,9 +218,14 @@ shrunk_prior() {  # SEED S
   [ -f "$src" ] && [ "$(ckpt_step "$src")" -ge 5000 ] || return 0
   [ -f "$ck" ] || $PY -m experiments.known_light.shrink_checkpoint "$src" "$ck" --scale "$2"
   held_out_measure "$ck" "light_residual_metalgate_hk_s$1_step5000_fast_1step_rough_x$2" points_measure.num_steps=1
-  pairs_run "light_residual_metalgate_hk_s$1_1step_rough_x$2" "$ck" recon=fast
+  if [ "$1" = 0 ]; then pairs_run "light_residual_metalgate_hk_s0_1step_rough_x$2" "$ck" recon=fast; fi
 }
 for S in 0.25 0.5 0.75; do shrunk_prior 0 $S; done
+shrunk_prior 1 0.5
+for T in turned90 other; do  # its guard rail (seed 0)
+  held_out_measure "$WORK/runs/hk_s0_step5000_rough_x0.5.pt" "light_residual_metalgate_hk_s0_step5000_fast_1step_rough_x0.5_told_$T" \
+    points_measure.num_steps=1 points_measure.told_light=$T
+done
 # A scene-level metal test for the read-out (finding 18; metal_gate.py): the threshold on every
 # other training scene, scored on the held-out ones (each file resumes where it stopped).
 $PY -m experiments.known_light.metal_gate "$WORK/rtrain_fast" "$WORK/rtrain_fast" "$RES/metal_gate_train.json" --baseline "$BASE" --every 2
@@ -276,4 +281,16 @@ prior_variant pathtraced_prior "$WORK/pathtraced/data"
   +experiment=real_objects logger=none method=light_fit,no_decomposition && \
   $PY -m experiments.known_light.end_to_end collect real_objects "$WORK/real/runs"; }
 prior_variant real_objects_prior "$WORK/real/data" real_objects
+# Finding 35's candidate (the held-out-keys prior, its roughness correction halved) through issue 42's
+# end-to-end checks: the 19 real objects (seed 0) and the demo's 4 scenes with its embedded assets (both seeds)
+candidate_run() {  # NAME DATA EXPERIMENT SEED [overrides]: results/end_to_end/NAME/method=gspi
+  local name=$1 data=$2 experiment=$3 seed=$4; shift 4
+  [ -d "$RES/end_to_end/$name" ] || { .venv/bin/gspi-run -m data="$data" out="$WORK/$name/runs" +experiment="$experiment" \
+    logger=none method=gspi stage2.checkpoint="$WORK/runs/hk_s${seed}_step5000_rough_x0.5.pt" stage2.inference.num_steps=1 \
+    "hydra.sweep.subdir='method=gspi'" "$@" && $PY -m experiments.known_light.end_to_end collect "$name" "$WORK/$name/runs"; }
+}
+candidate_run real_objects_hk_x05 "$WORK/real/data" real_objects 0 hydra.launcher.n_jobs=1
+[ -f "$WORK/small_demo/data_done" ] || { rm -rf "$WORK/small_demo/data" && .venv/bin/gspi-data preset=small \
+  out="$WORK/small_demo/data" seed=0 'data.only_splits=[test]' && touch "$WORK/small_demo/data_done"; }
+for SEED in 0 1; do candidate_run splitsum_hk_x05_s$SEED "$WORK/small_demo/data" demo $SEED hydra.launcher.n_jobs=1; done
 $PY -m experiments.known_light.tables
