@@ -7,7 +7,7 @@ members of the controlled pairs come out 0.16-0.34 apart where the read-out it i
 0.55-0.66 apart. The curve over ``scale`` (0 the read-out, 1 the prior) says what keeping more of the
 read-out's spread costs on Table 2's measure, with no retraining.
 
-    python -m experiments.known_light.shrink_checkpoint SRC DST --scale 0.5
+    python -m experiments.known_light.shrink_checkpoint SRC DST --scale 0.5 [--metallic 0]
 """
 from __future__ import annotations
 
@@ -23,9 +23,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("src", type=Path)
     parser.add_argument("dst", type=Path)
     parser.add_argument("--scale", type=float, required=True, help="fraction of the roughness correction kept")
+    parser.add_argument("--metallic", type=float, default=1.0, help="fraction of the metallic correction kept")
     args = parser.parse_args(argv)
-    save_atomic(scale_readout_correction(read_checkpoint(args.src), {"roughness": args.scale}, args.src), args.dst)
-    print(f"{args.dst}: {args.src} with its roughness correction times {args.scale:g}")
+    scales = {"roughness": args.scale, **({"metallic": args.metallic} if args.metallic != 1.0 else {})}
+    save_atomic(scale_readout_correction(read_checkpoint(args.src), scales, args.src), args.dst)
+    print(f"{args.dst}: {args.src} with its correction times {scales}")
 
 
 if __name__ == "__main__":
