@@ -222,6 +222,12 @@ shrunk_prior() {  # SEED S
 }
 for S in 0.25 0.5 0.75; do shrunk_prior 0 $S; done
 shrunk_prior 1 0.5
+for SEED in 0 1; do  # ... and without its metallic correction (the read-out's metallic; finding 35)
+  src="$WORK/runs/train_light_residual_metalgate_hk_s$SEED/checkpoint.pt" ck="$WORK/runs/hk_s${SEED}_step5000_rough_x0.5_metal_x0.pt"
+  [ -f "$ck" ] || $PY -m experiments.known_light.shrink_checkpoint "$src" "$ck" --scale 0.5 --metallic 0
+  held_out_measure "$ck" "light_residual_metalgate_hk_s${SEED}_step5000_fast_1step_rough_x0.5_metal_x0" points_measure.num_steps=1
+done
+pairs_run light_residual_metalgate_hk_s0_1step_rough_x0.5_metal_x0 "$WORK/runs/hk_s0_step5000_rough_x0.5_metal_x0.pt" recon=fast
 for T in turned90 other; do  # its guard rail (seed 0)
   held_out_measure "$WORK/runs/hk_s0_step5000_rough_x0.5.pt" "light_residual_metalgate_hk_s0_step5000_fast_1step_rough_x0.5_told_$T" \
     points_measure.num_steps=1 points_measure.told_light=$T

@@ -63,13 +63,20 @@ LEARNED = {  # (prefix, suffix) of results/<prefix>_s<seed>_step5000_fast<suffix
                                                            "keys' scenes (finding 34), its roughness correction "
                                                            "halved after training (finding 35), read as its "
                                                            "posterior mean (one DDIM step)",
+    ("light_residual_metalgate_hk", "_1step_rough_x0.5_metal_x0"): GATED + ", trained with the metal gate on the "
+                                                                    "held-out keys' scenes (finding 34), its roughness "
+                                                                    "correction halved and its metallic one dropped "
+                                                                    "after training (finding 35), read as its posterior "
+                                                                    "mean (one DDIM step)",
 }
 # a learned candidate's controlled-pairs record in the study (results/controlled_pairs/<run>.json: its
 # seed-0 checkpoint end to end through gspi-run, read as the candidate is read)
 LEARNED_PAIRS = {("light_residual_metalgate_asset", "_1step"): "light_residual_metalgate_asset_s0_1step",
                  ("light_residual_metalgate_nc", "_nc_1step"): "light_residual_metalgate_nc_s0_1step",
                  ("light_residual_metalgate_hk", "_1step"): "light_residual_metalgate_hk_s0_1step",
-                 ("light_residual_metalgate_hk", "_1step_rough_x0.5"): "light_residual_metalgate_hk_s0_1step_rough_x0.5"}
+                 ("light_residual_metalgate_hk", "_1step_rough_x0.5"): "light_residual_metalgate_hk_s0_1step_rough_x0.5",
+                 ("light_residual_metalgate_hk", "_1step_rough_x0.5_metal_x0"):
+                     "light_residual_metalgate_hk_s0_1step_rough_x0.5_metal_x0"}
 # issue 66's guard rail: the prior trained with the metal gate, read as its posterior mean, told a
 # deliberately wrong light (points_measure.told_light): results/<prefix>_s<seed>_step5000_fast<read>_told_<how>
 GUARDED = {("light_residual_metalgate_asset", "_1step"): "Table 2's training keys",   # the pool it was trained on

@@ -99,6 +99,9 @@ FAST_ROWS.update({f"light_residual_metalgate_hk_s{seed}_step5000_fast_1step":
 FAST_ROWS.update({f"light_residual_metalgate_hk_s{seed}_step5000_fast_1step_rough_x{scale}":
                   f"the same prior (held-out keys), seed {seed}, its roughness correction times {scale} after "
                   f"training, {METALGATE_READS['_1step']}" for seed in (0, 1) for scale in ("0.25", "0.5", "0.75")})
+FAST_ROWS.update({f"light_residual_metalgate_hk_s{seed}_step5000_fast_1step_rough_x0.5_metal_x0":
+                  f"the same prior (held-out keys), seed {seed}, its roughness correction times 0.5 and no metallic "
+                  f"correction (the read-out's metallic), {METALGATE_READS['_1step']}" for seed in (0, 1)})
 FAST_ROWS["full_s0_fast_nc"] = f"Stage II Full (shipped recipe, s0) behind {NC_STAGE0}"
 FAST_ROWS["condition_readout_fast_nc_asset_gated"] = f"the gated read-out as a run reads it behind {NC_STAGE0} (what its priors are given)"
 CONDITIONS = {  # results/<folder>: its caption
