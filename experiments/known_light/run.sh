@@ -296,6 +296,10 @@ candidate_run() {  # NAME DATA EXPERIMENT SEED [overrides]: results/end_to_end/N
     "hydra.sweep.subdir='method=gspi'" "$@" && $PY -m experiments.known_light.end_to_end collect "$name" "$WORK/$name/runs"; }
 }
 candidate_run real_objects_hk_x05 "$WORK/real/data" real_objects 0 hydra.launcher.n_jobs=1
+[ -d "$RES/end_to_end/real_objects_hk_x1" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real_objects_hk_x1/runs" \
+  +experiment=real_objects logger=none method=gspi stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_hk_s0/checkpoint.pt" \
+  stage2.inference.num_steps=1 "hydra.sweep.subdir='method=gspi'" hydra.launcher.n_jobs=1 && \
+  $PY -m experiments.known_light.end_to_end collect real_objects_hk_x1 "$WORK/real_objects_hk_x1/runs"; }   # as trained
 [ -f "$WORK/small_demo/data_done" ] || { rm -rf "$WORK/small_demo/data" && .venv/bin/gspi-data preset=small \
   out="$WORK/small_demo/data" seed=0 'data.only_splits=[test]' && touch "$WORK/small_demo/data_done"; }
 for SEED in 0 1; do candidate_run splitsum_hk_x05_s$SEED "$WORK/small_demo/data" demo $SEED hydra.launcher.n_jobs=1; done
