@@ -31,7 +31,8 @@ variant it repeats). Finding 30's metal-gate recipe behind the shipped assets, s
 Finding 35's candidate (the held-out-keys prior of finding 34, its roughness correction halved):
 ``real_objects_hk_x05`` (seed 0) and ``splitsum_hk_x05_s<seed>`` (the demo's 4 scenes and assets,
 README Table 1's other runs): issue 42's end-to-end checks; ``real_objects_hk_x1``: the same prior as
-trained (what halving its roughness correction does on the real objects).
+trained (what halving its roughness correction does on the real objects); ``*_hk_x05_m0*``: the
+candidate without its metallic correction (the read-out's metallic).
 
     python -m experiments.known_light.end_to_end collect VARIANT RUNS   # copy a run's scores here
     python -m experiments.known_light.end_to_end                        # print the table
@@ -70,6 +71,8 @@ PRIORS = {  # variant: (the variant whose data it repeats, how its method=gspi r
     "real_objects_prior": ("real_objects", PRIOR),
     "real_objects_hk_x05": ("real_objects", CANDIDATE.format(seed=0)),
     "real_objects_hk_x1": ("real_objects", "finding 34's prior as trained (seed 0)"),
+    "splitsum_hk_x05_m0_s0": ("splitsum", "finding 35's candidate, no metallic correction (seed 0)"),
+    "real_objects_hk_x05_m0": ("real_objects", "finding 35's candidate, no metallic correction (seed 0)"),
     "splitsum_hk_x05_s0": ("splitsum", CANDIDATE.format(seed=0)),
     "splitsum_hk_x05_s1": ("splitsum", CANDIDATE.format(seed=1)),
 }

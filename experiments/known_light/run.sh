@@ -303,4 +303,10 @@ candidate_run real_objects_hk_x05 "$WORK/real/data" real_objects 0 hydra.launche
 [ -f "$WORK/small_demo/data_done" ] || { rm -rf "$WORK/small_demo/data" && .venv/bin/gspi-data preset=small \
   out="$WORK/small_demo/data" seed=0 'data.only_splits=[test]' && touch "$WORK/small_demo/data_done"; }
 for SEED in 0 1; do candidate_run splitsum_hk_x05_s$SEED "$WORK/small_demo/data" demo $SEED hydra.launcher.n_jobs=1; done
+for name in splitsum_hk_x05_m0_s0 real_objects_hk_x05_m0; do  # ... without its metallic correction (seed 0)
+  data="$WORK/small_demo/data" experiment=demo; [ "$name" = splitsum_hk_x05_m0_s0 ] || { data="$WORK/real/data"; experiment=real_objects; }
+  [ -d "$RES/end_to_end/$name" ] || { .venv/bin/gspi-run -m data="$data" out="$WORK/$name/runs" +experiment=$experiment logger=none \
+    method=gspi stage2.checkpoint="$WORK/runs/hk_s0_step5000_rough_x0.5_metal_x0.pt" stage2.inference.num_steps=1 \
+    "hydra.sweep.subdir='method=gspi'" hydra.launcher.n_jobs=1 && $PY -m experiments.known_light.end_to_end collect "$name" "$WORK/$name/runs"; }
+done
 $PY -m experiments.known_light.tables
