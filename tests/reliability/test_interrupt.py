@@ -1,4 +1,4 @@
-"""Ctrl-C is one line and exit 130, within a bounded time (eval/common/errors.py).
+"""Ctrl-C is one line and exit 130, within a bounded time (eval/common/interrupt.py).
 
 A CI run once waited 240 s on a gspi-run that had been sent SIGINT; the first Ctrl-C now arms a
 watchdog (``INTERRUPT_GRACE_S``) and a second stops the process at once. These tests hang the
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from eval.common.errors import (EXIT_INTERRUPTED, install_interrupt_handler, interruption_in,
-                                run_command)
+from eval.common.errors import run_command
+from eval.common.interrupt import EXIT_INTERRUPTED, install_interrupt_handler, interruption_in
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -150,9 +150,9 @@ SLOW_IMPORT = textwrap.dedent("""
 """)
 IMPORTING_MAIN = textwrap.dedent("""
     import time
-    from eval.common import errors
+    from eval.common import errors, interrupt
 
-    errors.DEFERRED_IMPORTS = ("slow_native",)
+    interrupt.DEFERRED_IMPORTS = ("slow_native",)
 
     def main():
         import slow_native
