@@ -29,13 +29,14 @@ INTERRUPTED = ("interrupted (Ctrl-C); finished work (jobs, scenes, checkpoints, 
 INTERRUPT_GRACE_S = float(os.environ.get("GSPI_INTERRUPT_GRACE_S", "30"))  # clean-up time after Ctrl-C
 FORCED = "did not stop within {:g} s of Ctrl-C; where each thread stood is above; stopped at once"
 DEFERRED_IMPORTS = ("torch",)  # modules whose import a Ctrl-C waits for (native initialisers)
-_said: list[bool] = []  # the one interrupted line has been written (the watchdog must not repeat it)
-_deferred: list[bool] = []  # a Ctrl-C is waiting for an import to finish
+# this process's Ctrl-C so far: "armed" (the first raised, the watchdog runs), "deferred" (waiting for
+# an import), "said" (the one line is written: the watchdog must not repeat it)
+_state = {"armed": False, "deferred": False, "said": False}
 
 
 def said() -> None:
     """Records that the one interrupted line has been written."""
-    _said.append(True)
+    _state["said"] = True
 
 
 def interruption_in(exc: BaseException) -> "KeyboardInterrupt | None":
@@ -56,7 +57,7 @@ def _stop_now(why: str, stacks: bool = False) -> None:
     if stacks:
         faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
     name = Path(sys.argv[0]).name
-    print(f"{name}: {why}" if _said else f"{name}: {INTERRUPTED} ({why})", file=sys.stderr, flush=True)
+    print(f"{name}: {why}" if _state["said"] else f"{name}: {INTERRUPTED} ({why})", file=sys.stderr, flush=True)
     os._exit(EXIT_INTERRUPTED)
 
 
@@ -71,10 +72,10 @@ def _deliver_after_imports(signum: int) -> None:
     def wait() -> None:
         while any(importing(name) for name in DEFERRED_IMPORTS):
             time.sleep(0.02)
-        _deferred.clear()
+        _state["deferred"] = False
         os.kill(os.getpid(), signum)
 
-    _deferred.append(True)
+    _state["deferred"] = True
     threading.Thread(target=wait, name="ctrl-c after import", daemon=True).start()
 
 
@@ -82,12 +83,12 @@ def on_interrupt(signum, frame) -> None:
     """SIGINT handler: the first raises ``KeyboardInterrupt`` (as Python's own; after the import
     under way of a module of DEFERRED_IMPORTS) and arms the watchdog; the next stops the process
     at once."""
-    if getattr(on_interrupt, "armed", False) or _deferred:
+    if _state["armed"] or _state["deferred"]:
         _stop_now("a second Ctrl-C: stopped at once")
     if any(importing(name) for name in DEFERRED_IMPORTS):
         _deliver_after_imports(signum)
         return
-    on_interrupt.armed = True  # type: ignore[attr-defined]
+    _state["armed"] = True
     watchdog = threading.Timer(INTERRUPT_GRACE_S, _stop_now, args=(FORCED.format(INTERRUPT_GRACE_S), True))
     watchdog.daemon = True  # never what keeps the process alive
     watchdog.start()

@@ -66,13 +66,13 @@ VARIANTS = {
 }
 PRIOR = "metal-gate prior (seed 0)"   # finding 30's prior, as its PRIORS variants' method=gspi run is named
 CANDIDATE = "finding 35's candidate (seed {seed})"  # the held-out-keys prior, roughness correction x 0.5
+CANDIDATE_M0 = "finding 35's candidate, no metallic correction (seed 0)"
 PRIORS = {  # variant: (the variant whose data it repeats, how its method=gspi run is named)
     "polyhaven_capture_prior": ("polyhaven_capture", PRIOR), "pathtraced_prior": ("pathtraced", PRIOR),
     "real_objects_prior": ("real_objects", PRIOR),
     "real_objects_hk_x05": ("real_objects", CANDIDATE.format(seed=0)),
     "real_objects_hk_x1": ("real_objects", "finding 34's prior as trained (seed 0)"),
-    "splitsum_hk_x05_m0_s0": ("splitsum", "finding 35's candidate, no metallic correction (seed 0)"),
-    "real_objects_hk_x05_m0": ("real_objects", "finding 35's candidate, no metallic correction (seed 0)"),
+    "splitsum_hk_x05_m0_s0": ("splitsum", CANDIDATE_M0), "real_objects_hk_x05_m0": ("real_objects", CANDIDATE_M0),
     "splitsum_hk_x05_s0": ("splitsum", CANDIDATE.format(seed=0)),
     "splitsum_hk_x05_s1": ("splitsum", CANDIDATE.format(seed=1)),
 }

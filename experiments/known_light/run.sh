@@ -213,21 +213,17 @@ run="$WORK/runs/train_light_residual_metalgate_hk_s0/checkpoint.pt"
 # The same priors with their x0 head's roughness correction scaled after training (finding 35;
 # shrink_checkpoint.py): x0 = read-out + S * correction, S 0 the read-out, 1 the prior; each S
 # measured held out and on the controlled pairs, no retraining.
-shrunk_prior() {  # SEED S
-  local src="$WORK/runs/train_light_residual_metalgate_hk_s$1/checkpoint.pt" ck="$WORK/runs/hk_s$1_step5000_rough_x$2.pt"
+shrunk_prior() {  # SEED S [M]: roughness correction x S (and metallic x M), held out and (seed 0) on the pairs
+  local src="$WORK/runs/train_light_residual_metalgate_hk_s$1/checkpoint.pt" read="rough_x$2${3:+_metal_x$3}"
+  local ck="$WORK/runs/hk_s$1_step5000_$read.pt"
   [ -f "$src" ] && [ "$(ckpt_step "$src")" -ge 5000 ] || return 0
-  [ -f "$ck" ] || $PY -m experiments.known_light.shrink_checkpoint "$src" "$ck" --scale "$2"
-  held_out_measure "$ck" "light_residual_metalgate_hk_s$1_step5000_fast_1step_rough_x$2" points_measure.num_steps=1
-  if [ "$1" = 0 ]; then pairs_run "light_residual_metalgate_hk_s0_1step_rough_x$2" "$ck" recon=fast; fi
+  [ -f "$ck" ] || $PY -m experiments.known_light.shrink_checkpoint "$src" "$ck" --scale "$2" ${3:+--metallic "$3"}
+  held_out_measure "$ck" "light_residual_metalgate_hk_s$1_step5000_fast_1step_$read" points_measure.num_steps=1
+  if [ "$1" = 0 ]; then pairs_run "light_residual_metalgate_hk_s0_1step_$read" "$ck" recon=fast; fi
 }
 for S in 0.25 0.5 0.75; do shrunk_prior 0 $S; done
 shrunk_prior 1 0.5
-for SEED in 0 1; do  # ... and without its metallic correction (the read-out's metallic; finding 35)
-  src="$WORK/runs/train_light_residual_metalgate_hk_s$SEED/checkpoint.pt" ck="$WORK/runs/hk_s${SEED}_step5000_rough_x0.5_metal_x0.pt"
-  [ -f "$ck" ] || $PY -m experiments.known_light.shrink_checkpoint "$src" "$ck" --scale 0.5 --metallic 0
-  held_out_measure "$ck" "light_residual_metalgate_hk_s${SEED}_step5000_fast_1step_rough_x0.5_metal_x0" points_measure.num_steps=1
-done
-pairs_run light_residual_metalgate_hk_s0_1step_rough_x0.5_metal_x0 "$WORK/runs/hk_s0_step5000_rough_x0.5_metal_x0.pt" recon=fast
+for SEED in 0 1; do shrunk_prior $SEED 0.5 0; done   # ... and without its metallic correction (the read-out's metallic)
 for T in turned90 other; do  # its guard rail (seed 0)
   held_out_measure "$WORK/runs/hk_s0_step5000_rough_x0.5.pt" "light_residual_metalgate_hk_s0_step5000_fast_1step_rough_x0.5_told_$T" \
     points_measure.num_steps=1 points_measure.told_light=$T
@@ -273,11 +269,14 @@ small_variant polyhaven_capture data.capture_envs=polyhaven
   polyhaven_capture_in_set_128 "$WORK/polyhaven_capture/runs_in_set_128"; }
 # ... and the study's learned candidate on the same inputs (end_to_end.py's PRIORS; finding 33): GS-PI with
 # finding 30's metal-gate prior (seed 0, step 5000, one DDIM step), its job folder named as the others'
-prior_variant() {  # NAME DATA [EXPERIMENT]: results/end_to_end/NAME/method=gspi (EXPERIMENT: demo)
-  [ -d "$RES/end_to_end/$1" ] || { .venv/bin/gspi-run -m data="$2" out="$WORK/$1/runs" +experiment="${3:-demo}" assets=null \
-    logger=none method=gspi stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" \
-    stage2.inference.num_steps=1 "hydra.sweep.subdir='method=gspi'" && \
-    $PY -m experiments.known_light.end_to_end collect "$1" "$WORK/$1/runs"; }
+prior_run() {  # NAME DATA EXPERIMENT CHECKPOINT [overrides]: results/end_to_end/NAME/method=gspi, read as its posterior mean
+  local name=$1 data=$2 experiment=$3 ckpt=$4; shift 4
+  [ -d "$RES/end_to_end/$name" ] || { .venv/bin/gspi-run -m data="$data" out="$WORK/$name/runs" +experiment="$experiment" \
+    logger=none method=gspi stage2.checkpoint="$ckpt" stage2.inference.num_steps=1 "hydra.sweep.subdir='method=gspi'" "$@" && \
+    $PY -m experiments.known_light.end_to_end collect "$name" "$WORK/$name/runs"; }
+}
+prior_variant() {  # NAME DATA [EXPERIMENT]: prior_run with finding 30's prior, assets reconstructed (EXPERIMENT: demo)
+  prior_run "$1" "$2" "${3:-demo}" "$WORK/runs/train_light_residual_metalgate_asset_s0/checkpoint.pt" assets=null
 }
 prior_variant polyhaven_capture_prior "$WORK/polyhaven_capture/data"
 prior_variant pathtraced_prior "$WORK/pathtraced/data"
@@ -289,24 +288,15 @@ prior_variant pathtraced_prior "$WORK/pathtraced/data"
 prior_variant real_objects_prior "$WORK/real/data" real_objects
 # Finding 35's candidate (the held-out-keys prior, its roughness correction halved) through issue 42's
 # end-to-end checks: the 19 real objects (seed 0) and the demo's 4 scenes with its embedded assets (both seeds)
-candidate_run() {  # NAME DATA EXPERIMENT SEED [overrides]: results/end_to_end/NAME/method=gspi
-  local name=$1 data=$2 experiment=$3 seed=$4; shift 4
-  [ -d "$RES/end_to_end/$name" ] || { .venv/bin/gspi-run -m data="$data" out="$WORK/$name/runs" +experiment="$experiment" \
-    logger=none method=gspi stage2.checkpoint="$WORK/runs/hk_s${seed}_step5000_rough_x0.5.pt" stage2.inference.num_steps=1 \
-    "hydra.sweep.subdir='method=gspi'" "$@" && $PY -m experiments.known_light.end_to_end collect "$name" "$WORK/$name/runs"; }
-}
-candidate_run real_objects_hk_x05 "$WORK/real/data" real_objects 0 hydra.launcher.n_jobs=1
-[ -d "$RES/end_to_end/real_objects_hk_x1" ] || { .venv/bin/gspi-run -m data="$WORK/real/data" out="$WORK/real_objects_hk_x1/runs" \
-  +experiment=real_objects logger=none method=gspi stage2.checkpoint="$WORK/runs/train_light_residual_metalgate_hk_s0/checkpoint.pt" \
-  stage2.inference.num_steps=1 "hydra.sweep.subdir='method=gspi'" hydra.launcher.n_jobs=1 && \
-  $PY -m experiments.known_light.end_to_end collect real_objects_hk_x1 "$WORK/real_objects_hk_x1/runs"; }   # as trained
+HK="$WORK/runs/train_light_residual_metalgate_hk_s0/checkpoint.pt"   # finding 34's prior as trained
+prior_run real_objects_hk_x05 "$WORK/real/data" real_objects "$WORK/runs/hk_s0_step5000_rough_x0.5.pt" hydra.launcher.n_jobs=1
+prior_run real_objects_hk_x1 "$WORK/real/data" real_objects "$HK" hydra.launcher.n_jobs=1   # as trained
 [ -f "$WORK/small_demo/data_done" ] || { rm -rf "$WORK/small_demo/data" && .venv/bin/gspi-data preset=small \
   out="$WORK/small_demo/data" seed=0 'data.only_splits=[test]' && touch "$WORK/small_demo/data_done"; }
-for SEED in 0 1; do candidate_run splitsum_hk_x05_s$SEED "$WORK/small_demo/data" demo $SEED hydra.launcher.n_jobs=1; done
-for name in splitsum_hk_x05_m0_s0 real_objects_hk_x05_m0; do  # ... without its metallic correction (seed 0)
-  data="$WORK/small_demo/data" experiment=demo; [ "$name" = splitsum_hk_x05_m0_s0 ] || { data="$WORK/real/data"; experiment=real_objects; }
-  [ -d "$RES/end_to_end/$name" ] || { .venv/bin/gspi-run -m data="$data" out="$WORK/$name/runs" +experiment=$experiment logger=none \
-    method=gspi stage2.checkpoint="$WORK/runs/hk_s0_step5000_rough_x0.5_metal_x0.pt" stage2.inference.num_steps=1 \
-    "hydra.sweep.subdir='method=gspi'" hydra.launcher.n_jobs=1 && $PY -m experiments.known_light.end_to_end collect "$name" "$WORK/$name/runs"; }
+for SEED in 0 1; do
+  prior_run splitsum_hk_x05_s$SEED "$WORK/small_demo/data" demo "$WORK/runs/hk_s${SEED}_step5000_rough_x0.5.pt" hydra.launcher.n_jobs=1
 done
+M0="$WORK/runs/hk_s0_step5000_rough_x0.5_metal_x0.pt"   # ... without its metallic correction (seed 0)
+prior_run splitsum_hk_x05_m0_s0 "$WORK/small_demo/data" demo "$M0" hydra.launcher.n_jobs=1
+prior_run real_objects_hk_x05_m0 "$WORK/real/data" real_objects "$M0" hydra.launcher.n_jobs=1
 $PY -m experiments.known_light.tables

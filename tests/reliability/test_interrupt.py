@@ -41,18 +41,19 @@ HANGING_CLEANUP = textwrap.dedent("""
 """)
 
 
-def start_child(tmp_path: Path, grace_s: float) -> tuple[subprocess.Popen, Path]:
+def start_child(tmp_path: Path, script: str, ready: str, **env: str) -> tuple[subprocess.Popen, Path]:
+    """``python -c script`` (SIGINT at its default, as from a terminal), once it has printed ``ready``."""
     log = tmp_path / "log.txt"
-    env = {**os.environ, "PYTHONPATH": str(REPO), "GSPI_INTERRUPT_GRACE_S": str(grace_s)}
+    env = {**os.environ, "PYTHONPATH": str(REPO), **env}
     fh = open(log, "w")
-    proc = subprocess.Popen([sys.executable, "-c", HANGING_CLEANUP], stdout=fh, stderr=subprocess.STDOUT,
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=fh, stderr=subprocess.STDOUT,
                             env=env, cwd=tmp_path,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
-    while "ready" not in log.read_text():
+    while ready not in log.read_text():
         assert proc.poll() is None, log.read_text()
         assert time.monotonic() < deadline, log.read_text()
-        time.sleep(0.1)
+        time.sleep(0.02)
     return proc, log
 
 
@@ -61,7 +62,7 @@ def interrupted_lines(text: str) -> list[str]:
 
 
 def test_a_hung_clean_up_is_stopped_after_the_grace_time_with_the_stacks_and_one_line(tmp_path):
-    proc, log = start_child(tmp_path, grace_s=2)
+    proc, log = start_child(tmp_path, HANGING_CLEANUP, "ready", GSPI_INTERRUPT_GRACE_S="2")
     sent = time.monotonic()
     proc.send_signal(signal.SIGINT)
     code = proc.wait(timeout=120)
@@ -75,7 +76,7 @@ def test_a_hung_clean_up_is_stopped_after_the_grace_time_with_the_stacks_and_one
 
 
 def test_a_second_ctrl_c_stops_at_once(tmp_path):
-    proc, log = start_child(tmp_path, grace_s=600)
+    proc, log = start_child(tmp_path, HANGING_CLEANUP, "ready", GSPI_INTERRUPT_GRACE_S="600")
     proc.send_signal(signal.SIGINT)
     time.sleep(1.0)
     assert proc.poll() is None, log.read_text()  # hung in its clean-up, the watchdog far off
@@ -165,18 +166,10 @@ IMPORTING_MAIN = textwrap.dedent("""
 
 def test_a_ctrl_c_during_a_deferred_import_waits_for_it_then_stops_the_command(tmp_path):
     (tmp_path / "slow_native.py").write_text(SLOW_IMPORT)
-    log = tmp_path / "log.txt"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(tmp_path)])}
-    with open(log, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-c", IMPORTING_MAIN], stdout=fh, stderr=subprocess.STDOUT,
-                                env=env, cwd=tmp_path,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-        deadline = time.monotonic() + 60
-        while "importing" not in log.read_text():
-            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
-            time.sleep(0.02)
-        proc.send_signal(signal.SIGINT)
-        code = proc.wait(timeout=60)
+    proc, log = start_child(tmp_path, IMPORTING_MAIN, "importing",
+                            PYTHONPATH=os.pathsep.join([str(REPO), str(tmp_path)]))
+    proc.send_signal(signal.SIGINT)
+    code = proc.wait(timeout=60)
     text = log.read_text()
     assert code == EXIT_INTERRUPTED, text
     assert "imported" in text and "interrupted inside the import" not in text, text
